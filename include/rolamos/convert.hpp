@@ -1,0 +1,30 @@
+// Any image OpenImageIO or GDAL reads -> pyramidal tiled BigTIFF, read band by band.
+#pragma once
+
+#include <string>
+
+#include "rolamos/export.hpp"
+#include "rolamos/tiff_writer.hpp"
+
+namespace rolamos {
+
+struct ConvertOptions {
+  std::string input;
+  std::string output;
+  TiffWriteOptions tiff;
+  double cache_mb = 256.0;
+
+  bool IsValid(std::string* error) const;
+};
+
+struct ConvertResult {
+  long long width = 0;
+  long long height = 0;
+  int channels = 0;
+  TiffWriteStats stats;
+  std::string reader;  // "oiio" or "gdal"
+};
+
+ConvertResult ConvertImage(const ConvertOptions& options, const ProgressFn& progress = nullptr);
+
+}  // namespace rolamos

@@ -1,0 +1,30 @@
+// Pixel layouts and codecs shared by the writer, the reader and the CLI.
+#pragma once
+
+#include <string>
+#include <vector>
+
+namespace rolamos {
+
+enum class Compression { kNone, kJpeg, kDeflate, kZstd, kWebp };
+
+// Accepts "none", "jpeg", "deflate", "zstd", "webp" (case-insensitive). Returns false otherwise.
+bool ParseCompression(const std::string& name, Compression* out);
+std::string CompressionName(Compression c);
+std::vector<std::string> CompressionNames();
+bool IsLossless(Compression c);
+
+// Pixels as the library hands them around: cv::Mat in OpenCV's channel order (gray, gray+alpha,
+// BGR, BGRA), 8 or 16 bits per sample. Files store RGB order; the conversion happens at the file.
+struct PixelLayout {
+  long long width = 0;
+  long long height = 0;
+  int channels = 3;  // 1 gray, 2 gray+alpha, 3 colour, 4 colour+alpha
+  int bits = 8;      // 8 or 16
+
+  bool HasAlpha() const { return channels == 2 || channels == 4; }
+  int CvType() const;  // CV_8UC3 and so on
+  bool IsValid(std::string* error) const;
+};
+
+}  // namespace rolamos

@@ -1,0 +1,134 @@
+// The map store: a directory with store.json, patches/NNNNNN.{tif,json} and mosaic.tif.
+// The format is a public contract (docs/store-format.md, version 1). Every write goes to a
+// temporary name and is renamed into place; store.json is written last, so a store that was
+// killed mid-write still opens and lists exactly the patches that were complete.
+#pragma once
+
+#include <array>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "rolamos/georef.hpp"
+
+namespace rolamos {
+
+inline constexpr const char* kStoreFormat = "rolamos-store";
+inline constexpr int kStoreVersion = 1;
+
+using Homography = std::array<double, 9>;  // row-major, source pixel -> target level-0 pixel
+Homography IdentityHomography();
+
+struct Egomotion {
+  std::array<double, 9> R{};
+  std::array<double, 3> t{};
+  std::array<double, 3> n{};
+};
+
+struct FrameRecord {
+  int index = 0;
+  std::string source;
+  Homography frame_to_patch = IdentityHomography();
+  std::optional<Egomotion> egomotion;
+  int matches = 0;
+  int inliers = 0;
+  double ecc = 0.0;
+  std::string status = "stitched";
+  nlohmann::json extra = nlohmann::json::object();  // fields added by later versions, kept as read
+};
+
+struct RejectedFrame {
+  int index = 0;
+  std::string source;
+  std::string reason;
+};
+
+// One patch's sidecar, after Table I of the paper.
+struct PatchSidecar {
+  int id = 0;
+  std::array<long long, 2> size{0, 0};
+  int n_images = 0;
+  std::array<double, 2> offset{0, 0};
+  Homography first_homography = IdentityHomography();
+  Homography last_homography = IdentityHomography();
+  std::optional<Homography> patch_to_global;
+  std::vector<FrameRecord> frames;
+  std::vector<RejectedFrame> rejected;
+  nlohmann::json extra = nlohmann::json::object();
+};
+
+// The global record of Table I.
+struct GlobalRecord {
+  std::array<long long, 2> size{0, 0};
+  std::array<double, 2> offset{0, 0};
+  int n_images = 0;
+  int n_patches = 0;
+  double scale = 1.0;
+  std::optional<Georef> georef;  // written as "crs" and "geotransform"
+};
+
+// JSON <-> records. Parsing validates every field and throws Error("<where>: <problem>").
+nlohmann::json SidecarToJson(const PatchSidecar& sidecar);
+PatchSidecar SidecarFromJson(const nlohmann::json& j, const std::string& where);
+PatchSidecar ParseSidecar(const std::string& text, const std::string& where);
+nlohmann::json GlobalToJson(const GlobalRecord& global);
+GlobalRecord GlobalFromJson(const nlohmann::json& j, const std::string& where);
+
+struct StoreOptions {
+  nlohmann::json camera = nullptr;  // calibration the engine used, if any
+  std::string crs;                  // the survey's CRS (WKT) when known
+};
+
+struct PatchEntry {
+  int id = 0;
+  std::string image;    // relative to the store
+  std::string sidecar;  // relative to the store
+};
+
+class Store {
+ public:
+  // Creates a new store; refuses a path that exists and is not an empty directory.
+  static Store Create(const std::string& dir, const StoreOptions& options = {});
+  // Opens an existing store; throws Error naming the file and the problem.
+  static Store Open(const std::string& dir);
+  static bool LooksLikeStore(const std::string& path);
+
+  const std::string& dir() const { return dir_; }
+  std::string ManifestPath() const;
+  std::string MosaicPath() const;
+  bool HasMosaic() const;
+
+  // Where the image of patch `id` goes; write it (PyramidTiffWriter is atomic), then CommitPatch.
+  std::string PatchImagePath(int id) const;
+  std::string PatchSidecarPath(int id) const;
+  int NextPatchId() const;
+  // Writes the sidecar, then the manifest. The image must already be in place.
+  void CommitPatch(const PatchSidecar& sidecar);
+  // Rewrites the sidecar of a committed patch (global alignment updates it).
+  void UpdateSidecar(const PatchSidecar& sidecar);
+
+  std::vector<PatchEntry> patches() const;
+  PatchSidecar ReadSidecar(int id) const;
+
+  GlobalRecord global() const;
+  void SetGlobal(const GlobalRecord& global);
+  nlohmann::json camera() const;
+  std::string crs() const;
+
+ private:
+  Store() = default;
+  void WriteManifestLocked() const;
+
+  std::string dir_;
+  mutable std::shared_ptr<std::mutex> mutex_ = std::make_shared<std::mutex>();
+  nlohmann::json camera_ = nullptr;
+  std::string crs_;
+  std::vector<PatchEntry> patches_;
+  GlobalRecord global_;
+  nlohmann::json extra_ = nlohmann::json::object();
+};
+
+}  // namespace rolamos

@@ -1,0 +1,64 @@
+// Streaming writer of pyramidal tiled BigTIFF files (store format v1, docs/store-format.md).
+//
+// Level 0 arrives as horizontal bands of `band_height()` rows, top to bottom; the image is never
+// whole in memory. Reduced levels are built on the fly by alpha-aware 2x2 area averaging and kept
+// as compressed tiles in a temporary file until Finish() appends them as reduced-resolution IFDs.
+// Tiles are compressed by libtiff's own codecs on all cores. The file appears under its final
+// name only when Finish() succeeds; a writer destroyed before that removes its temporary files.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+#include "rolamos/georef.hpp"
+#include "rolamos/image_format.hpp"
+
+namespace rolamos {
+
+struct TiffWriteOptions {
+  Compression compression = Compression::kJpeg;
+  int quality = 90;       // JPEG and WebP quality, 1..100
+  int tile_size = 256;    // 256 or 512
+  bool pyramid = true;    // reduced levels down to one tile
+  int threads = 0;        // compression threads; 0 = one per core
+  int zstd_level = 9;     // 1..22
+  int deflate_level = 6;  // 1..9
+
+  bool IsValid(const PixelLayout& layout, std::string* error) const;
+};
+
+struct TiffWriteStats {
+  long long tiles = 0;
+  int levels = 0;
+  long long bytes = 0;
+};
+
+class PyramidTiffWriter {
+ public:
+  // Throws Error when the options do not fit the layout or the file cannot be created.
+  PyramidTiffWriter(const std::string& path, const PixelLayout& layout,
+                    const TiffWriteOptions& options);
+  ~PyramidTiffWriter();
+  PyramidTiffWriter(const PyramidTiffWriter&) = delete;
+  PyramidTiffWriter& operator=(const PyramidTiffWriter&) = delete;
+
+  int band_height() const;
+  // The next band of level 0: band_height() rows (fewer for the last), full width, layout's type.
+  void WriteBand(const cv::Mat& band);
+  void SetGeoref(const Georef& georef);
+  // Writes the reduced levels and the georeference and moves the file to its name.
+  TiffWriteStats Finish();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// Writes an image that is already in memory (small images, tests).
+TiffWriteStats WritePyramidTiff(const std::string& path, const cv::Mat& image,
+                                const TiffWriteOptions& options,
+                                const Georef* georef = nullptr);
+
+}  // namespace rolamos

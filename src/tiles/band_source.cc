@@ -1,0 +1,111 @@
+#include "tiles/band_source.h"
+
+#include <gdal_priv.h>
+
+#include <filesystem>
+
+#include "rolamos/error.hpp"
+#include "rolamos/tiled_image.hpp"
+#include "tiles/gdal_setup.h"
+
+namespace rolamos {
+namespace {
+
+class CacheBandSource : public BandSource {
+ public:
+  explicit CacheBandSource(TiledImage image) : image_(std::move(image)) {
+    const auto& info = image_.info();
+    layout_.width = image_.width();
+    layout_.height = image_.height();
+    layout_.channels = info.channels;
+    layout_.bits = info.bits;
+    georef_ = info.georef;
+    reader_ = "openimageio";
+  }
+  cv::Mat Read(long long y, int rows) override {
+    cv::Mat band(rows, static_cast<int>(layout_.width), layout_.CvType());
+    // Column chunks aligned to the source tiles, decoded on all cores.
+    const int tw = std::max(256, image_.info().levels[0].tile_width);
+    const int chunk = tw * std::max(1, static_cast<int>(layout_.width / tw / 8));
+    const int n = static_cast<int>((layout_.width + chunk - 1) / chunk);
+    cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& r) {
+      for (int i = r.start; i < r.end; ++i) {
+        const int x0 = i * chunk;
+        const int w = std::min<int>(chunk, static_cast<int>(layout_.width) - x0);
+        image_.ReadRegion(0, cv::Rect(x0, static_cast<int>(y), w, rows))
+            .copyTo(band(cv::Rect(x0, 0, w, rows)));
+      }
+    });
+    return band;
+  }
+
+ private:
+  TiledImage image_;
+};
+
+class GdalBandSource : public BandSource {
+ public:
+  GdalBandSource(const std::string& path, double cache_mb) : path_(path) {
+    EnsureGdal();
+    GDALSetCacheMax64(static_cast<GIntBig>(cache_mb * 1024 * 1024));
+    ds_.reset(GDALDataset::Open(path.c_str(), GDAL_OF_RASTER | GDAL_OF_READONLY));
+    if (!ds_) Fail(path, "neither OpenImageIO nor GDAL can read it (" + TakeGdalError() + ")");
+    const int bands = ds_->GetRasterCount();
+    if (bands < 1 || bands > 4)
+      Fail(path, std::to_string(bands) + " bands; 1 to 4 can be converted");
+    const GDALDataType type = ds_->GetRasterBand(1)->GetRasterDataType();
+    if (type != GDT_Byte && type != GDT_UInt16)
+      Fail(path, std::string("samples of type ") + GDALGetDataTypeName(type) +
+                     " cannot be converted (8 or 16-bit unsigned)");
+    layout_.width = ds_->GetRasterXSize();
+    layout_.height = ds_->GetRasterYSize();
+    layout_.channels = bands;
+    layout_.bits = type == GDT_UInt16 ? 16 : 8;
+    georef_ = ReadGeoref(path);
+    reader_ = "gdal";
+    // OpenCV order: B, G, R(, A) from GDAL's R, G, B(, A).
+    map_ = {1};
+    if (bands == 2) map_ = {1, 2};
+    if (bands == 3) map_ = {3, 2, 1};
+    if (bands == 4) map_ = {3, 2, 1, 4};
+  }
+  cv::Mat Read(long long y, int rows) override {
+    cv::Mat band(rows, static_cast<int>(layout_.width), layout_.CvType());
+    const int esize = layout_.bits / 8;
+    const GDALDataType type = layout_.bits == 16 ? GDT_UInt16 : GDT_Byte;
+    if (ds_->RasterIO(GF_Read, 0, static_cast<int>(y), static_cast<int>(layout_.width), rows,
+                      band.data, static_cast<int>(layout_.width), rows, type,
+                      static_cast<int>(map_.size()), map_.data(),
+                      static_cast<GSpacing>(esize) * layout_.channels,
+                      static_cast<GSpacing>(band.step[0]), esize, nullptr) != CE_None)
+      Fail(path_, "rows " + std::to_string(y) + ".." + std::to_string(y + rows) +
+                      " cannot be read: " + TakeGdalError());
+    return band;
+  }
+
+ private:
+  std::string path_;
+  GDALDatasetUniquePtr ds_;
+  std::vector<int> map_;
+};
+
+}  // namespace
+
+std::unique_ptr<BandSource> OpenBandSource(const std::string& path,
+                                           std::shared_ptr<TileCache> cache) {
+  if (!std::filesystem::exists(path)) Fail(path, "no such file");
+  std::string oiio_error;
+  try {
+    return std::make_unique<CacheBandSource>(TiledImage::Open(path, cache));
+  } catch (const Error& e) {
+    oiio_error = e.what();
+  }
+  try {
+    return std::make_unique<GdalBandSource>(path, cache->options().max_memory_mb);
+  } catch (const Error& e) {
+    // Report both readers' reasons: the first is usually the telling one.
+    Fail(path, std::string("cannot be read. OpenImageIO: ") + oiio_error + ". GDAL: " + e.what());
+  }
+}
+
+}  // namespace rolamos

@@ -1,0 +1,26 @@
+// The tags of one level of a store-format TIFF, set the same way on the file being written and
+// on the in-memory TIFFs whose codecs compress its tiles.
+#pragma once
+
+#include <tiffio.h>
+
+#include "rolamos/image_format.hpp"
+#include "rolamos/tiff_writer.hpp"
+
+namespace rolamos {
+
+struct LevelTags {
+  uint32_t width = 0;
+  uint32_t height = 0;
+  bool reduced = false;  // NewSubfileType = 1
+};
+
+// Sets every tag of a level; `for_encoding` adds the pseudo-tags the codec needs when it is fed
+// pixels (JPEG colour conversion, codec levels) rather than raw tiles.
+void SetLevelTags(TIFF* tif, const PixelLayout& layout, const TiffWriteOptions& options,
+                  const LevelTags& level, bool for_encoding);
+
+// Whether JPEG stores this layout as YCbCr (colour without alpha) rather than as plain samples.
+bool UsesYCbCr(const PixelLayout& layout, const TiffWriteOptions& options);
+
+}  // namespace rolamos

@@ -1,0 +1,55 @@
+// Compresses single tiles with libtiff's own codecs, so a tile's bytes are exactly what libtiff
+// would have written, but on any thread: each encoder drives a private in-memory TIFF whose
+// tiles are emptied after every call (the GDAL approach to multi-threaded TIFF compression).
+#pragma once
+
+#include <memory>
+#include <mutex>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "rolamos/image_format.hpp"
+#include "rolamos/tiff_writer.hpp"
+
+namespace rolamos {
+
+class TiffFile;
+
+class TileEncoder {
+ public:
+  TileEncoder(const PixelLayout& layout, const TiffWriteOptions& options);
+  ~TileEncoder();
+  // `tile` is tile_size x tile_size, RGB(A)/gray order as the file stores it, contiguous.
+  std::vector<uint8_t> Encode(const cv::Mat& tile);
+
+ private:
+  void Reset();
+
+  PixelLayout layout_;
+  TiffWriteOptions options_;
+  std::unique_ptr<TiffFile> file_;
+  uint32_t next_tile_ = 0;
+  uint32_t capacity_ = 0;
+  size_t header_size_ = 0;
+};
+
+// A thread-safe set of encoders: one per concurrent caller, created on demand.
+class TileEncoderPool {
+ public:
+  TileEncoderPool(const PixelLayout& layout, const TiffWriteOptions& options)
+      : layout_(layout), options_(options) {}
+  std::vector<uint8_t> Encode(const cv::Mat& tile);
+
+ private:
+  PixelLayout layout_;
+  TiffWriteOptions options_;
+  std::mutex mutex_;
+  std::vector<std::unique_ptr<TileEncoder>> idle_;
+};
+
+// Cuts tile (tx, ty) out of `band` (whose row 0 is the tile row's first row), converts to file
+// channel order, and pads to a full tile by repeating edge pixels (no seams in JPEG at edges).
+cv::Mat CutFileTile(const cv::Mat& band, int tx, int tile_size);
+
+}  // namespace rolamos

@@ -1,0 +1,20 @@
+// File helpers for atomic writes: write to a temporary sibling, then rename into place.
+#pragma once
+
+#include <string>
+
+namespace rolamos {
+
+// A unique temporary name next to `path` (same directory, so rename is atomic).
+std::string TemporarySibling(const std::string& path);
+// Writes `text` to `path` atomically (temporary file, fsync, rename). Throws Error.
+void WriteFileAtomic(const std::string& path, const std::string& text);
+// Reads a whole (small) file; throws Error naming it when missing or larger than `max_bytes`.
+std::string ReadSmallFile(const std::string& path, size_t max_bytes = 64u << 20);
+// Renames, throwing Error with both names on failure.
+void RenameFile(const std::string& from, const std::string& to);
+std::string ToLower(std::string s);
+std::string ToUpper(std::string s);
+std::string Extension(const std::string& path);  // lower-case, with the dot
+
+}  // namespace rolamos

@@ -1,0 +1,40 @@
+// Helpers shared by the tests: scratch directories, generated images, the CLI, shared data.
+#pragma once
+
+#include <string>
+
+#include <opencv2/core.hpp>
+
+namespace rolamos::test {
+
+// A fresh directory under the build's temp area, removed when the object dies.
+class ScratchDir {
+ public:
+  ScratchDir();
+  ~ScratchDir();
+  const std::string& path() const { return path_; }
+  std::string operator/(const std::string& name) const { return path_ + "/" + name; }
+
+ private:
+  std::string path_;
+};
+
+// A textured test image (procedural seafloor), BGR, optionally with a transparent border.
+cv::Mat MakeImage(int width, int height, int channels = 3, int bits = 8, uint32_t seed = 1);
+
+struct CommandResult {
+  int exit_code = -1;
+  std::string output;  // stdout and stderr together
+};
+// Runs the rolamos CLI with `args` (a shell-quoted string).
+CommandResult RunCli(const std::string& args);
+// Runs any shell command.
+CommandResult RunShell(const std::string& command);
+bool HaveCommand(const std::string& name);
+
+// ../shared/data (or $ROLAMOS_SHARED_DATA) when it exists, "" otherwise.
+std::string SharedData();
+
+double Psnr(const cv::Mat& a, const cv::Mat& b);
+
+}  // namespace rolamos::test

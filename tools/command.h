@@ -1,0 +1,39 @@
+// Each subcommand lives in its own file: it declares its switches into an Options struct,
+// validates them, and calls one library function (as COLMAP's and PDAL's commands do).
+#pragma once
+
+#include <CLI/CLI.hpp>
+
+#include <functional>
+#include <string>
+
+#include "rolamos/image_format.hpp"
+#include "rolamos/tiff_writer.hpp"
+
+namespace rolamos::cli {
+
+// Registers a subcommand; `run` is set to the function main() calls when it was chosen.
+using Runner = std::function<int()>;
+void AddConvertCommand(CLI::App& app, Runner* run);
+void AddInfoCommand(CLI::App& app, Runner* run);
+void AddExportCommand(CLI::App& app, Runner* run);
+void AddDemoCommand(CLI::App& app, Runner* run);
+
+// --compression/--quality/--tile shared by every command that writes a TIFF.
+struct TiffSwitches {
+  std::string compression = "jpeg";
+  int quality = 90;
+  int tile = 256;
+  int threads = 0;
+};
+void AddTiffSwitches(CLI::App* cmd, TiffSwitches* s);
+// Throws rolamos::Error for an unknown codec name.
+TiffWriteOptions ToWriteOptions(const TiffSwitches& s);
+
+// "x,y,w,h" -> four numbers; throws rolamos::Error naming the text.
+std::array<double, 4> ParseRegion(const std::string& text);
+
+// Human-readable sizes for summaries.
+std::string FormatBytes(double bytes);
+
+}  // namespace rolamos::cli

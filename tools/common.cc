@@ -1,0 +1,64 @@
+#include <cstdio>
+#include <sstream>
+
+#include "command.h"
+#include "rolamos/error.hpp"
+
+namespace rolamos::cli {
+
+void AddTiffSwitches(CLI::App* cmd, TiffSwitches* s) {
+  cmd->add_option("--compression", s->compression, "none, jpeg, deflate, zstd or webp")
+      ->capture_default_str();
+  cmd->add_option("--quality", s->quality, "JPEG/WebP quality 1..100")->capture_default_str();
+  cmd->add_option("--tile", s->tile, "tile size, 256 or 512")->capture_default_str();
+  cmd->add_option("--threads", s->threads, "compression threads (0 = one per core)")
+      ->capture_default_str();
+}
+
+TiffWriteOptions ToWriteOptions(const TiffSwitches& s) {
+  TiffWriteOptions o;
+  if (!ParseCompression(s.compression, &o.compression)) {
+    std::string names;
+    for (const auto& n : CompressionNames()) names += (names.empty() ? "" : ", ") + n;
+    Fail("--compression", "unknown codec \"" + s.compression + "\" (choose one of " + names + ")");
+  }
+  o.quality = s.quality;
+  o.tile_size = s.tile;
+  o.threads = s.threads;
+  return o;
+}
+
+std::array<double, 4> ParseRegion(const std::string& text) {
+  std::array<double, 4> v{};
+  std::stringstream ss(text);
+  std::string part;
+  int i = 0;
+  while (std::getline(ss, part, ',')) {
+    if (i >= 4) Fail("--region " + text, "expected x,y,w,h (four numbers)");
+    try {
+      size_t used = 0;
+      v[static_cast<size_t>(i)] = std::stod(part, &used);
+      if (used != part.size()) throw std::invalid_argument(part);
+    } catch (const std::exception&) {
+      Fail("--region " + text, "\"" + part + "\" is not a number");
+    }
+    ++i;
+  }
+  if (i != 4) Fail("--region " + text, "expected x,y,w,h (four numbers)");
+  if (v[2] <= 0 || v[3] <= 0) Fail("--region " + text, "width and height must be positive");
+  return v;
+}
+
+std::string FormatBytes(double bytes) {
+  const char* units[] = {"B", "KiB", "MiB", "GiB", "TiB"};
+  int u = 0;
+  while (bytes >= 1024 && u < 4) {
+    bytes /= 1024;
+    ++u;
+  }
+  char buf[32];
+  std::snprintf(buf, sizeof buf, u == 0 ? "%.0f %s" : "%.1f %s", bytes, units[u]);
+  return buf;
+}
+
+}  // namespace rolamos::cli

@@ -1,0 +1,32 @@
+// rolamos: one binary, one subcommand per job. Argument parsing only; the library does the work.
+#include <cstdio>
+
+#include "rolamos/error.hpp"
+#include "rolamos/version.hpp"
+#include "command.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{"rolamos " ROLAMOS_VERSION_STRING
+               ": seafloor maps from downward-looking underwater cameras"};
+  app.set_version_flag("--version", "rolamos " ROLAMOS_VERSION_STRING);
+  app.require_subcommand(1);
+  rolamos::cli::Runner run;
+  rolamos::cli::AddDemoCommand(app, &run);
+  rolamos::cli::AddConvertCommand(app, &run);
+  rolamos::cli::AddInfoCommand(app, &run);
+  rolamos::cli::AddExportCommand(app, &run);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  try {
+    return run ? run() : 2;
+  } catch (const rolamos::Error& e) {
+    std::fprintf(stderr, "rolamos: error: %s\n", e.what());
+    return 1;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "rolamos: internal error: %s\n", e.what());
+    return 3;
+  }
+}
