@@ -7,6 +7,7 @@
 #include <atomic>
 #include <cstdio>
 #include <cstdlib>
+#include <cmath>
 #include <filesystem>
 
 #include <opencv2/imgproc.hpp>
@@ -80,6 +81,28 @@ std::string SharedData() {
   const char* env = std::getenv("ROLAMOS_SHARED_DATA");
   std::string dir = env ? env : std::string(ROLAMOS_SOURCE_DIR) + "/../shared/data";
   return fs::is_directory(dir) ? dir : "";
+}
+
+double MaskedPsnr(const cv::Mat& a, const cv::Mat& b) {
+  const int cn = b.channels();
+  cv::Mat alpha;
+  cv::extractChannel(b, alpha, cn - 1);
+  cv::Mat mask = alpha > 0;
+  double sse = 0;
+  long long n = 0;
+  for (int c = 0; c < cn - 1; ++c) {
+    cv::Mat ca, cb, d;
+    cv::extractChannel(a, ca, c);
+    cv::extractChannel(b, cb, c);
+    ca.convertTo(ca, CV_64F);
+    cb.convertTo(cb, CV_64F);
+    d = ca - cb;
+    d = d.mul(d);
+    sse += cv::sum(d.setTo(0, ~mask))[0];
+    n += cv::countNonZero(mask);
+  }
+  const double peak = b.depth() == CV_16U ? 65535.0 : 255.0;
+  return n == 0 || sse == 0 ? 999.0 : 10 * std::log10(peak * peak / (sse / n));
 }
 
 double Psnr(const cv::Mat& a, const cv::Mat& b) { return cv::PSNR(a, b, a.depth() == CV_16U ? 65535 : 255); }

@@ -36,5 +36,7 @@ bool HaveCommand(const std::string& name);
 std::string SharedData();
 
 double Psnr(const cv::Mat& a, const cv::Mat& b);
+// PSNR of the colour channels where `b`'s alpha (last channel) is non-zero.
+double MaskedPsnr(const cv::Mat& a, const cv::Mat& b);
 
 }  // namespace rolamos::test

@@ -47,7 +47,13 @@ TiffStructure InspectTiff(const std::string& path) {
   std::error_code ec;
   s.file_size = std::filesystem::file_size(path, ec);
   if (ec) Fail(path, "cannot read: " + ec.message());
-  auto file = TiffFile::Open(path, "r");
+  std::unique_ptr<TiffFile> file;
+  try {
+    file = TiffFile::Open(path, "r");
+  } catch (const Error& e) {
+    Fail(path, "is not a readable TIFF (" + std::to_string(s.file_size) +
+                   " bytes: truncated or damaged?): " + std::string(e.what()).substr(path.size() + 2));
+  }
   TIFF* tif = file->get();
   s.bigtiff = TIFFIsBigTIFF(tif) != 0;
   int index = 0;

@@ -116,17 +116,15 @@ void PyramidTiffWriter::Impl::WriteTile(size_t k, long long index,
 void PyramidTiffWriter::Impl::EmitBand(size_t k, const cv::Mat& band) {
   Level& level = levels[k];
   const long long ty = level.rows_done / options.tile_size;
-  // One copy of the band is shared by the tasks that cut, convert and compress its tiles.
-  cv::Mat shared = band.clone();
+  // Tiles are cut here (a copy each), so the band is free again when this returns and queued
+  // work holds no more than its own tiles.
   for (long long tx = 0; tx < level.tiles_x; ++tx) {
     const long long index = ty * level.tiles_x + tx;
-    pool->Submit([this, k, index, tx, shared] {
-      cv::Mat tile = CutFileTile(shared, static_cast<int>(tx), options.tile_size);
-      WriteTile(k, index, encoders->Encode(tile));
-    });
+    cv::Mat tile = CutFileTile(band, static_cast<int>(tx), options.tile_size);
+    pool->Submit([this, k, index, tile] { WriteTile(k, index, encoders->Encode(tile)); });
   }
   level.rows_done += band.rows;
-  if (k + 1 < levels.size()) Append(k + 1, Downsample2x(shared, layout.HasAlpha()));
+  if (k + 1 < levels.size()) Append(k + 1, Downsample2x(band, layout.HasAlpha()));
 }
 
 void PyramidTiffWriter::Impl::Append(size_t k, const cv::Mat& rows) {
@@ -218,7 +216,7 @@ PyramidTiffWriter::PyramidTiffWriter(const std::string& path, const PixelLayout&
   }
   m.encoders = std::make_unique<TileEncoderPool>(layout, options);
   m.pool = std::make_unique<TaskPool>(options.threads,
-                                      static_cast<int>(2 * m.levels[0].tiles_x + 8));
+                                      static_cast<int>(m.levels[0].tiles_x + 8));
 }
 
 PyramidTiffWriter::~PyramidTiffWriter() {

@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Installs what rolamos needs on Debian 12 (when missing) and builds it in Release into build/.
+# Safe to run again: apt-get and the build are skipped when already done.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+PACKAGES=(
+  build-essential cmake ninja-build pkg-config clang-14 libclang-rt-14-dev
+  libopencv-dev libeigen3-dev libtiff-dev libtiff-tools libgdal-dev gdal-bin python3-gdal
+  libopenimageio-dev openimageio-tools libvips-tools
+  libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev nlohmann-json3-dev libcpp-httplib-dev
+  libzstd-dev libwebp-dev libjpeg-dev time
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "setup: installing ${missing[*]}" >&2
+  SUDO=""
+  [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+# clang builds everything so that the libFuzzer targets can be part of the test suite.
+if [ ! -f build/build.ninja ]; then
+  cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release \
+        -DCMAKE_C_COMPILER=clang-14 -DCMAKE_CXX_COMPILER=clang++-14 >/dev/null
+fi
+cmake --build build -j "$(nproc)"
