@@ -61,14 +61,15 @@ int Write(const std::string& raw, long long size, const std::string& out, Compre
   o.compression = c;
   o.quality = quality;
   PyramidTiffWriter writer(out, layout, o);
-  cv::Mat rgb(256, static_cast<int>(size), CV_8UC3), bgr;
+  cv::Mat rgb(256, static_cast<int>(size), CV_8UC3);
   for (long long y = 0; y < size; y += 256) {
     const int rows = static_cast<int>(std::min<long long>(256, size - y));
     const size_t bytes = size_t(rows) * size_t(size) * 3;
     if (::pread(fd, rgb.data, bytes, static_cast<off_t>(y * size * 3)) != static_cast<ssize_t>(bytes))
       return 1;
-    cv::cvtColor(rgb.rowRange(0, rows), bgr, cv::COLOR_RGB2BGR);
-    writer.WriteBand(bgr);
+    cv::Mat band = rgb.rowRange(0, rows);
+    cv::cvtColor(band, band, cv::COLOR_RGB2BGR);
+    writer.WriteBand(band);
   }
   auto stats = writer.Finish();
   ::close(fd);

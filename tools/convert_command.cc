@@ -10,7 +10,7 @@ namespace rolamos::cli {
 struct ConvertSwitches {
   std::string input, output;
   TiffSwitches tiff;
-  double cache_mb = 256;
+  double cache_mb = ConvertOptions{}.cache_mb;
   bool quiet = false;
 };
 

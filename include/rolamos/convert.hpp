@@ -12,7 +12,7 @@ struct ConvertOptions {
   std::string input;
   std::string output;
   TiffWriteOptions tiff;
-  double cache_mb = 256.0;
+  double cache_mb = 16.0;  // reading goes band by band: each tile is decoded once
 
   bool IsValid(std::string* error) const;
 };

@@ -32,8 +32,8 @@ class CacheBandSource : public BandSource {
       for (int i = r.start; i < r.end; ++i) {
         const int x0 = i * chunk;
         const int w = std::min<int>(chunk, static_cast<int>(layout_.width) - x0);
-        image_.ReadRegion(0, cv::Rect(x0, static_cast<int>(y), w, rows))
-            .copyTo(band(cv::Rect(x0, 0, w, rows)));
+        cv::Mat view = band(cv::Rect(x0, 0, w, rows));
+        image_.ReadRegionInto(0, cv::Rect(x0, static_cast<int>(y), w, rows), view);
       }
     });
     return band;

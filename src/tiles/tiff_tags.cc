@@ -35,8 +35,9 @@ void SetLevelTags(TIFF* tif, const PixelLayout& layout, const TiffWriteOptions& 
       break;
     case Compression::kJpeg:
       TIFFSetField(tif, TIFFTAG_COMPRESSION, COMPRESSION_JPEG);
-      // Tables go in every tile: tiles are encoded apart, on several threads.
-      TIFFSetField(tif, TIFFTAG_JPEGTABLESMODE, 0);
+      // Tiles are abbreviated streams; the shared quantisation and standard Huffman tables go
+      // in the JPEGTables tag (SetJpegTables). Standard tables also spare the second, optimising
+      // pass over every tile.
       if (for_encoding) TIFFSetField(tif, TIFFTAG_JPEGQUALITY, options.quality);
       break;
     case Compression::kDeflate:
@@ -61,6 +62,11 @@ void SetLevelTags(TIFF* tif, const PixelLayout& layout, const TiffWriteOptions& 
   } else {
     TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, colour ? PHOTOMETRIC_RGB : PHOTOMETRIC_MINISBLACK);
   }
+}
+
+void SetJpegTables(TIFF* tif, const std::vector<uint8_t>& tables) {
+  if (!tables.empty())
+    TIFFSetField(tif, TIFFTAG_JPEGTABLES, static_cast<uint32_t>(tables.size()), tables.data());
 }
 
 }  // namespace rolamos

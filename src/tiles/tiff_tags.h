@@ -4,6 +4,8 @@
 
 #include <tiffio.h>
 
+#include <vector>
+
 #include "rolamos/image_format.hpp"
 #include "rolamos/tiff_writer.hpp"
 
@@ -19,6 +21,9 @@ struct LevelTags {
 // pixels (JPEG colour conversion, codec levels) rather than raw tiles.
 void SetLevelTags(TIFF* tif, const PixelLayout& layout, const TiffWriteOptions& options,
                   const LevelTags& level, bool for_encoding);
+
+// The JPEGTables of a JPEG level (from TileEncoder::JpegTables), shared by all its tiles.
+void SetJpegTables(TIFF* tif, const std::vector<uint8_t>& tables);
 
 // Whether JPEG stores this layout as YCbCr (colour without alpha) rather than as plain samples.
 bool UsesYCbCr(const PixelLayout& layout, const TiffWriteOptions& options);

@@ -75,6 +75,7 @@ struct PyramidTiffWriter::Impl {
   uint64_t spill_size = 0;
   std::vector<Level> levels;
   std::unique_ptr<TileEncoderPool> encoders;
+  std::vector<uint8_t> jpeg_tables;
   std::unique_ptr<TaskPool> pool;
   std::optional<Georef> georef;
   bool finished = false;
@@ -215,8 +216,12 @@ PyramidTiffWriter::PyramidTiffWriter(const std::string& path, const PixelLayout&
     }
   }
   m.encoders = std::make_unique<TileEncoderPool>(layout, options);
-  m.pool = std::make_unique<TaskPool>(options.threads,
-                                      static_cast<int>(m.levels[0].tiles_x + 8));
+  m.jpeg_tables = m.encoders->JpegTables();
+  SetJpegTables(m.file->get(), m.jpeg_tables);
+  // About one tile row of queued tiles: enough for the workers to ride out the main thread's
+  // downsampling bursts, little enough to keep memory at a band's worth.
+  m.pool = std::make_unique<TaskPool>(
+      options.threads, static_cast<int>(std::clamp<long long>(m.levels[0].tiles_x / 2 + 8, 24, 96)));
 }
 
 PyramidTiffWriter::~PyramidTiffWriter() {
@@ -268,6 +273,7 @@ TiffWriteStats PyramidTiffWriter::Finish() {
     tags.height = static_cast<uint32_t>(m.levels[k].height);
     tags.reduced = true;
     SetLevelTags(tif, m.layout, m.options, tags, /*for_encoding=*/false);
+    SetJpegTables(tif, m.jpeg_tables);
     m.CopySpilledLevel(k);
   }
   m.file->Close();

@@ -51,20 +51,47 @@ std::vector<uint8_t> TileEncoder::Encode(const cv::Mat& tile) {
   return out;
 }
 
-std::vector<uint8_t> TileEncoderPool::Encode(const cv::Mat& tile) {
-  std::unique_ptr<TileEncoder> encoder;
+std::vector<uint8_t> TileEncoder::JpegTables() {
+  if (options_.compression != Compression::kJpeg) return {};
+  if (next_tile_ == 0)
+    Encode(cv::Mat::zeros(options_.tile_size, options_.tile_size, layout_.CvType()));
+  uint32_t count = 0;
+  void* data = nullptr;
+  if (!TIFFGetField(file_->get(), TIFFTAG_JPEGTABLES, &count, &data) || !data)
+    Fail("tile encoder", "libtiff made no JPEG tables");
+  const auto* bytes = static_cast<const uint8_t*>(data);
+  return std::vector<uint8_t>(bytes, bytes + count);
+}
+
+std::unique_ptr<TileEncoder> TileEncoderPool::Take() {
   {
     std::lock_guard<std::mutex> lock(mutex_);
     if (!idle_.empty()) {
-      encoder = std::move(idle_.back());
+      auto encoder = std::move(idle_.back());
       idle_.pop_back();
+      return encoder;
     }
   }
-  if (!encoder) encoder = std::make_unique<TileEncoder>(layout_, options_);
-  auto bytes = encoder->Encode(tile);
+  return std::make_unique<TileEncoder>(layout_, options_);
+}
+
+void TileEncoderPool::Give(std::unique_ptr<TileEncoder> encoder) {
   std::lock_guard<std::mutex> lock(mutex_);
   idle_.push_back(std::move(encoder));
+}
+
+std::vector<uint8_t> TileEncoderPool::Encode(const cv::Mat& tile) {
+  auto encoder = Take();
+  auto bytes = encoder->Encode(tile);
+  Give(std::move(encoder));
   return bytes;
+}
+
+std::vector<uint8_t> TileEncoderPool::JpegTables() {
+  auto encoder = Take();
+  auto tables = encoder->JpegTables();
+  Give(std::move(encoder));
+  return tables;
 }
 
 cv::Mat CutFileTile(const cv::Mat& band, int tx, int tile_size) {

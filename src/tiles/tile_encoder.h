@@ -22,6 +22,9 @@ class TileEncoder {
   ~TileEncoder();
   // `tile` is tile_size x tile_size, RGB(A)/gray order as the file stores it, contiguous.
   std::vector<uint8_t> Encode(const cv::Mat& tile);
+  // JPEG only: the tables every tile's abbreviated stream refers to (the same for every
+  // encoder of these options). Encodes a blank tile first if nothing was encoded yet.
+  std::vector<uint8_t> JpegTables();
 
  private:
   void Reset();
@@ -40,8 +43,12 @@ class TileEncoderPool {
   TileEncoderPool(const PixelLayout& layout, const TiffWriteOptions& options)
       : layout_(layout), options_(options) {}
   std::vector<uint8_t> Encode(const cv::Mat& tile);
+  std::vector<uint8_t> JpegTables();
 
  private:
+  std::unique_ptr<TileEncoder> Take();
+  void Give(std::unique_ptr<TileEncoder> encoder);
+
   PixelLayout layout_;
   TiffWriteOptions options_;
   std::mutex mutex_;

@@ -107,6 +107,12 @@ int TiledImage::cv_type() const {
 }
 
 cv::Mat TiledImage::ReadRegion(int level, const cv::Rect& region) const {
+  cv::Mat out(std::max(0, region.height), std::max(0, region.width), cv_type());
+  ReadRegionInto(level, region, out);
+  return out;
+}
+
+void TiledImage::ReadRegionInto(int level, const cv::Rect& region, cv::Mat& out) const {
   const auto& info = impl_->info;
   if (level < 0 || level >= num_levels())
     Fail(info.path, "level " + std::to_string(level) + " does not exist (levels 0.." +
@@ -119,20 +125,19 @@ cv::Mat TiledImage::ReadRegion(int level, const cv::Rect& region) const {
                         std::to_string(region.width) + "," + std::to_string(region.height) +
                         " is outside level " + std::to_string(level) + " (" +
                         std::to_string(l.width) + "x" + std::to_string(l.height) + ")");
-  cv::Mat out(region.height, region.width, cv_type());
+  CV_Assert(out.rows == region.height && out.cols == region.width && out.type() == cv_type());
   auto* ic = Native(impl_->cache);
   const auto [subimage, miplevel] = impl_->oiio_index[static_cast<size_t>(level)];
   const OIIO::TypeDesc type = info.bits == 16 ? OIIO::TypeDesc::UINT16 : OIIO::TypeDesc::UINT8;
   if (!ic->get_pixels(impl_->name, subimage, miplevel, region.x, region.x + region.width,
                       region.y, region.y + region.height, 0, 1, 0, info.channels, type,
-                      out.data))
+                      out.data, OIIO::AutoStride, static_cast<OIIO::stride_t>(out.step[0])))
     Fail(info.path, "level " + std::to_string(level) + " region " + std::to_string(region.x) +
                         "," + std::to_string(region.y) + "," + std::to_string(region.width) +
                         "," + std::to_string(region.height) +
                         " cannot be decoded: " + OiioError(ic));
   if (info.channels == 3) cv::cvtColor(out, out, cv::COLOR_RGB2BGR);
   if (info.channels == 4) cv::cvtColor(out, out, cv::COLOR_RGBA2BGRA);
-  return out;
 }
 
 int TiledImage::LevelForScale(double scale) const {
@@ -174,17 +179,19 @@ cv::Mat TiledImage::ReadResampled(double x0, double y0, double scale, cv::Size o
   if (exact && bx >= 0 && by >= 0 && std::round(ux1) < l.width && std::round(uy1) < l.height)
     return ReadRegion(level, cv::Rect(static_cast<int>(std::lround(bx)),
                                       static_cast<int>(std::lround(by)), out.width, out.height));
-  const long long rx0 = std::clamp<long long>(static_cast<long long>(std::floor(ux0)) - 1, 0, l.width - 1);
-  const long long ry0 = std::clamp<long long>(static_cast<long long>(std::floor(uy0)) - 1, 0, l.height - 1);
-  const long long rx1 = std::clamp<long long>(static_cast<long long>(std::ceil(ux1)) + 2, rx0 + 1, l.width);
-  const long long ry1 = std::clamp<long long>(static_cast<long long>(std::ceil(uy1)) + 2, ry0 + 1, l.height);
+  // Shrinking by up to 2x: a light pre-filter keeps linear interpolation from aliasing. The
+  // region read has margins wider than that filter, so windows read apart agree with one read.
+  const double a = std::max(ax, ay);
+  const double sigma = a > 1.0 ? 0.5 * std::sqrt(a * a - 1.0) : 0.0;
+  const long long margin = 2 + static_cast<long long>(std::ceil(3 * sigma));
+  const long long rx0 = std::clamp<long long>(static_cast<long long>(std::floor(ux0)) - margin, 0, l.width - 1);
+  const long long ry0 = std::clamp<long long>(static_cast<long long>(std::floor(uy0)) - margin, 0, l.height - 1);
+  const long long rx1 = std::clamp<long long>(static_cast<long long>(std::ceil(ux1)) + margin + 1, rx0 + 1, l.width);
+  const long long ry1 = std::clamp<long long>(static_cast<long long>(std::ceil(uy1)) + margin + 1, ry0 + 1, l.height);
   cv::Mat pixels = ReadRegion(level, cv::Rect(static_cast<int>(rx0), static_cast<int>(ry0),
                                               static_cast<int>(rx1 - rx0),
                                               static_cast<int>(ry1 - ry0)));
   cv::Mat m = (cv::Mat_<double>(2, 3) << ax, 0, bx - rx0, 0, ay, by - ry0);
-  // Shrinking by up to 2x: a light pre-filter keeps linear interpolation from aliasing.
-  const double a = std::max(ax, ay);
-  const double sigma = a > 1.0 ? 0.5 * std::sqrt(a * a - 1.0) : 0.0;
   return WarpRespectingAlpha(pixels, m, out, info().has_alpha, sigma);
 }
 

@@ -1,0 +1,123 @@
+// The rolamos binary as a user runs it: each subcommand's happy path and its bad-input errors
+// (clear message naming the file, non-zero exit, nothing half-written).
+#include <filesystem>
+#include <fstream>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "rolamos/tiled_image.hpp"
+#include "test_support.h"
+
+namespace rolamos {
+namespace {
+
+using test::RunCli;
+using test::ScratchDir;
+namespace fs = std::filesystem;
+
+TEST(Cli, DemoInfoExport) {
+  ScratchDir dir;
+  const std::string store = dir / "d.rolamos";
+  auto r = RunCli("demo -q --size 1500 -o " + store);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("wrote a 1500 x 1500"), std::string::npos) << r.output;
+  r = RunCli("info " + store);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("patch 1: 1500 x 1500"), std::string::npos) << r.output;
+  r = RunCli("info --json " + store);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  auto j = nlohmann::json::parse(r.output);
+  EXPECT_EQ(j["patches"][0]["levels"], 4);
+  r = RunCli("export -q " + store + " --region 100,200,300,250 -o " + (dir / "r.png"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(cv::imread(dir / "r.png").size(), cv::Size(300, 250));
+  r = RunCli("export -q " + store + " --scale 0.1 -o " + (dir / "o.jpg"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(cv::imread(dir / "o.jpg").size(), cv::Size(150, 150));
+  r = RunCli("export -q " + store + " --level 2 --region 0,0,1500,1500 -o " + (dir / "l2.tif") +
+             " --compression deflate");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(TiledImage::Open(dir / "l2.tif").width(), 375);
+}
+
+TEST(Cli, ConvertFromOiioAndFromGdalOnlyFormats) {
+  ScratchDir dir;
+  cv::Mat image = test::MakeImage(1400, 900);
+  cv::imwrite(dir / "in.png", image);
+  auto r = RunCli("convert -q " + (dir / "in.png") + " -o " + (dir / "a.tif") + " --compression zstd");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(cv::norm(TiledImage::Open(dir / "a.tif").ReadRegion(0, cv::Rect(0, 0, 1400, 900)),
+                     image, cv::NORM_INF),
+            0.0);
+  if (!test::HaveCommand("gdal_translate")) GTEST_SKIP() << "gdal_translate not installed";
+  // ENVI: a raster only GDAL reads; georeferenced, so the output must carry it.
+  r = test::RunShell("gdal_translate -q -of ENVI -a_srs EPSG:32755 -a_ullr 500000 5200100 500140 5200010 " +
+                     (dir / "in.png") + " " + (dir / "in.envi"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = RunCli("convert -q " + (dir / "in.envi") + " -o " + (dir / "b.tif") + " --compression deflate");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  TiledImage b = TiledImage::Open(dir / "b.tif");
+  EXPECT_EQ(cv::norm(b.ReadRegion(0, cv::Rect(0, 0, 1400, 900)), image, cv::NORM_INF), 0.0);
+  ASSERT_TRUE(b.info().georef.has_value());
+  EXPECT_DOUBLE_EQ(b.info().georef->geotransform[0], 500000);
+  EXPECT_NEAR(b.info().georef->geotransform[1], 0.1, 1e-9);
+}
+
+TEST(Cli, CogExportValidates) {
+  if (test::RunShell("/usr/bin/python3 -c 'import osgeo_utils.samples.validate_cloud_optimized_geotiff'")
+          .exit_code != 0)
+    GTEST_SKIP() << "python3-gdal not installed";
+  ScratchDir dir;
+  ASSERT_EQ(RunCli("demo -q --size 1200 -o " + (dir / "d.rolamos")).exit_code, 0);
+  auto r = RunCli("export -q " + (dir / "d.rolamos") + " --cog -o " + (dir / "c.tif"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = test::RunShell("/usr/bin/python3 -m osgeo_utils.samples.validate_cloud_optimized_geotiff " +
+                     (dir / "c.tif"));
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+}
+
+struct BadCase {
+  std::string args;      // {dir} is replaced
+  std::string expected;  // in the message
+};
+
+TEST(Cli, BadInputGivesAClearErrorAndNonZeroExit) {
+  ScratchDir dir;
+  ASSERT_EQ(RunCli("demo -q --size 700 -o " + (dir / "d.rolamos")).exit_code, 0);
+  std::ofstream(dir / "junk.tif") << "junk";
+  fs::create_directories(dir / "plain");
+  fs::copy_file(dir / "d.rolamos/patches/000001.tif", dir / "cut.tif");
+  fs::resize_file(dir / "cut.tif", fs::file_size(dir / "cut.tif") / 2);
+  const std::vector<BadCase> cases = {
+      {"convert {dir}/missing.png -o {dir}/x.tif", "missing.png: no such file"},
+      {"convert {dir}/junk.tif -o {dir}/x.tif", "junk.tif"},
+      {"convert {dir}/d.rolamos/patches/000001.tif -o {dir}/x.tif --compression lzw9",
+       "unknown codec \"lzw9\""},
+      {"convert {dir}/d.rolamos/patches/000001.tif -o {dir}/x.tif --tile 100", "tile size 100"},
+      {"info {dir}/plain", "is a directory"},
+      {"info {dir}/cut.tif", "truncated"},
+      {"export {dir}/d.rolamos --region 600,600,200,200 -o {dir}/x.png", "outside the image"},
+      {"export {dir}/d.rolamos --region 1,2,3 -o {dir}/x.png", "four numbers"},
+      {"export {dir}/d.rolamos --scale 0 -o {dir}/x.png", "scale"},
+      {"export {dir}/d.rolamos --patch 7 -o {dir}/x.png", "has no patch 7"},
+      {"export {dir}/d.rolamos -o {dir}/x.gif", "unknown extension"},
+      {"demo -q --size 700 -o {dir}/d.rolamos", "already a store"},
+      {"demo -q --size 0 -o {dir}/new.rolamos", "demo size 0"},
+  };
+  for (const auto& c : cases) {
+    std::string args = c.args;
+    for (size_t p; (p = args.find("{dir}")) != std::string::npos;) args.replace(p, 5, dir.path());
+    auto r = RunCli(args);
+    EXPECT_NE(r.exit_code, 0) << args;
+    EXPECT_LT(r.exit_code, 3) << args << "\n" << r.output;  // 3 = internal error, 128+ = crash
+    EXPECT_NE(r.output.find(c.expected), std::string::npos) << args << "\n" << r.output;
+  }
+  EXPECT_FALSE(fs::exists(dir / "x.tif"));
+  EXPECT_FALSE(fs::exists(dir / "x.png"));
+  EXPECT_FALSE(fs::exists(dir / "new.rolamos/store.json"));
+}
+
+}  // namespace
+}  // namespace rolamos
