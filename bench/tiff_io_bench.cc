@@ -83,6 +83,7 @@ int Read(const std::string& tif, int samples, double cache_mb) {
   co.max_memory_mb = cache_mb;
   auto cache = std::make_shared<TileCache>(co);
   TiledImage image = TiledImage::Open(tif, cache);
+  const double baseline_mb = CurrentRssMb();  // libraries loaded, nothing cached yet
   std::mt19937 rng(42);
   auto random_rects = [&](long long span_w, long long span_h, int n) {
     std::vector<cv::Rect> rects;
@@ -112,9 +113,10 @@ int Read(const std::string& tif, int samples, double cache_mb) {
     return v[std::min(v.size() - 1, static_cast<size_t>(p * v.size()))];
   };
   std::printf("{\"cold_median_ms\": %.3f, \"cold_p99_ms\": %.3f, \"warm_median_ms\": %.3f, "
-              "\"warm_p99_ms\": %.3f, \"cache_mb\": %.0f, \"peak_rss_mb\": %.1f}\n",
+              "\"warm_p99_ms\": %.3f, \"cache_mb\": %.0f, \"peak_rss_mb\": %.1f, "
+              "\"baseline_rss_mb\": %.1f, \"growth_mb\": %.1f}\n",
               pct(cold, 0.5), pct(cold, 0.99), pct(warm, 0.5), pct(warm, 0.99), cache_mb,
-              PeakRssMb());
+              PeakRssMb(), baseline_mb, PeakRssMb() - baseline_mb);
   return 0;
 }
 

@@ -65,6 +65,35 @@ TEST(Cli, ConvertFromOiioAndFromGdalOnlyFormats) {
   EXPECT_NEAR(b.info().georef->geotransform[1], 0.1, 1e-9);
 }
 
+TEST(Cli, ConvertStreamsTiledTiffsOfAnyTiling) {
+  if (!test::HaveCommand("gdal_translate")) GTEST_SKIP() << "gdal_translate not installed";
+  ScratchDir dir;
+  cv::Mat image = test::MakeImage(1700, 1100);
+  cv::imwrite(dir / "in.png", image);
+  struct Input {
+    std::string options;
+    double min_psnr;  // 0: must be exact
+  };
+  const std::vector<Input> inputs = {
+      {"-co TILED=YES -co BLOCKXSIZE=128 -co BLOCKYSIZE=384 -co COMPRESS=ZSTD", 0},
+      {"-co TILED=YES -co BLOCKXSIZE=512 -co BLOCKYSIZE=512 -co COMPRESS=JPEG -co PHOTOMETRIC=YCBCR", 36},
+      {"-co TILED=NO -co COMPRESS=DEFLATE", 0},  // strips: read through the tile cache
+  };
+  for (const auto& in : inputs) {
+    auto r = test::RunShell("gdal_translate -q " + in.options + " " + (dir / "in.png") + " " +
+                            (dir / "src.tif"));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    r = RunCli("convert -q " + (dir / "src.tif") + " -o " + (dir / "out.tif") + " --compression zstd");
+    ASSERT_EQ(r.exit_code, 0) << in.options << "\n" << r.output;
+    cv::Mat back = TiledImage::Open(dir / "out.tif", std::make_shared<TileCache>())
+                       .ReadRegion(0, cv::Rect(0, 0, 1700, 1100));
+    if (in.min_psnr == 0)
+      EXPECT_EQ(cv::norm(back, image, cv::NORM_INF), 0.0) << in.options;
+    else
+      EXPECT_GE(test::Psnr(back, image), in.min_psnr) << in.options;
+  }
+}
+
 TEST(Cli, CogExportValidates) {
   if (test::RunShell("/usr/bin/python3 -c 'import osgeo_utils.samples.validate_cloud_optimized_geotiff'")
           .exit_code != 0)

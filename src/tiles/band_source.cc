@@ -7,6 +7,10 @@
 #include "rolamos/error.hpp"
 #include "rolamos/tiled_image.hpp"
 #include "tiles/gdal_setup.h"
+#include "tiles/tiff_file.h"
+#include "tiles/tiff_inspect.h"
+
+#include <opencv2/imgproc.hpp>
 
 namespace rolamos {
 namespace {
@@ -41,6 +45,70 @@ class CacheBandSource : public BandSource {
 
  private:
   TiledImage image_;
+};
+
+// Tiled TIFFs are streamed with libtiff directly, one handle per core: the tile cache decodes a
+// file on one thread at a time, and a sequential pass reads each tile once, so it gains nothing.
+class TiffBandSource : public BandSource {
+ public:
+  TiffBandSource(const std::string& path, const TiffDirectory& d, std::optional<Georef> georef)
+      : path_(path), dir_(d) {
+    layout_.width = d.width;
+    layout_.height = d.height;
+    layout_.channels = d.samples;
+    layout_.bits = d.bits;
+    georef_ = std::move(georef);
+    reader_ = "libtiff";
+    const int n = std::max(1, cv::getNumThreads());
+    for (int i = 0; i < n; ++i) {
+      handles_.push_back(TiffFile::Open(path, "rm"));  // "m": read, not map: RSS stays small
+      if (d.photometric == PHOTOMETRIC_YCBCR && d.compression == COMPRESSION_JPEG)
+        TIFFSetField(handles_.back()->get(), TIFFTAG_JPEGCOLORMODE, JPEGCOLORMODE_RGB);
+    }
+  }
+  static bool Supports(const TiffDirectory& d) {
+    return d.tiled && d.planar == PLANARCONFIG_CONTIG && d.sample_format == SAMPLEFORMAT_UINT &&
+           (d.bits == 8 || d.bits == 16) && d.samples >= 1 && d.samples <= 4 &&
+           (d.photometric == PHOTOMETRIC_MINISBLACK || d.photometric == PHOTOMETRIC_RGB ||
+            (d.photometric == PHOTOMETRIC_YCBCR && d.compression == COMPRESSION_JPEG)) &&
+           d.missing_tiles == 0;
+  }
+  cv::Mat Read(long long y, int rows) override {
+    cv::Mat band(rows, static_cast<int>(layout_.width), layout_.CvType());
+    const int tw = static_cast<int>(dir_.tile_width), th = static_cast<int>(dir_.tile_height);
+    const int tiles_x = static_cast<int>((layout_.width + tw - 1) / tw);
+    const int n = static_cast<int>(handles_.size());
+    cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& r) {
+      for (int part = r.start; part < r.end; ++part) {
+        TiffFile& file = *handles_[static_cast<size_t>(part)];
+        cv::Mat tile(th, tw, layout_.CvType());
+        for (int tx = part * tiles_x / n; tx < (part + 1) * tiles_x / n; ++tx) {
+          // A band may start inside a tile row (other tile heights than ours): copy the overlap.
+          for (long long ty0 = (y / th) * th; ty0 < y + rows; ty0 += th) {
+            const uint32_t index = TIFFComputeTile(file.get(), static_cast<uint32_t>(tx * tw),
+                                                   static_cast<uint32_t>(ty0), 0, 0);
+            if (TIFFReadEncodedTile(file.get(), index, tile.data,
+                                    static_cast<tmsize_t>(tile.total() * tile.elemSize())) < 0)
+              Fail(path_, "tile " + std::to_string(index) + " cannot be decoded: " +
+                              file.TakeError());
+            const int x0 = tx * tw, w = std::min<int>(tw, static_cast<int>(layout_.width) - x0);
+            const long long r0 = std::max(ty0, y), r1 = std::min(ty0 + th, y + rows);
+            cv::Mat src = tile(cv::Rect(0, static_cast<int>(r0 - ty0), w, static_cast<int>(r1 - r0)));
+            cv::Mat dst = band(cv::Rect(x0, static_cast<int>(r0 - y), w, static_cast<int>(r1 - r0)));
+            if (layout_.channels == 3) cv::cvtColor(src, dst, cv::COLOR_RGB2BGR);
+            else if (layout_.channels == 4) cv::cvtColor(src, dst, cv::COLOR_RGBA2BGRA);
+            else src.copyTo(dst);
+          }
+        }
+      }
+    }, n);
+    return band;
+  }
+
+ private:
+  std::string path_;
+  TiffDirectory dir_;
+  std::vector<std::unique_ptr<TiffFile>> handles_;
 };
 
 class GdalBandSource : public BandSource {
@@ -94,6 +162,12 @@ class GdalBandSource : public BandSource {
 std::unique_ptr<BandSource> OpenBandSource(const std::string& path,
                                            std::shared_ptr<TileCache> cache) {
   if (!std::filesystem::exists(path)) Fail(path, "no such file");
+  if (HasTiffSignature(path)) {
+    TiffStructure s = InspectTiff(path);  // refuses truncated and implausible files first
+    const TiffDirectory& d0 = s.directories[static_cast<size_t>(s.levels[0])];
+    if (TiffBandSource::Supports(d0))
+      return std::make_unique<TiffBandSource>(path, d0, ReadGeoref(path));
+  }
   std::string oiio_error;
   try {
     return std::make_unique<CacheBandSource>(TiledImage::Open(path, cache));

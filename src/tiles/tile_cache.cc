@@ -27,9 +27,10 @@ TileCache::TileCache(const TileCacheOptions& options) : options_(options) {
   if (!options.IsValid(&error)) Fail("tile cache", error);
   static std::once_flag once;
   std::call_once(once, [] {
-    // Mosaics may exceed OIIO's default plausibility cap on total image size; tiles are checked
-    // one by one (tiff_inspect) instead.
-    OIIO::attribute("limits:imagesize_MB", 1 << 30);
+    // OpenImageIO refuses TIFFs whose whole size passes this cap (32 GB by default), and a
+    // full-resolution mosaic can: allow 1 TB. Allocations stay per tile, and tiff_inspect
+    // refuses impossible tiles and sides before OpenImageIO sees the file.
+    OIIO::attribute("limits:imagesize_MB", 1 << 20);
   });
   auto* ic = OIIO::ImageCache::create(/*shared=*/false);
   ic->attribute("max_memory_MB", static_cast<float>(options.max_memory_mb));
