@@ -1,0 +1,126 @@
+#include "synth/camera_path.h"
+
+#include <cmath>
+#include <random>
+
+namespace rolamos {
+namespace {
+
+// Smooth noise in [-1, 1] along the path: a sum of a few slow sines with random phases.
+struct Wobble {
+  double phase[3], freq[3];
+  explicit Wobble(std::mt19937& rng) {
+    std::uniform_real_distribution<double> p(0, 2 * CV_PI), f(0.03, 0.12);
+    for (int i = 0; i < 3; ++i) {
+      phase[i] = p(rng);
+      freq[i] = f(rng) / (i + 1);
+    }
+  }
+  double operator()(double t) const {
+    double v = 0;
+    for (int i = 0; i < 3; ++i) v += std::sin(freq[i] * t + phase[i]) / 3.0;
+    return v;
+  }
+};
+
+double WrapAngle(double a) {
+  while (a > CV_PI) a -= 2 * CV_PI;
+  while (a < -CV_PI) a += 2 * CV_PI;
+  return a;
+}
+
+}  // namespace
+
+cv::Matx33d WorldToFrame(const CameraPose& pose, const cv::Matx33d& K) {
+  // World: x right, y down (texture axes), z into the seafloor; the camera sits at z = -altitude
+  // looking along +z, so with no rotation its axes are the world's (no mirror).
+  const double cr = std::cos(pose.roll), sr = std::sin(pose.roll);
+  const double cp = std::cos(pose.pitch), sp = std::sin(pose.pitch);
+  const double cy = std::cos(pose.yaw), sy = std::sin(pose.yaw);
+  const cv::Matx33d Rx(1, 0, 0, 0, cr, -sr, 0, sr, cr);
+  const cv::Matx33d Ry(cp, 0, sp, 0, 1, 0, -sp, 0, cp);
+  // Yaw turns the camera about the vertical; world->camera is the inverse rotation.
+  const cv::Matx33d Rz(cy, sy, 0, -sy, cy, 0, 0, 0, 1);
+  const cv::Matx33d R = Rx * Ry * Rz;
+  const cv::Vec3d C(pose.position[0], pose.position[1], -pose.position[2]);
+  const cv::Vec3d t = -(R * C);
+  const cv::Matx33d M(R(0, 0), R(0, 1), t[0], R(1, 0), R(1, 1), t[1], R(2, 0), R(2, 1), t[2]);
+  return K * M;
+}
+
+std::vector<CameraPose> PlanCameraPath(const SurveyOptions& o, const cv::Rect2d& area) {
+  std::mt19937 rng(o.seed * 7919u + 13u);
+  const double altitude = o.focal_px * o.gsd;
+  // Footprint on the texture at nominal altitude; the camera moves along its own y axis.
+  const double foot_w = o.frame_width * o.gsd, foot_h = o.frame_height * o.gsd;
+  const double step = foot_h * (1.0 - o.forward_overlap);
+  std::vector<cv::Vec3d> xy_yaw;  // x, y, yaw
+
+  if (o.path == "lawnmower") {
+    // Lanes run along x (the frame's "forward" is its -y axis, so yaw = -90 deg for +x).
+    const double lane_gap = foot_w * (1.0 - o.side_overlap);
+    int lanes = std::max(1, static_cast<int>(std::floor(area.height / lane_gap)) + 1);
+    const double lane_len = area.width;
+    const int per_lane = std::max(2, static_cast<int>(lane_len / step));
+    const int turn_frames = 6;
+    int n = 0;
+    for (int lane = 0; n < o.frames; lane = (lane + 1) % lanes) {
+      const bool forward = lane % 2 == 0;
+      const double y = area.y + std::min(area.height, lane * lane_gap);
+      const double yaw = forward ? -CV_PI / 2 : CV_PI / 2;
+      for (int i = 0; i < per_lane && n < o.frames; ++i, ++n) {
+        const double s = i * lane_len / (per_lane - 1);
+        xy_yaw.emplace_back(forward ? area.x + s : area.x + lane_len - s, y, yaw);
+      }
+      // A gradual half-turn while side-stepping to the next lane.
+      const double next_y = area.y + std::min(area.height, ((lane + 1) % lanes) * lane_gap);
+      for (int k = 1; k < turn_frames && n < o.frames; ++k, ++n) {
+        const double f = double(k) / turn_frames;
+        const double x = forward ? area.x + lane_len : area.x;
+        xy_yaw.emplace_back(x, y + (next_y - y) * f, yaw + (forward ? CV_PI : -CV_PI) * f);
+      }
+    }
+  } else if (o.path == "spiral") {
+    const cv::Point2d c(area.x + area.width / 2, area.y + area.height / 2);
+    const double max_r = std::min(area.width, area.height) / 2;
+    const double ring_gap = foot_w * (1.0 - o.side_overlap);
+    double theta = 0, r = 0;
+    for (int n = 0; n < o.frames; ++n) {
+      xy_yaw.emplace_back(c.x + r * std::cos(theta), c.y + r * std::sin(theta),
+                          theta + CV_PI);  // forward along the tangent
+      const double arc = std::max(r, step);
+      theta += step / arc;
+      r = std::min(max_r, ring_gap * theta / (2 * CV_PI));
+    }
+  } else {  // random walk that turns back on itself now and then (revisits)
+    std::normal_distribution<double> turn(0.0, 0.15);
+    cv::Point2d p(area.x + area.width / 2, area.y + area.height / 2);
+    double heading = 0;
+    for (int n = 0; n < o.frames; ++n) {
+      xy_yaw.emplace_back(p.x, p.y, heading - CV_PI / 2);
+      heading += turn(rng);
+      cv::Point2d next = p + step * cv::Point2d(std::cos(heading), std::sin(heading));
+      if (!area.contains(next)) {
+        heading = WrapAngle(heading + CV_PI * 0.6);
+        next = p + step * cv::Point2d(std::cos(heading), std::sin(heading));
+      }
+      p.x = std::clamp(next.x, area.x, area.x + area.width);
+      p.y = std::clamp(next.y, area.y, area.y + area.height);
+    }
+  }
+
+  Wobble alt(rng), roll(rng), pitch(rng);
+  std::vector<CameraPose> poses;
+  for (size_t i = 0; i < xy_yaw.size(); ++i) {
+    CameraPose pose;
+    const double t = double(i);
+    pose.position = cv::Vec3d(xy_yaw[i][0], xy_yaw[i][1], altitude * (1.0 + o.altitude_jitter * alt(t)));
+    pose.yaw = WrapAngle(xy_yaw[i][2]);
+    pose.roll = o.tilt_deg * CV_PI / 180 * roll(t);
+    pose.pitch = o.tilt_deg * CV_PI / 180 * pitch(t);
+    poses.push_back(pose);
+  }
+  return poses;
+}
+
+}  // namespace rolamos

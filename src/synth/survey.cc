@@ -1,0 +1,235 @@
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <random>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "rolamos/error.hpp"
+#include "rolamos/synth.hpp"
+#include "synth/camera_path.h"
+#include "synth/seafloor_texture.h"
+#include "util/files.h"
+
+namespace fs = std::filesystem;
+
+namespace rolamos {
+
+bool SurveyOptions::IsValid(std::string* error) const {
+  auto bad = [&](const std::string& e) {
+    *error = e;
+    return false;
+  };
+  if (frame_width < 64 || frame_height < 64 || frame_width > 8192 || frame_height > 8192)
+    return bad("frame size " + std::to_string(frame_width) + "x" + std::to_string(frame_height) +
+               " is outside 64..8192");
+  if (!(focal_px > 10)) return bad("focal length must be more than 10 pixels");
+  if (!(gsd > 0.05 && gsd < 20)) return bad("gsd " + std::to_string(gsd) + " is outside 0.05..20");
+  if (path != "lawnmower" && path != "spiral" && path != "random")
+    return bad("path \"" + path + "\" is not lawnmower, spiral or random");
+  if (frames < 2 || frames > 1000000) return bad("frame count must be 2..1000000");
+  if (!(forward_overlap >= 0 && forward_overlap < 0.98)) return bad("forward overlap must be in [0, 0.98)");
+  if (!(side_overlap >= 0 && side_overlap < 0.95)) return bad("side overlap must be in [0, 0.95)");
+  if (jpeg_quality < 0 || jpeg_quality > 100) return bad("JPEG quality must be 0 (PNG) or 1..100");
+  if (noise < 0 || particles < 0 || vignetting < 0 || vignetting > 1 || backscatter < 0 ||
+      attenuation < 0 || altitude_jitter < 0 || altitude_jitter > 0.5 || tilt_deg < 0 || tilt_deg > 30)
+    return bad("a degradation or motion setting is out of range");
+  return true;
+}
+
+namespace {
+
+class TextureSource {
+ public:
+  TextureSource(const SurveyOptions& o) : options_(o) {
+    if (!o.texture.empty()) {
+      image_ = cv::imread(o.texture, cv::IMREAD_COLOR);
+      if (image_.empty()) Fail(o.texture, "cannot be read as an image");
+      size_ = image_.size();
+    } else {
+      // The procedural seafloor is endless: give it room for the path.
+      const double foot = std::max(o.frame_width, o.frame_height) * o.gsd;
+      const int side = static_cast<int>(std::ceil(
+          std::max(8.0 * foot, foot * std::sqrt(double(o.frames)) * (1.0 - o.forward_overlap) * 3.0)));
+      size_ = cv::Size(side, side);
+    }
+  }
+  cv::Size size() const { return size_; }
+  // Pixels of the texture in `r` (may reach outside: black there).
+  cv::Mat Window(const cv::Rect& r) const {
+    if (image_.empty()) return RenderSeafloor(r.x, r.y, r.width, r.height);
+    cv::Mat out = cv::Mat::zeros(r.size(), CV_8UC3);
+    cv::Rect inside = r & cv::Rect(cv::Point(), size_);
+    if (!inside.empty()) image_(inside).copyTo(out(inside - r.tl()));
+    return out;
+  }
+
+ private:
+  SurveyOptions options_;
+  cv::Mat image_;
+  cv::Size size_;
+};
+
+cv::Mat Degrade(const cv::Mat& clean, const SurveyOptions& o, const CameraPose& pose,
+                double nominal_altitude, int index) {
+  std::mt19937 rng(o.seed * 1000003u + static_cast<uint32_t>(index));
+  cv::Mat f;
+  clean.convertTo(f, CV_32FC3, 1.0 / 255.0);
+  const double a = pose.position[2] / nominal_altitude;
+  // Water absorbs red first, then green (Beer-Lambert with a made-up path length).
+  const cv::Scalar gain(std::exp(-0.05 * o.attenuation * a), std::exp(-0.18 * o.attenuation * a),
+                        std::exp(-0.55 * o.attenuation * a));
+  const cv::Scalar haze = cv::Scalar(0.38, 0.33, 0.08) * o.backscatter;
+  const float cx = (f.cols - 1) / 2.0f, cy = (f.rows - 1) / 2.0f;
+  const float rmax2 = cx * cx + cy * cy;
+  for (int y = 0; y < f.rows; ++y) {
+    cv::Vec3f* p = f.ptr<cv::Vec3f>(y);
+    for (int x = 0; x < f.cols; ++x) {
+      const float r2 = ((x - cx) * (x - cx) + (y - cy) * (y - cy)) / rmax2;
+      const float v = 1.0f - static_cast<float>(o.vignetting) * r2;
+      for (int c = 0; c < 3; ++c)
+        p[x][c] = p[x][c] * static_cast<float>(gain[c]) * v +
+                  static_cast<float>(haze[c]) * (0.8f + 0.4f * r2);
+    }
+  }
+  // Marine snow: small soft bright blobs, different in every frame.
+  if (o.particles > 0) {
+    cv::Mat snow = cv::Mat::zeros(f.size(), CV_32F);
+    std::uniform_real_distribution<float> ux(0, static_cast<float>(f.cols)), uy(0, static_cast<float>(f.rows)),
+        ur(0.8f, 3.5f), ui(0.3f, 0.9f);
+    for (int i = 0; i < o.particles; ++i)
+      cv::circle(snow, cv::Point2f(ux(rng), uy(rng)), static_cast<int>(ur(rng)), cv::Scalar(ui(rng)),
+                 cv::FILLED, cv::LINE_AA);
+    cv::GaussianBlur(snow, snow, cv::Size(0, 0), 1.0);
+    cv::Mat snow3;
+    cv::merge(std::vector<cv::Mat>{snow, snow, snow}, snow3);
+    f += snow3;
+  }
+  if (o.noise > 0) {
+    cv::Mat n(f.size(), CV_32FC3);
+    cv::randn(n, 0, o.noise / 255.0);
+    f += n;
+  }
+  cv::Mat out;
+  f.convertTo(out, CV_8UC3, 255.0);
+  return out;
+}
+
+nlohmann::json Mat33(const cv::Matx33d& m) {
+  return nlohmann::json::array({m(0, 0), m(0, 1), m(0, 2), m(1, 0), m(1, 1), m(1, 2), m(2, 0),
+                                m(2, 1), m(2, 2)});
+}
+
+}  // namespace
+
+Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
+                   const std::function<void(double)>& progress) {
+  std::string error;
+  if (!o.IsValid(&error)) Fail("synth", error);
+  TextureSource texture(o);
+  const double altitude = o.focal_px * o.gsd;
+  const cv::Matx33d K(o.focal_px, 0, (o.frame_width - 1) / 2.0, 0, o.focal_px,
+                      (o.frame_height - 1) / 2.0, 0, 0, 1);
+  // The camera centre keeps the whole (tilted, higher) footprint on the texture.
+  const double half_diag = 0.5 * std::hypot(o.frame_width, o.frame_height) * o.gsd *
+                           (1.0 + o.altitude_jitter) * 1.1;
+  cv::Rect2d area(half_diag, half_diag, texture.size().width - 2 * half_diag,
+                  texture.size().height - 2 * half_diag);
+  if (area.width < 1 || area.height < 1)
+    Fail(o.texture.empty() ? "procedural texture" : o.texture,
+         "is too small for frames of " + std::to_string(o.frame_width) + "x" +
+             std::to_string(o.frame_height) + " at gsd " + std::to_string(o.gsd) +
+             " (lower --gsd or use a larger texture)");
+  auto poses = PlanCameraPath(o, area);
+
+  std::error_code ec;
+  fs::create_directories(fs::path(dir) / "frames", ec);
+  if (ec) Fail(dir, "cannot create survey directory: " + ec.message());
+  Survey survey;
+  survey.texture = o.texture.empty() ? "procedural" : o.texture;
+  survey.texture_size = texture.size();
+  survey.frame_size = cv::Size(o.frame_width, o.frame_height);
+  survey.camera_matrix = K;
+  nlohmann::json frames = nlohmann::json::array();
+  const std::string ext = o.jpeg_quality > 0 ? ".jpg" : ".png";
+  for (size_t i = 0; i < poses.size(); ++i) {
+    const cv::Matx33d world_to_frame = WorldToFrame(poses[i], K);
+    const cv::Matx33d frame_to_world = world_to_frame.inv();
+    std::vector<cv::Point2d> corners{{0, 0},
+                                     {o.frame_width - 1.0, 0},
+                                     {o.frame_width - 1.0, o.frame_height - 1.0},
+                                     {0, o.frame_height - 1.0}},
+        world;
+    cv::perspectiveTransform(corners, world, cv::Mat(frame_to_world));
+    cv::Rect box = cv::boundingRect(std::vector<cv::Point2f>(world.begin(), world.end()));
+    box.x -= 3;
+    box.y -= 3;
+    box.width += 6;
+    box.height += 6;
+    cv::Mat window = texture.Window(box);
+    const cv::Matx33d shift(1, 0, box.x, 0, 1, box.y, 0, 0, 1);  // window pixel -> world
+    cv::Mat clean;
+    cv::warpPerspective(window, clean, cv::Mat(world_to_frame * shift), survey.frame_size,
+                        cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+    cv::Mat frame = Degrade(clean, o, poses[i], altitude, static_cast<int>(i));
+    char name[64];
+    std::snprintf(name, sizeof name, "frames/frame_%05zu%s", i, ext.c_str());
+    std::vector<int> params;
+    if (o.jpeg_quality > 0) params = {cv::IMWRITE_JPEG_QUALITY, o.jpeg_quality};
+    if (!cv::imwrite((fs::path(dir) / name).string(), frame, params))
+      Fail((fs::path(dir) / name).string(), "cannot be written");
+    SurveyFrame sf;
+    sf.index = static_cast<int>(i);
+    sf.file = name;
+    for (int k = 0; k < 9; ++k) sf.frame_to_world[k] = frame_to_world.val[k];
+    sf.camera_position = {poses[i].position[0], poses[i].position[1], poses[i].position[2]};
+    sf.yaw_deg = poses[i].yaw * 180 / CV_PI;
+    survey.frames.push_back(sf);
+    frames.push_back({{"index", sf.index},
+                      {"file", sf.file},
+                      {"frame_to_world", Mat33(frame_to_world)},
+                      {"camera_position", sf.camera_position},
+                      {"yaw_deg", sf.yaw_deg}});
+    if (progress) progress(double(i + 1) / poses.size());
+  }
+  nlohmann::json j{{"texture", survey.texture},
+                   {"texture_size", {survey.texture_size.width, survey.texture_size.height}},
+                   {"frame_size", {o.frame_width, o.frame_height}},
+                   {"camera_matrix", Mat33(K)},
+                   {"options",
+                    {{"path", o.path}, {"gsd", o.gsd}, {"frames", o.frames}, {"seed", o.seed},
+                     {"forward_overlap", o.forward_overlap}, {"side_overlap", o.side_overlap},
+                     {"tilt_deg", o.tilt_deg}, {"altitude_jitter", o.altitude_jitter}}},
+                   {"frames", frames}};
+  WriteFileAtomic((fs::path(dir) / "ground_truth.json").string(), j.dump(1) + "\n");
+  return survey;
+}
+
+Survey ReadSurvey(const std::string& dir) {
+  const std::string path = (fs::path(dir) / "ground_truth.json").string();
+  nlohmann::json j = nlohmann::json::parse(ReadSmallFile(path), nullptr, false);
+  if (j.is_discarded() || !j.is_object()) Fail(path, "is not valid JSON");
+  try {
+    Survey s;
+    s.texture = j.at("texture").get<std::string>();
+    s.texture_size = cv::Size(j.at("texture_size")[0], j.at("texture_size")[1]);
+    s.frame_size = cv::Size(j.at("frame_size")[0], j.at("frame_size")[1]);
+    for (int k = 0; k < 9; ++k) s.camera_matrix.val[k] = j.at("camera_matrix")[k];
+    for (const auto& f : j.at("frames")) {
+      SurveyFrame sf;
+      sf.index = f.at("index");
+      sf.file = f.at("file");
+      for (int k = 0; k < 9; ++k) sf.frame_to_world[k] = f.at("frame_to_world")[k];
+      for (int k = 0; k < 3; ++k) sf.camera_position[k] = f.at("camera_position")[k];
+      sf.yaw_deg = f.at("yaw_deg");
+      s.frames.push_back(sf);
+    }
+    return s;
+  } catch (const nlohmann::json::exception& e) {
+    Fail(path, std::string("malformed ground truth: ") + e.what());
+  }
+}
+
+}  // namespace rolamos
