@@ -18,6 +18,7 @@ void AddConvertCommand(CLI::App& app, Runner* run);
 void AddInfoCommand(CLI::App& app, Runner* run);
 void AddExportCommand(CLI::App& app, Runner* run);
 void AddDemoCommand(CLI::App& app, Runner* run);
+void AddSynthCommand(CLI::App& app, Runner* run);
 
 // --compression/--quality/--tile shared by every command that writes a TIFF.
 struct TiffSwitches {

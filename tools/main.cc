@@ -12,6 +12,7 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   rolamos::cli::Runner run;
   rolamos::cli::AddDemoCommand(app, &run);
+  rolamos::cli::AddSynthCommand(app, &run);
   rolamos::cli::AddConvertCommand(app, &run);
   rolamos::cli::AddInfoCommand(app, &run);
   rolamos::cli::AddExportCommand(app, &run);

@@ -1,0 +1,72 @@
+#include "rolamos/synth.hpp"
+
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "rolamos/error.hpp"
+#include "test_support.h"
+
+namespace rolamos {
+namespace {
+
+cv::Matx33d Mat33(const std::array<double, 9>& a) {
+  cv::Matx33d m;
+  for (int i = 0; i < 9; ++i) m.val[i] = a[i];
+  return m;
+}
+
+SurveyOptions Clean(const std::string& path) {
+  SurveyOptions o;
+  o.frame_width = 480;
+  o.frame_height = 360;
+  o.focal_px = 420;
+  o.frames = 24;
+  o.path = path;
+  o.attenuation = o.vignetting = o.backscatter = o.noise = 0;
+  o.particles = 0;
+  o.jpeg_quality = 0;  // PNG: exact pixels
+  return o;
+}
+
+// The ground truth is right when frame i, warped by world->frame_j * frame_i->world, lands on
+// frame j pixel for pixel where they overlap.
+TEST(Synth, GroundTruthHomographiesRelateFrames) {
+  for (const std::string path : {"lawnmower", "spiral", "random"}) {
+    test::ScratchDir dir;
+    Survey s = WriteSurvey(Clean(path), dir.path());
+    ASSERT_EQ(s.frames.size(), 24u);
+    Survey back = ReadSurvey(dir.path());
+    ASSERT_EQ(back.frames.size(), 24u);
+    for (int i : {0, 5, 11}) {
+      const int j = i + 1;
+      cv::Mat fi = cv::imread(dir / back.frames[i].file), fj = cv::imread(dir / back.frames[j].file);
+      const cv::Matx33d H = Mat33(back.frames[j].frame_to_world).inv() * Mat33(back.frames[i].frame_to_world);
+      cv::Mat warped, mask;
+      cv::warpPerspective(fi, warped, cv::Mat(H), fj.size());
+      cv::warpPerspective(cv::Mat(fi.size(), CV_8U, cv::Scalar(255)), mask, cv::Mat(H), fj.size(),
+                          cv::INTER_NEAREST);
+      cv::erode(mask, mask, cv::Mat(), cv::Point(-1, -1), 3);
+      ASSERT_GT(cv::countNonZero(mask), fj.total() / 5) << path << " " << i;
+      cv::Mat diff;
+      cv::absdiff(warped, fj, diff);
+      const double mean_abs = cv::mean(diff, mask)[1];
+      EXPECT_LT(mean_abs, 4.0) << path << " frames " << i << "," << j;
+    }
+  }
+}
+
+TEST(Synth, BadOptionsAreRefused) {
+  test::ScratchDir dir;
+  SurveyOptions o = Clean("zigzag");
+  EXPECT_THROW(WriteSurvey(o, dir.path()), Error);
+  o = Clean("lawnmower");
+  o.texture = dir / "missing.jpg";
+  EXPECT_THROW(WriteSurvey(o, dir.path()), Error);
+  o = Clean("lawnmower");
+  o.frames = 1;
+  EXPECT_THROW(WriteSurvey(o, dir.path()), Error);
+}
+
+}  // namespace
+}  // namespace rolamos

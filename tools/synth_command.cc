@@ -1,0 +1,57 @@
+#include <cstdio>
+
+#include "command.h"
+#include "rolamos/synth.hpp"
+#include "util/progress.h"
+
+namespace rolamos::cli {
+
+struct SynthSwitches {
+  SurveyOptions survey;
+  std::string output;
+  bool quiet = false;
+};
+
+static int RunSynth(const SynthSwitches& s) {
+  Progress progress("synth", s.quiet);
+  Survey survey = WriteSurvey(s.survey, s.output, [&](double f) { progress.Update(f); });
+  progress.Done();
+  std::printf("%s: %zu frames of %dx%d over %s (%dx%d), path %s, ground truth in "
+              "ground_truth.json, %.1f s\n",
+              s.output.c_str(), survey.frames.size(), survey.frame_size.width,
+              survey.frame_size.height, survey.texture.c_str(), survey.texture_size.width,
+              survey.texture_size.height, s.survey.path.c_str(), progress.ElapsedSeconds());
+  return 0;
+}
+
+void AddSynthCommand(CLI::App& app, Runner* run) {
+  auto s = std::make_shared<SynthSwitches>();
+  auto& o = s->survey;
+  auto* cmd = app.add_subcommand(
+      "synth", "A synthetic survey over an image (or a procedural seafloor) with ground truth");
+  cmd->add_option("texture", o.texture, "image to fly over (default: procedural seafloor)");
+  cmd->add_option("-o,--output", s->output, "survey directory to write")->required();
+  cmd->add_option("--frames", o.frames, "number of frames")->capture_default_str();
+  cmd->add_option("--path", o.path, "lawnmower, spiral or random")->capture_default_str();
+  cmd->add_option("--width", o.frame_width, "frame width")->capture_default_str();
+  cmd->add_option("--height", o.frame_height, "frame height")->capture_default_str();
+  cmd->add_option("--focal", o.focal_px, "focal length in pixels")->capture_default_str();
+  cmd->add_option("--gsd", o.gsd, "texture pixels per frame pixel")->capture_default_str();
+  cmd->add_option("--overlap", o.forward_overlap, "forward overlap 0..0.98")->capture_default_str();
+  cmd->add_option("--side-overlap", o.side_overlap, "lane overlap")->capture_default_str();
+  cmd->add_option("--tilt", o.tilt_deg, "roll/pitch amplitude, degrees")->capture_default_str();
+  cmd->add_option("--altitude-jitter", o.altitude_jitter, "relative altitude change")
+      ->capture_default_str();
+  cmd->add_option("--attenuation", o.attenuation, "colour loss with depth (0 = off)")
+      ->capture_default_str();
+  cmd->add_option("--vignetting", o.vignetting, "corner darkening 0..1")->capture_default_str();
+  cmd->add_option("--backscatter", o.backscatter, "haze (0 = off)")->capture_default_str();
+  cmd->add_option("--noise", o.noise, "sensor noise sigma")->capture_default_str();
+  cmd->add_option("--particles", o.particles, "marine snow per frame")->capture_default_str();
+  cmd->add_option("--jpeg", o.jpeg_quality, "JPEG quality (0 = PNG)")->capture_default_str();
+  cmd->add_option("--seed", o.seed, "random seed")->capture_default_str();
+  cmd->add_flag("-q,--quiet", s->quiet, "no progress bar");
+  cmd->callback([s, run] { *run = [s] { return RunSynth(*s); }; });
+}
+
+}  // namespace rolamos::cli
