@@ -1,0 +1,97 @@
+// The online ROLAMOS engine: frames are pushed one at a time; each is pre-processed, registered
+// to the previous stitched frame (features, F-RANSAC with the bilateral epipolar error, H and its
+// decomposition), checked by the Kalman gate, refined by ECC against the mosaic, and blended into
+// the current patch with Gaussian feathering. A patch is closed and written to the store (in a
+// background thread) when the next frame would take it past its pixel budget or tracking is lost.
+#pragma once
+
+#include <functional>
+#include <memory>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+#include "rolamos/store.hpp"
+#include "rolamos/tiff_writer.hpp"
+
+namespace rolamos {
+
+struct MosaickerOptions {
+  // 1. Pre-processing
+  std::string calibration;      // OpenCV calibration file ("" = frames already rectified)
+  bool bilateral = true;
+  bool temporal = true;
+  bool clahe = true;            // detection image only
+  // 2. Egomotion
+  std::string features = "sift";  // sift | orb | akaze
+  int max_features = 1500;
+  double detect_scale = 0.5;
+  double ratio = 0.8;
+  bool cross_check = true;
+  bool fundamental = true;        // the F-RANSAC / bilateral epipolar stage
+  double epipolar_threshold = 1.5;
+  double homography_threshold = 3.0;
+  int min_inliers = 25;
+  // 3. Consistency
+  bool kalman = true;
+  // 4. ECC
+  bool ecc = true;
+  double ecc_scale = 0.25;
+  std::string ecc_motion = "translation";  // translation | euclidean | affine | homography
+  // 5. Blending: Gaussian sigma as a fraction of the frame (0.2, 0.1, 0.01), 0 = plain average
+  double feather_sigma = 0.2;
+  // 6. Memory management
+  double patch_megapixels = 5.0;
+  double patch_memory_mb = 0;     // if > 0, also bounds the patch canvas (16 bytes a pixel)
+  int max_lost_frames = 3;        // consecutive failures that close a patch
+  TiffWriteOptions tiff;          // patch images
+
+  bool IsValid(std::string* error) const;
+  long long PixelBudget() const;
+};
+
+struct FrameReport {
+  int index = 0;
+  std::string source;
+  std::string status;   // "stitched" or "rejected"
+  std::string reason;   // why rejected
+  int patch_id = 0;
+  bool started_patch = false;
+  int matches = 0, inliers = 0;
+  double bilateral_error = 0;  // mean bilateral epipolar error of the survivors, pixels
+  double ecc = 0;        // ECC correlation (0 when not run)
+  double ecc_shift = 0;  // how far ECC moved the frame's corners, pixels
+  double seconds = 0;
+};
+
+struct MosaicSummary {
+  int frames = 0, stitched = 0, rejected = 0, patches = 0;
+  double seconds = 0;
+  double peak_rss_mb = 0;
+};
+
+class Mosaicker {
+ public:
+  // Throws Error when the options are invalid or the calibration cannot be read.
+  Mosaicker(Store store, const MosaickerOptions& options);
+  ~Mosaicker();
+  Mosaicker(const Mosaicker&) = delete;
+  Mosaicker& operator=(const Mosaicker&) = delete;
+
+  // One frame (BGR 8-bit; empty = unreadable, recorded with `error` as the reason).
+  FrameReport Push(const cv::Mat& frame, const std::string& source, const std::string& error = "");
+  // Closes and writes the last patch, waits for the writer. Returns the totals.
+  MosaicSummary Finish();
+  // Called (from the writer thread) after each patch is committed to the store.
+  void OnPatch(std::function<void(const PatchSidecar&)> callback);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// Reads INPUT (folder, list, video) and mosaics it into the store; `on_frame` sees every frame.
+MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& options,
+                          const std::function<void(const FrameReport&, int total)>& on_frame = nullptr);
+
+}  // namespace rolamos

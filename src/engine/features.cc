@@ -1,0 +1,97 @@
+#include "engine/features.h"
+
+#include <opencv2/imgproc.hpp>
+
+#include "rolamos/error.hpp"
+
+namespace rolamos {
+
+bool FeatureOptions::IsValid(std::string* error) const {
+  if (type != "sift" && type != "orb" && type != "akaze") {
+    *error = "features \"" + type + "\" are not sift, orb or akaze";
+    return false;
+  }
+  if (max_features < 50) {
+    *error = "at least 50 features are needed";
+    return false;
+  }
+  if (!(detect_scale > 0.1 && detect_scale <= 1.0)) {
+    *error = "detection scale must be in (0.1, 1]";
+    return false;
+  }
+  if (!(ratio > 0.3 && ratio < 1.0)) {
+    *error = "ratio test threshold must be in (0.3, 1)";
+    return false;
+  }
+  return true;
+}
+
+FeatureExtractor::FeatureExtractor(const FeatureOptions& options) : options_(options) {
+  std::string error;
+  if (!options.IsValid(&error)) Fail("features", error);
+  if (options.type == "sift") {
+    detector_ = cv::SIFT::create(options.max_features, 3, 0.02);
+  } else if (options.type == "orb") {
+    detector_ = cv::ORB::create(options.max_features, 1.2f, 8, 31, 0, 2, cv::ORB::HARRIS_SCORE, 31, 10);
+  } else {
+    detector_ = cv::AKAZE::create(cv::AKAZE::DESCRIPTOR_MLDB, 0, 3, 0.0008f);
+  }
+}
+
+Features FeatureExtractor::Extract(const cv::Mat& gray) const {
+  CV_Assert(gray.type() == CV_8UC1);
+  cv::Mat small = gray;
+  if (options_.detect_scale < 1.0)
+    cv::resize(gray, small, cv::Size(), options_.detect_scale, options_.detect_scale, cv::INTER_AREA);
+  std::vector<cv::KeyPoint> keypoints;
+  Features f;
+  detector_->detectAndCompute(small, cv::noArray(), keypoints, f.descriptors);
+  if (options_.type == "akaze" && static_cast<int>(keypoints.size()) > options_.max_features) {
+    // AKAZE has no count limit: keep the strongest.
+    std::vector<int> order(keypoints.size());
+    for (size_t i = 0; i < order.size(); ++i) order[i] = static_cast<int>(i);
+    std::partial_sort(order.begin(), order.begin() + options_.max_features, order.end(),
+                      [&](int a, int b) { return keypoints[a].response > keypoints[b].response; });
+    order.resize(static_cast<size_t>(options_.max_features));
+    cv::Mat d(static_cast<int>(order.size()), f.descriptors.cols, f.descriptors.type());
+    std::vector<cv::KeyPoint> kept;
+    for (size_t i = 0; i < order.size(); ++i) {
+      f.descriptors.row(order[i]).copyTo(d.row(static_cast<int>(i)));
+      kept.push_back(keypoints[static_cast<size_t>(order[i])]);
+    }
+    keypoints.swap(kept);
+    f.descriptors = d;
+  }
+  // Keypoint centres at the reduced scale back to full-resolution pixel coordinates.
+  const float s = static_cast<float>(1.0 / options_.detect_scale);
+  const float shift = 0.5f * (s - 1.0f);
+  f.points.reserve(keypoints.size());
+  for (const auto& k : keypoints) f.points.emplace_back(k.pt.x * s + shift, k.pt.y * s + shift);
+  return f;
+}
+
+Matches MatchFeatures(const Features& a, const Features& b, const FeatureOptions& options) {
+  Matches m;
+  if (a.descriptors.rows < 2 || b.descriptors.rows < 2) return m;
+  const bool binary = a.descriptors.type() == CV_8U;
+  cv::BFMatcher matcher(binary ? cv::NORM_HAMMING : cv::NORM_L2);
+  std::vector<std::vector<cv::DMatch>> ab, ba;
+  matcher.knnMatch(a.descriptors, b.descriptors, ab, 2);
+  if (options.cross_check) matcher.knnMatch(b.descriptors, a.descriptors, ba, 2);
+  auto passes_ratio = [&](const std::vector<cv::DMatch>& k) {
+    return k.size() == 2 ? k[0].distance < options.ratio * k[1].distance : k.size() == 1;
+  };
+  for (const auto& k : ab) {
+    if (k.empty() || !passes_ratio(k)) continue;
+    const cv::DMatch& best = k[0];
+    if (options.cross_check) {
+      const auto& back = ba[static_cast<size_t>(best.trainIdx)];
+      if (back.empty() || back[0].trainIdx != best.queryIdx) continue;
+    }
+    m.from.push_back(a.points[static_cast<size_t>(best.queryIdx)]);
+    m.to.push_back(b.points[static_cast<size_t>(best.trainIdx)]);
+  }
+  return m;
+}
+
+}  // namespace rolamos

@@ -1,0 +1,49 @@
+// Stage 2a: features and matching. SIFT by default (SURF, the paper's choice, is not in
+// Debian's OpenCV); ORB and AKAZE for speed. Matching is kNN with Lowe's ratio test and a
+// cross-check (a match must be mutual), the paper's "cross-matching approach".
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+#include <opencv2/features2d.hpp>
+
+namespace rolamos {
+
+struct FeatureOptions {
+  std::string type = "sift";  // sift | orb | akaze
+  int max_features = 1500;
+  double detect_scale = 0.5;  // features are found on the frame resized by this
+  double ratio = 0.8;         // Lowe's ratio test
+  bool cross_check = true;
+
+  bool IsValid(std::string* error) const;
+};
+
+struct Features {
+  std::vector<cv::Point2f> points;  // in full-resolution frame pixels
+  cv::Mat descriptors;
+  bool empty() const { return points.empty(); }
+};
+
+class FeatureExtractor {
+ public:
+  explicit FeatureExtractor(const FeatureOptions& options);
+  // `gray` is the detection image (8-bit, contrast-normalised), full resolution.
+  Features Extract(const cv::Mat& gray) const;
+  const FeatureOptions& options() const { return options_; }
+
+ private:
+  FeatureOptions options_;
+  cv::Ptr<cv::Feature2D> detector_;
+};
+
+struct Matches {
+  std::vector<cv::Point2f> from, to;  // from[i] in the first set matches to[i] in the second
+};
+
+// kNN (k = 2) both ways, ratio test, and (optionally) mutual-best check.
+Matches MatchFeatures(const Features& a, const Features& b, const FeatureOptions& options);
+
+}  // namespace rolamos

@@ -1,0 +1,120 @@
+#include "engine/frame_source.h"
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/videoio.hpp>
+
+#include "rolamos/error.hpp"
+#include "util/files.h"
+
+namespace fs = std::filesystem;
+
+namespace rolamos {
+namespace {
+
+bool IsImageName(const std::string& name) {
+  static const char* exts[] = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".ppm", ".pgm"};
+  const std::string e = Extension(name);
+  return std::any_of(std::begin(exts), std::end(exts), [&](const char* x) { return e == x; });
+}
+
+cv::Mat ReadImage(const std::string& path, std::string* error) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) {
+    *error = "missing";
+    return {};
+  }
+  cv::Mat m;
+  try {
+    m = cv::imread(path, cv::IMREAD_COLOR);
+  } catch (const cv::Exception& e) {
+    *error = std::string("unreadable: ") + e.err;
+    return {};
+  }
+  if (m.empty()) *error = "unreadable (not an image, or truncated)";
+  return m;
+}
+
+class FileListSource : public FrameSource {
+ public:
+  explicit FileListSource(std::vector<std::string> paths) : paths_(std::move(paths)) {}
+  bool Next(InputFrame* f) override {
+    if (next_ >= paths_.size()) return false;
+    f->index = static_cast<int>(next_);
+    f->source = paths_[next_];
+    f->error.clear();
+    f->image = ReadImage(paths_[next_], &f->error);
+    ++next_;
+    return true;
+  }
+  int count() const override { return static_cast<int>(paths_.size()); }
+
+ private:
+  std::vector<std::string> paths_;
+  size_t next_ = 0;
+};
+
+class VideoSource : public FrameSource {
+ public:
+  VideoSource(const std::string& path, cv::VideoCapture cap) : path_(path), cap_(std::move(cap)) {
+    count_ = static_cast<int>(cap_.get(cv::CAP_PROP_FRAME_COUNT));
+  }
+  bool Next(InputFrame* f) override {
+    cv::Mat m;
+    if (!cap_.read(m) || m.empty()) return false;
+    f->index = index_++;
+    f->source = fs::path(path_).filename().string() + "#" + std::to_string(f->index);
+    f->error.clear();
+    if (m.channels() == 1) cv::cvtColor(m, m, cv::COLOR_GRAY2BGR);
+    f->image = m;
+    return true;
+  }
+  int count() const override { return count_ > 0 ? count_ : -1; }
+
+ private:
+  std::string path_;
+  cv::VideoCapture cap_;
+  int index_ = 0, count_ = -1;
+};
+
+}  // namespace
+
+std::unique_ptr<FrameSource> FrameSource::Open(const std::string& input) {
+  std::error_code ec;
+  if (!fs::exists(input, ec)) Fail(input, "no such folder, list or video");
+  if (fs::is_directory(input, ec)) {
+    std::vector<std::string> paths;
+    for (const auto& e : fs::directory_iterator(input, ec))
+      if (e.is_regular_file() && IsImageName(e.path().string())) paths.push_back(e.path().string());
+    std::sort(paths.begin(), paths.end());
+    if (paths.empty()) Fail(input, "holds no images (.jpg, .png, .tif, ...)");
+    return std::make_unique<FileListSource>(std::move(paths));
+  }
+  if (Extension(input) == ".txt") {
+    std::ifstream in(input);
+    std::vector<std::string> paths;
+    std::string line;
+    while (std::getline(in, line)) {
+      while (!line.empty() && (line.back() == '\r' || line.back() == ' ')) line.pop_back();
+      if (line.empty() || line[0] == '#') continue;
+      fs::path p(line);
+      paths.push_back(p.is_absolute() ? line : (fs::path(input).parent_path() / p).string());
+    }
+    if (paths.empty()) Fail(input, "lists no frames");
+    return std::make_unique<FileListSource>(std::move(paths));
+  }
+  if (IsImageName(input)) Fail(input, "is a single image; give a folder, a list (.txt) or a video");
+  cv::VideoCapture cap;
+  try {
+    cap.open(input);
+  } catch (const cv::Exception&) {
+  }
+  if (!cap.isOpened()) Fail(input, "cannot be opened as a video (OpenCV/FFmpeg)");
+  return std::make_unique<VideoSource>(input, std::move(cap));
+}
+
+}  // namespace rolamos

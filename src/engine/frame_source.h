@@ -1,0 +1,31 @@
+// Frames in order from a folder of images (sorted by name), a text list of paths, or a video.
+// A frame that cannot be read comes back empty with the reason, so the pipeline can record it
+// and go on.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+namespace rolamos {
+
+struct InputFrame {
+  int index = 0;
+  std::string source;  // file name, or "video.mp4#frame" for video frames
+  cv::Mat image;       // BGR 8-bit; empty when unreadable
+  std::string error;
+};
+
+class FrameSource {
+ public:
+  virtual ~FrameSource() = default;
+  // False at the end of the input.
+  virtual bool Next(InputFrame* frame) = 0;
+  // Number of frames if known, -1 otherwise.
+  virtual int count() const = 0;
+  // Throws Error naming the input when it is none of the three kinds.
+  static std::unique_ptr<FrameSource> Open(const std::string& input);
+};
+
+}  // namespace rolamos

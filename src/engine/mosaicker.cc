@@ -1,0 +1,375 @@
+#include "rolamos/mosaicker.hpp"
+
+#include <chrono>
+#include <cmath>
+
+#include <opencv2/imgproc.hpp>
+
+#include "engine/ecc_refine.h"
+#include "engine/egomotion.h"
+#include "engine/feather.h"
+#include "engine/features.h"
+#include "engine/frame_source.h"
+#include "engine/motion_gate.h"
+#include "engine/patch_canvas.h"
+#include "engine/patch_writer.h"
+#include "engine/preprocess.h"
+#include "rolamos/error.hpp"
+#include "util/memory.h"
+
+namespace rolamos {
+
+namespace {
+
+FeatureOptions ToFeatureOptions(const MosaickerOptions& o) {
+  FeatureOptions f;
+  f.type = o.features;
+  f.max_features = o.max_features;
+  f.detect_scale = o.detect_scale;
+  f.ratio = o.ratio;
+  f.cross_check = o.cross_check;
+  return f;
+}
+
+EgomotionOptions ToEgomotionOptions(const MosaickerOptions& o) {
+  EgomotionOptions e;
+  e.epipolar_threshold_px = o.epipolar_threshold;
+  e.homography_threshold_px = o.homography_threshold;
+  e.min_inliers = o.min_inliers;
+  e.use_fundamental = o.fundamental;
+  return e;
+}
+
+PreprocessOptions ToPreprocessOptions(const MosaickerOptions& o) {
+  PreprocessOptions p;
+  p.calibration = o.calibration;
+  p.bilateral = o.bilateral;
+  p.temporal = o.temporal;
+  p.clahe = o.clahe;
+  return p;
+}
+
+EccOptions ToEccOptions(const MosaickerOptions& o) {
+  EccOptions e;
+  e.enabled = o.ecc;
+  e.scale = o.ecc_scale;
+  e.motion = o.ecc_motion;
+  return e;
+}
+
+// Largest distance between where two homographies put the frame's corners.
+double MaxCornerShift(const cv::Matx33d& a, const cv::Matx33d& b, cv::Size s) {
+  double worst = 0;
+  for (const cv::Point2d p : {cv::Point2d(0, 0), cv::Point2d(s.width - 1.0, 0),
+                              cv::Point2d(0, s.height - 1.0), cv::Point2d(s.width - 1.0, s.height - 1.0)}) {
+    const cv::Vec3d u = a * cv::Vec3d(p.x, p.y, 1), v = b * cv::Vec3d(p.x, p.y, 1);
+    worst = std::max(worst, std::hypot(u[0] / u[2] - v[0] / v[2], u[1] / u[2] - v[1] / v[2]));
+  }
+  return worst;
+}
+
+Homography ToArray(const cv::Matx33d& m) {
+  Homography h;
+  for (int i = 0; i < 9; ++i) h[static_cast<size_t>(i)] = m.val[i] / m(2, 2);
+  return h;
+}
+
+}  // namespace
+
+bool MosaickerOptions::IsValid(std::string* error) const {
+  if (!ToFeatureOptions(*this).IsValid(error) || !ToEgomotionOptions(*this).IsValid(error) ||
+      !ToPreprocessOptions(*this).IsValid(error) || !ToEccOptions(*this).IsValid(error))
+    return false;
+  if (!(feather_sigma >= 0 && feather_sigma <= 10)) {
+    *error = "feather sigma must be in [0, 10] (0 = plain averaging)";
+    return false;
+  }
+  if (!(patch_megapixels >= 0.1 && patch_megapixels <= 2000)) {
+    *error = "patch budget " + std::to_string(patch_megapixels) + " megapixels is outside 0.1..2000";
+    return false;
+  }
+  if (patch_memory_mb < 0) {
+    *error = "patch memory budget cannot be negative";
+    return false;
+  }
+  if (max_lost_frames < 1) {
+    *error = "max lost frames must be at least 1";
+    return false;
+  }
+  PixelLayout rgba;
+  rgba.width = rgba.height = 1024;
+  rgba.channels = 4;
+  return tiff.IsValid(rgba, error);
+}
+
+long long MosaickerOptions::PixelBudget() const {
+  long long budget = static_cast<long long>(patch_megapixels * 1e6);
+  if (patch_memory_mb > 0)  // the canvas holds 16 bytes a pixel (3 float sums and a weight)
+    budget = std::min(budget, static_cast<long long>(patch_memory_mb * 1024 * 1024 / 16));
+  return budget;
+}
+
+struct Mosaicker::Impl {
+  MosaickerOptions options;
+  Store store;
+  Preprocessor pre;
+  FeatureExtractor extractor;
+  EgomotionOptions ego_options;
+  EccOptions ecc_options;
+  PatchWriter writer;
+  std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
+
+  // The first frame fixes the size and the camera.
+  cv::Size frame_size;
+  cv::Matx33d K = cv::Matx33d::eye();
+  cv::Mat weights;
+  std::unique_ptr<MotionGate> gate;
+
+  // The patch in progress.
+  std::unique_ptr<PatchCanvas> canvas;
+  int patch_id = 0;
+  int next_patch_id = 1;  // patches are committed later, by the writer thread
+  cv::Rect2d data_bounds;
+  std::vector<FrameRecord> frames;       // frame_to_patch in first-frame coordinates until closed
+  std::vector<RejectedFrame> rejected;
+  nlohmann::json link = nullptr;         // how this patch joins the one before
+  // The last stitched frame: what the next one is registered to.
+  Features prev_features;
+  cv::Matx33d prev_to_patch = cv::Matx33d::eye();
+  cv::Mat prev_filtered;
+  int lost = 0;
+  MosaicSummary summary;
+
+  Impl(Store s, const MosaickerOptions& o)
+      : options(o),
+        store(s),
+        pre(ToPreprocessOptions(o)),
+        extractor(ToFeatureOptions(o)),
+        ego_options(ToEgomotionOptions(o)),
+        ecc_options(ToEccOptions(o)),
+        writer(s, o.tiff) {}
+
+  void StartPatch(const cv::Mat& filtered, const Features& f, const nlohmann::json& join);
+  // Hands the patch to the writer; returns first-frame coordinates -> patch image pixels.
+  cv::Matx33d ClosePatch();
+  void Stitch(const cv::Mat& filtered, const cv::Matx33d& to_patch, const Features& f,
+              const FrameReport& report);
+  FrameReport Reject(FrameReport r, const std::string& reason);
+};
+
+FrameReport Mosaicker::Impl::Reject(FrameReport r, const std::string& reason) {
+  r.status = "rejected";
+  r.reason = reason;
+  r.patch_id = canvas ? patch_id : 0;
+  rejected.push_back({r.index, r.source, reason});
+  ++summary.rejected;
+  return r;
+}
+
+void Mosaicker::Impl::StartPatch(const cv::Mat& filtered, const Features& f,
+                                 const nlohmann::json& join) {
+  canvas = std::make_unique<PatchCanvas>(options.PixelBudget());
+  patch_id = next_patch_id++;
+  data_bounds = cv::Rect2d();
+  frames.clear();
+  link = join;
+  gate->Reset();
+  prev_features = f;
+  prev_to_patch = cv::Matx33d::eye();
+  prev_filtered = filtered;
+}
+
+void Mosaicker::Impl::Stitch(const cv::Mat& filtered, const cv::Matx33d& to_patch,
+                             const Features& f, const FrameReport& report) {
+  canvas->Add(filtered, weights, to_patch);
+  const cv::Rect2d b = PatchCanvas::FrameBounds(to_patch, frame_size);
+  data_bounds = data_bounds.area() > 0 ? (data_bounds | b) : b;
+  FrameRecord rec;
+  rec.index = report.index;
+  rec.source = report.source;
+  rec.frame_to_patch = ToArray(to_patch);
+  rec.matches = report.matches;
+  rec.inliers = report.inliers;
+  rec.ecc = report.ecc;
+  rec.status = "stitched";
+  frames.push_back(rec);
+  prev_features = f;
+  prev_to_patch = to_patch;
+  prev_filtered = filtered;
+  lost = 0;
+  ++summary.stitched;
+}
+
+cv::Matx33d Mosaicker::Impl::ClosePatch() {
+  if (!canvas || frames.empty()) {
+    canvas.reset();
+    return cv::Matx33d::eye();
+  }
+  // The image covers the frames' union; frame_to_patch moves to the image's pixel grid.
+  const cv::Rect rect(static_cast<int>(std::floor(data_bounds.x)),
+                      static_cast<int>(std::floor(data_bounds.y)),
+                      static_cast<int>(std::ceil(data_bounds.x + data_bounds.width)) -
+                          static_cast<int>(std::floor(data_bounds.x)),
+                      static_cast<int>(std::ceil(data_bounds.y + data_bounds.height)) -
+                          static_cast<int>(std::floor(data_bounds.y)));
+  const cv::Matx33d T(1, 0, -rect.x, 0, 1, -rect.y, 0, 0, 1);
+  PatchJob job;
+  job.sidecar.id = patch_id;
+  job.sidecar.size = {rect.width, rect.height};
+  job.sidecar.n_images = static_cast<int>(frames.size());
+  job.sidecar.offset = {double(-rect.x), double(-rect.y)};
+  for (auto& f : frames) {
+    cv::Matx33d h;
+    for (int i = 0; i < 9; ++i) h.val[i] = f.frame_to_patch[static_cast<size_t>(i)];
+    f.frame_to_patch = ToArray(T * h);
+  }
+  job.sidecar.first_homography = frames.front().frame_to_patch;
+  job.sidecar.last_homography = frames.back().frame_to_patch;
+  job.sidecar.frames = frames;
+  job.sidecar.rejected = rejected;
+  if (!link.is_null()) job.sidecar.extra["link"] = link;
+  job.sidecar.extra["pixel_budget"] = canvas->pixel_budget();
+  job.canvas = std::move(canvas);
+  job.data_rect = rect;
+  writer.Submit(std::move(job));
+  ++summary.patches;
+  frames.clear();
+  rejected.clear();
+  return T;
+}
+
+Mosaicker::Mosaicker(Store store, const MosaickerOptions& options) {
+  std::string error;
+  if (!options.IsValid(&error)) Fail("mosaic options", error);
+  impl_ = std::make_unique<Impl>(store, options);
+  impl_->next_patch_id = store.NextPatchId();
+}
+
+Mosaicker::~Mosaicker() = default;
+
+void Mosaicker::OnPatch(std::function<void(const PatchSidecar&)> callback) {
+  impl_->writer.OnPatch(std::move(callback));
+}
+
+FrameReport Mosaicker::Push(const cv::Mat& input, const std::string& source, const std::string& error) {
+  Impl& m = *impl_;
+  const auto t0 = std::chrono::steady_clock::now();
+  FrameReport r;
+  r.index = m.summary.frames++;
+  r.source = source;
+  auto done = [&](FrameReport rep) {
+    rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return rep;
+  };
+  if (input.empty()) return done(m.Reject(r, error.empty() ? "unreadable" : error));
+  cv::Mat frame = input;
+  if (frame.depth() != CV_8U) frame.convertTo(frame, CV_8U, 1.0 / 257.0);
+  if (frame.channels() == 1) cv::cvtColor(frame, frame, cv::COLOR_GRAY2BGR);
+  if (frame.channels() == 4) cv::cvtColor(frame, frame, cv::COLOR_BGRA2BGR);
+  if (m.frame_size.area() == 0) {
+    m.frame_size = frame.size();
+    m.K = m.pre.CameraMatrix(frame.size());
+    m.weights = FeatherWeights(frame.size(), m.options.feather_sigma);
+    MotionGateOptions g;
+    g.enabled = m.options.kalman;
+    m.gate = std::make_unique<MotionGate>(g, frame.size());
+  } else if (frame.size() != m.frame_size) {
+    return done(m.Reject(r, "size_changed: " + std::to_string(frame.cols) + "x" +
+                                std::to_string(frame.rows) + ", the survey is " +
+                                std::to_string(m.frame_size.width) + "x" +
+                                std::to_string(m.frame_size.height)));
+  }
+  cv::Mat spatial = m.pre.Spatial(frame);
+  cv::Mat detect = m.pre.DetectionImage(spatial);
+  Features features = m.extractor.Extract(detect);
+  auto lost_one = [&](const std::string& reason) {
+    FrameReport rep = m.Reject(r, reason);
+    if (++m.lost >= m.options.max_lost_frames && m.canvas) {
+      m.ClosePatch();  // tracking lost: the next good frame starts a new patch
+      m.lost = 0;
+    }
+    return done(rep);
+  };
+  if (static_cast<int>(features.points.size()) < m.options.min_inliers)
+    return lost_one("featureless");
+  if (!m.canvas) {
+    m.StartPatch(spatial, features, nullptr);
+    r.started_patch = true;
+    m.Stitch(spatial, cv::Matx33d::eye(), features, r);
+    r.status = "stitched";
+    r.patch_id = m.patch_id;
+    return done(r);
+  }
+  Matches matches = MatchFeatures(features, m.prev_features, m.extractor.options());
+  EgomotionResult ego = EstimateEgomotion(matches.from, matches.to, m.K, m.ego_options);
+  r.matches = ego.matches;
+  r.inliers = ego.inliers;
+  r.bilateral_error = ego.bilateral_error_mean;
+  if (!ego.ok) return lost_one(ego.failure);
+  const std::string gate = m.gate->Check(MotionOf(ego.H, m.frame_size));
+  if (!gate.empty()) return lost_one(gate);
+
+  cv::Matx33d to_patch = m.prev_to_patch * ego.H;
+  if (!m.canvas->Fits(PatchCanvas::FrameBounds(to_patch, m.frame_size))) {
+    // The pixel budget is reached: close the patch, start the next one with this frame, and
+    // remember how the two join (consecutive patches are linked by this frame's homography).
+    const int old_id = m.patch_id;
+    const cv::Matx33d T = m.ClosePatch();
+    m.StartPatch(spatial, features,
+                 {{"previous_patch", old_id}, {"to_previous", ToArray(T * to_patch)}});
+    r.started_patch = true;
+    m.Stitch(spatial, cv::Matx33d::eye(), features, r);
+    r.status = "stitched";
+    r.patch_id = m.patch_id;
+    return done(r);
+  }
+  cv::Mat filtered = m.pre.Temporal(spatial, m.prev_filtered, ego.H);
+  if (m.options.ecc) {
+    cv::Mat gray;
+    cv::cvtColor(filtered, gray, cv::COLOR_BGR2GRAY);
+    EccResult ecc = RefineWithEcc(gray, to_patch, *m.canvas, m.ecc_options);
+    r.ecc = ecc.correlation;
+    if (ecc.applied) {
+      r.ecc_shift = MaxCornerShift(to_patch, ecc.frame_to_patch, m.frame_size);
+      to_patch = ecc.frame_to_patch;
+    }
+  }
+  m.Stitch(filtered, to_patch, features, r);
+  if (ego.motion) {
+    Egomotion e;
+    for (int i = 0; i < 9; ++i) e.R[static_cast<size_t>(i)] = ego.motion->R.val[i];
+    for (int i = 0; i < 3; ++i) {
+      e.t[static_cast<size_t>(i)] = ego.motion->t[i];
+      e.n[static_cast<size_t>(i)] = ego.motion->n[i];
+    }
+    m.frames.back().egomotion = e;
+  }
+  m.frames.back().extra["bilateral_error"] = ego.bilateral_error_mean;
+  m.frames.back().extra["ecc_shift_px"] = r.ecc_shift;
+  r.status = "stitched";
+  r.patch_id = m.patch_id;
+  return done(r);
+}
+
+MosaicSummary Mosaicker::Finish() {
+  Impl& m = *impl_;
+  m.ClosePatch();
+  m.writer.Wait();
+  m.summary.seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - m.start).count();
+  m.summary.peak_rss_mb = PeakRssMb();
+  return m.summary;
+}
+
+MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& options,
+                          const std::function<void(const FrameReport&, int)>& on_frame) {
+  auto source = FrameSource::Open(input);
+  Mosaicker mosaicker(store, options);
+  InputFrame f;
+  while (source->Next(&f)) {
+    FrameReport r = mosaicker.Push(f.image, f.source, f.error);
+    if (on_frame) on_frame(r, source->count());
+  }
+  return mosaicker.Finish();
+}
+}  // namespace rolamos

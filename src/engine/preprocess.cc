@@ -1,0 +1,143 @@
+#include "engine/preprocess.h"
+
+#include <filesystem>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "rolamos/error.hpp"
+
+namespace rolamos {
+
+Calibration ReadCalibration(const std::string& path) {
+  if (!std::filesystem::exists(path)) Fail(path, "no such calibration file");
+  cv::FileStorage fs;
+  try {
+    if (!fs.open(path, cv::FileStorage::READ)) Fail(path, "is not a YAML, XML or JSON file OpenCV reads");
+  } catch (const cv::Exception& e) {
+    Fail(path, std::string("cannot be parsed: ") + e.err);
+  }
+  Calibration c;
+  cv::Mat K, D;
+  try {
+    fs["camera_matrix"] >> K;
+    fs["distortion_coefficients"] >> D;
+    int w = 0, h = 0;
+    fs["image_width"] >> w;
+    fs["image_height"] >> h;
+    c.image_size = cv::Size(w, h);
+  } catch (const cv::Exception& e) {
+    Fail(path, std::string("has a malformed field: ") + e.err);
+  }
+  if (K.rows != 3 || K.cols != 3)
+    Fail(path, "field \"camera_matrix\" must be a 3x3 matrix");
+  K.convertTo(K, CV_64F);
+  c.camera_matrix = cv::Matx33d(K);
+  const auto& k = c.camera_matrix;
+  if (!(k(0, 0) > 0 && k(1, 1) > 0 && k(2, 2) == 1 && k(1, 0) == 0 && k(2, 0) == 0 && k(2, 1) == 0))
+    Fail(path, "field \"camera_matrix\" is not a camera matrix (fx, fy > 0, last row 0 0 1)");
+  if (!D.empty()) {
+    const int n = static_cast<int>(D.total());
+    if (n != 4 && n != 5 && n != 8 && n != 12 && n != 14)
+      Fail(path, "field \"distortion_coefficients\" has " + std::to_string(n) +
+                     " numbers (4, 5, 8, 12 or 14 expected)");
+    D.reshape(1, 1).convertTo(c.distortion, CV_64F);
+  }
+  return c;
+}
+
+bool PreprocessOptions::IsValid(std::string* error) const {
+  if (bilateral_diameter < 1 || bilateral_diameter > 25 || !(bilateral_sigma_color > 0) ||
+      !(bilateral_sigma_space > 0)) {
+    *error = "bilateral filter settings are out of range";
+    return false;
+  }
+  if (!(temporal_weight >= 0 && temporal_weight < 1) || !(temporal_tolerance > 0)) {
+    *error = "temporal filter weight must be in [0, 1) and its tolerance positive";
+    return false;
+  }
+  if (!(clahe_clip > 0)) {
+    *error = "CLAHE clip limit must be positive";
+    return false;
+  }
+  return true;
+}
+
+Preprocessor::Preprocessor(const PreprocessOptions& options) : options_(options) {
+  std::string error;
+  if (!options.IsValid(&error)) Fail("preprocessing", error);
+  if (!options.calibration.empty()) calibration_ = ReadCalibration(options.calibration);
+}
+
+cv::Mat Preprocessor::Spatial(const cv::Mat& frame) {
+  cv::Mat out = frame;
+  if (calibration_) {
+    if (calibration_->image_size.area() > 0 && calibration_->image_size != frame.size())
+      Fail(options_.calibration, "is for " + std::to_string(calibration_->image_size.width) + "x" +
+                                     std::to_string(calibration_->image_size.height) +
+                                     " frames, this frame is " + std::to_string(frame.cols) + "x" +
+                                     std::to_string(frame.rows));
+    if (map_x_.empty() || map_x_.size() != frame.size())
+      cv::initUndistortRectifyMap(cv::Mat(calibration_->camera_matrix), calibration_->distortion,
+                                  cv::Mat(), cv::Mat(calibration_->camera_matrix), frame.size(),
+                                  CV_16SC2, map_x_, map_y_);
+    if (!calibration_->distortion.empty()) cv::remap(frame, out, map_x_, map_y_, cv::INTER_LINEAR);
+  }
+  if (options_.bilateral) {
+    cv::Mat smoothed;
+    cv::bilateralFilter(out, smoothed, options_.bilateral_diameter, options_.bilateral_sigma_color,
+                        options_.bilateral_sigma_space);
+    out = smoothed;
+  }
+  return out;
+}
+
+cv::Mat Preprocessor::DetectionImage(const cv::Mat& frame) const {
+  cv::Mat gray;
+  if (frame.channels() == 3) cv::cvtColor(frame, gray, cv::COLOR_BGR2GRAY);
+  else gray = frame;
+  if (!options_.clahe) return gray;
+  auto clahe = cv::createCLAHE(options_.clahe_clip, cv::Size(8, 8));
+  cv::Mat out;
+  clahe->apply(gray, out);
+  return out;
+}
+
+cv::Mat Preprocessor::Temporal(const cv::Mat& current, const cv::Mat& previous,
+                               const cv::Matx33d& current_to_previous) const {
+  if (!options_.temporal || previous.empty()) return current;
+  cv::Mat prev_here, valid;
+  cv::warpPerspective(previous, prev_here, cv::Mat(current_to_previous), current.size(),
+                      cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT);
+  cv::warpPerspective(cv::Mat(previous.size(), CV_8U, cv::Scalar(255)), valid,
+                      cv::Mat(current_to_previous), current.size(),
+                      cv::INTER_NEAREST | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT);
+  cv::Mat c, p;
+  current.convertTo(c, CV_32FC3);
+  prev_here.convertTo(p, CV_32FC3);
+  // Robust weight: full where the frames agree, none where they differ by more than tolerance
+  // (a particle, a fish, a misregistration).
+  cv::Mat diff;
+  cv::absdiff(c, p, diff);
+  cv::Mat d = diff.reshape(1, static_cast<int>(diff.total()));
+  cv::reduce(d, d, 1, cv::REDUCE_MAX);
+  d = d.reshape(1, current.rows);
+  cv::Mat w = 1.0 - d / options_.temporal_tolerance;
+  w = cv::max(w, 0.0) * options_.temporal_weight;
+  w.setTo(0, valid == 0);
+  cv::Mat w3;
+  cv::merge(std::vector<cv::Mat>{w, w, w}, w3);
+  cv::Mat out = c + w3.mul(p - c);
+  cv::Mat result;
+  out.convertTo(result, CV_8UC3);
+  return result;
+}
+
+cv::Matx33d Preprocessor::CameraMatrix(cv::Size size) const {
+  if (calibration_) return calibration_->camera_matrix;
+  // Without calibration: a 70-degree horizontal field of view, centred.
+  const double f = 0.5 * size.width / std::tan(35.0 * CV_PI / 180);
+  return cv::Matx33d(f, 0, (size.width - 1) / 2.0, 0, f, (size.height - 1) / 2.0, 0, 0, 1);
+}
+
+}  // namespace rolamos

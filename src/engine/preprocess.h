@@ -1,0 +1,61 @@
+// Stage 1: pre-processing. Undistortion from an OpenCV calibration; the robust bilateral and
+// temporal filter (spatial bilateral smoothing, then a temporal term that averages with the
+// previous filtered frame brought into this frame by the egomotion, weighted down where the two
+// disagree, so particles and moving things are not smeared); contrast normalisation (CLAHE on
+// luminance) for the detection image only, never for blended pixels.
+#pragma once
+
+#include <optional>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+namespace rolamos {
+
+struct Calibration {
+  cv::Matx33d camera_matrix = cv::Matx33d::eye();
+  cv::Mat distortion;  // 1xN, OpenCV order
+  cv::Size image_size;
+};
+
+// Reads an OpenCV FileStorage file (YAML, XML or JSON) with camera_matrix and
+// distortion_coefficients (and optionally image_width/image_height). Throws Error naming the file
+// and the field.
+Calibration ReadCalibration(const std::string& path);
+
+struct PreprocessOptions {
+  std::string calibration;       // "" = frames are already rectified
+  bool bilateral = true;
+  int bilateral_diameter = 5;
+  double bilateral_sigma_color = 12.0;
+  double bilateral_sigma_space = 3.0;
+  bool temporal = true;
+  double temporal_weight = 0.5;  // weight of the previous frame where the two agree
+  double temporal_tolerance = 10.0;  // grey levels: differences above this are not averaged
+  bool clahe = true;
+  double clahe_clip = 2.0;
+
+  bool IsValid(std::string* error) const;
+};
+
+class Preprocessor {
+ public:
+  explicit Preprocessor(const PreprocessOptions& options);
+  // Undistortion and bilateral smoothing. Checks the frame size against the calibration.
+  cv::Mat Spatial(const cv::Mat& frame);
+  // The detection image: gray, contrast-normalised.
+  cv::Mat DetectionImage(const cv::Mat& frame) const;
+  // The temporal term: `previous` (filtered, BGR) seen through current_to_previous.
+  cv::Mat Temporal(const cv::Mat& current, const cv::Mat& previous,
+                   const cv::Matx33d& current_to_previous) const;
+  // The camera matrix of the (rectified) frames, or a default for frames of `size`.
+  cv::Matx33d CameraMatrix(cv::Size size) const;
+  const std::optional<Calibration>& calibration() const { return calibration_; }
+
+ private:
+  PreprocessOptions options_;
+  std::optional<Calibration> calibration_;
+  cv::Mat map_x_, map_y_;
+};
+
+}  // namespace rolamos

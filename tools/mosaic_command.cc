@@ -1,0 +1,91 @@
+#include <cstdio>
+
+#include "command.h"
+#include "rolamos/error.hpp"
+#include "rolamos/mosaicker.hpp"
+#include "rolamos/store.hpp"
+#include "util/progress.h"
+
+namespace rolamos::cli {
+
+struct MosaicSwitches {
+  std::string input, output;
+  MosaickerOptions options;
+  TiffSwitches tiff{"webp", 90, 256, 0};
+  bool no_bilateral = false, no_temporal = false, no_clahe = false, no_fundamental = false,
+       no_kalman = false, no_ecc = false, no_cross_check = false;
+  bool quiet = false;
+};
+
+static int RunMosaic(MosaicSwitches s) {
+  MosaickerOptions& o = s.options;
+  o.bilateral = !s.no_bilateral;
+  o.temporal = !s.no_temporal;
+  o.clahe = !s.no_clahe;
+  o.fundamental = !s.no_fundamental;
+  o.kalman = !s.no_kalman;
+  o.ecc = !s.no_ecc;
+  o.cross_check = !s.no_cross_check;
+  o.tiff = ToWriteOptions(s.tiff);
+  std::string error;
+  if (!o.IsValid(&error)) Fail("mosaic", error);
+  StoreOptions so;
+  if (!o.calibration.empty()) so.camera = {{"calibration_file", o.calibration}};
+  Store store = Store::LooksLikeStore(s.output) ? Store::Open(s.output) : Store::Create(s.output, so);
+  Progress progress("mosaic", s.quiet);
+  const bool per_frame_lines = !Progress::StderrIsTerminal() && !s.quiet;
+  MosaicSummary sum = MosaicInput(s.input, store, o, [&](const FrameReport& r, int total) {
+    char detail[200];
+    std::snprintf(detail, sizeof detail, "frame %d %s%s%s patch %d, %d/%d inliers", r.index,
+                  r.status.c_str(), r.reason.empty() ? "" : " (", r.reason.empty() ? "" : (r.reason + ")").c_str(),
+                  r.patch_id, r.inliers, r.matches);
+    if (per_frame_lines) std::fprintf(stderr, "%s\n", detail);
+    progress.Update(total > 0 ? double(r.index + 1) / total : 0.0, detail);
+  });
+  progress.Done();
+  std::printf("%s: %d frames, %d stitched, %d rejected, %d patches, %.1f s (%.1f frames/s), "
+              "peak memory %.0f MiB\n",
+              s.output.c_str(), sum.frames, sum.stitched, sum.rejected, sum.patches, sum.seconds,
+              sum.frames / std::max(sum.seconds, 1e-9), sum.peak_rss_mb);
+  std::printf("Look at it: build/rolamos info %s; build/rolamos export %s --patch 1 --scale 0.25 "
+              "-o patch1.jpg\n", s.output.c_str(), s.output.c_str());
+  return sum.stitched > 0 ? 0 : 1;
+}
+
+void AddMosaicCommand(CLI::App& app, Runner* run) {
+  auto s = std::make_shared<MosaicSwitches>();
+  auto& o = s->options;
+  auto* cmd = app.add_subcommand("mosaic", "Mosaic frames (folder, list or video) into a store, online");
+  cmd->add_option("input", s->input, "folder of frames, .txt list of frames, or a video")->required();
+  cmd->add_option("-o,--output", s->output, "store to create (or add to)")->required();
+  cmd->add_option("--calibration", o.calibration, "OpenCV calibration file (YAML/XML/JSON)");
+  cmd->add_flag("--no-bilateral", s->no_bilateral, "skip the bilateral filter");
+  cmd->add_flag("--no-temporal", s->no_temporal, "skip the temporal filter");
+  cmd->add_flag("--no-clahe", s->no_clahe, "no contrast normalisation of the detection image");
+  cmd->add_option("--features", o.features, "sift, orb or akaze")->capture_default_str();
+  cmd->add_option("--max-features", o.max_features, "features per frame")->capture_default_str();
+  cmd->add_option("--detect-scale", o.detect_scale, "resize before detection")->capture_default_str();
+  cmd->add_option("--ratio", o.ratio, "ratio test")->capture_default_str();
+  cmd->add_flag("--no-cross-check", s->no_cross_check, "keep one-way matches");
+  cmd->add_flag("--no-fundamental", s->no_fundamental, "skip F-RANSAC / bilateral epipolar stage");
+  cmd->add_option("--epipolar-threshold", o.epipolar_threshold, "pixels")->capture_default_str();
+  cmd->add_option("--homography-threshold", o.homography_threshold, "pixels")->capture_default_str();
+  cmd->add_option("--min-inliers", o.min_inliers, "fewer means tracking lost")->capture_default_str();
+  cmd->add_flag("--no-kalman", s->no_kalman, "no consistency gate");
+  cmd->add_flag("--no-ecc", s->no_ecc, "no ECC refinement");
+  cmd->add_option("--ecc-scale", o.ecc_scale, "ECC resolution")->capture_default_str();
+  cmd->add_option("--ecc-motion", o.ecc_motion, "translation, euclidean, affine or homography")
+      ->capture_default_str();
+  cmd->add_option("--feather-sigma", o.feather_sigma, "Gaussian sigma / frame size; 0 = average")
+      ->capture_default_str();
+  cmd->add_option("--patch-megapixels", o.patch_megapixels, "pixel budget of a patch")
+      ->capture_default_str();
+  cmd->add_option("--patch-memory-mb", o.patch_memory_mb, "memory budget of a patch (0 = none)");
+  cmd->add_option("--max-lost", o.max_lost_frames, "failures in a row that close a patch")
+      ->capture_default_str();
+  AddTiffSwitches(cmd, &s->tiff);
+  cmd->add_flag("-q,--quiet", s->quiet, "no progress");
+  cmd->callback([s, run] { *run = [s] { return RunMosaic(*s); }; });
+}
+
+}  // namespace rolamos::cli
