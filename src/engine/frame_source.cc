@@ -22,10 +22,36 @@ bool IsImageName(const std::string& name) {
   return std::any_of(std::begin(exts), std::end(exts), [&](const char* x) { return e == x; });
 }
 
+// Decoders fill a cut-off JPEG or PNG with grey and carry on; a frame like that would put a grey
+// band into the mosaic. The end marker tells.
+bool LooksTruncated(const std::string& path) {
+  const std::string ext = Extension(path);
+  const bool jpeg = ext == ".jpg" || ext == ".jpeg", png = ext == ".png";
+  if (!jpeg && !png) return false;
+  std::ifstream in(path, std::ios::binary | std::ios::ate);
+  const auto size = static_cast<long long>(in.tellg());
+  char head[4] = {0, 0, 0, 0};
+  in.seekg(0);
+  in.read(head, 4);
+  // Not the format at all: the decoder says so ("unreadable").
+  if (jpeg && !(head[0] == '\xFF' && head[1] == '\xD8')) return false;
+  if (png && std::string(head + 1, 3) != "PNG") return false;
+  const long long n = std::min<long long>(size, 64);
+  std::string tail(static_cast<size_t>(n), '\0');
+  in.seekg(size - n);
+  in.read(tail.data(), n);
+  if (jpeg) return tail.find("\xFF\xD9") == std::string::npos;
+  return tail.find("IEND") == std::string::npos;
+}
+
 cv::Mat ReadImage(const std::string& path, std::string* error) {
   std::error_code ec;
   if (!fs::exists(path, ec)) {
     *error = "missing";
+    return {};
+  }
+  if (LooksTruncated(path)) {
+    *error = "truncated (no end-of-image marker)";
     return {};
   }
   cv::Mat m;

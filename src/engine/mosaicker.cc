@@ -306,7 +306,8 @@ FrameReport Mosaicker::Push(const cv::Mat& input, const std::string& source, con
   r.inliers = ego.inliers;
   r.bilateral_error = ego.bilateral_error_mean;
   if (!ego.ok) return lost_one(ego.failure);
-  const std::string gate = m.gate->Check(MotionOf(ego.H, m.frame_size));
+  const std::string gate =
+      m.gate->Check(MotionOf(ego.H, m.frame_size), r.index - m.frames.back().index);
   if (!gate.empty()) return lost_one(gate);
 
   cv::Matx33d to_patch = m.prev_to_patch * ego.H;

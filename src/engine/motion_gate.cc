@@ -60,8 +60,9 @@ void MotionGate::Reset() {
   seen_ = 0;
 }
 
-std::string MotionGate::Check(const FrameMotion& m) {
-  const cv::Mat z = (cv::Mat_<double>(4, 1) << m.dx, m.dy, m.rotation, m.log_scale);
+std::string MotionGate::Check(const FrameMotion& m, int gap) {
+  const double k = 1.0 / std::max(1, gap);
+  const cv::Mat z = (cv::Mat_<double>(4, 1) << m.dx * k, m.dy * k, m.rotation * k, m.log_scale * k);
   if (!options_.enabled) return "";
   cv::Mat predicted = kf_.predict();
   if (seen_ < options_.warmup_frames) {

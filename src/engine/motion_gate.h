@@ -32,8 +32,9 @@ FrameMotion MotionOf(const cv::Matx33d& H, cv::Size frame);
 class MotionGate {
  public:
   MotionGate(const MotionGateOptions& options, cv::Size frame);
-  // Checks a measured motion; accepted ones update the filter. Returns "" or the reason.
-  std::string Check(const FrameMotion& m);
+  // Checks the motion measured over `gap` input frames (rejected frames in between make gaps);
+  // the filter follows motion per frame. Accepted ones update it. Returns "" or the reason.
+  std::string Check(const FrameMotion& m, int gap = 1);
   void Reset();
   double last_distance() const { return last_d2_; }
 

@@ -31,7 +31,7 @@ struct PreprocessOptions {
   double bilateral_sigma_space = 3.0;
   bool temporal = true;
   double temporal_weight = 0.5;  // weight of the previous frame where the two agree
-  double temporal_tolerance = 10.0;  // grey levels: differences above this are not averaged
+  double temporal_tolerance = 16.0;  // grey levels: differences above this are not averaged
   bool clahe = true;
   double clahe_clip = 2.0;
 

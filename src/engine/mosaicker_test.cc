@@ -1,0 +1,159 @@
+#include "rolamos/mosaicker.hpp"
+
+#include <filesystem>
+#include <fstream>
+#include <map>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "rolamos/error.hpp"
+#include "rolamos/synth.hpp"
+#include "rolamos/tiled_image.hpp"
+#include "test_support.h"
+
+namespace rolamos {
+namespace {
+
+namespace fs = std::filesystem;
+
+SurveyOptions SmallSurvey(int frames) {
+  SurveyOptions o;
+  o.frame_width = 480;
+  o.frame_height = 360;
+  o.focal_px = 420;
+  o.frames = frames;
+  return o;
+}
+
+MosaickerOptions FastOptions() {
+  MosaickerOptions o;
+  o.tiff.compression = Compression::kZstd;
+  return o;
+}
+
+cv::Matx33d Mat33(const std::array<double, 9>& a) {
+  cv::Matx33d m;
+  for (int i = 0; i < 9; ++i) m.val[i] = a[static_cast<size_t>(i)];
+  return m;
+}
+
+// Where frames land in the patch against where they are on the ground, after one best-fit
+// homography for the whole patch (the measure): RMS over a 5x5 grid in every frame.
+double PatchRmsError(const PatchSidecar& s, const Survey& truth) {
+  std::map<std::string, cv::Matx33d> gt;
+  for (const auto& f : truth.frames) gt[fs::path(f.file).filename().string()] = Mat33(f.frame_to_world);
+  std::vector<cv::Point2d> grid, ours, theirs;
+  for (int i = 0; i < 5; ++i)
+    for (int j = 0; j < 5; ++j)
+      grid.emplace_back(i * (truth.frame_size.width - 1) / 4.0, j * (truth.frame_size.height - 1) / 4.0);
+  for (const auto& f : s.frames) {
+    std::vector<cv::Point2d> a, b;
+    cv::perspectiveTransform(grid, a, cv::Mat(Mat33(f.frame_to_patch)));
+    cv::perspectiveTransform(grid, b, cv::Mat(gt[fs::path(f.source).filename().string()]));
+    ours.insert(ours.end(), a.begin(), a.end());
+    theirs.insert(theirs.end(), b.begin(), b.end());
+  }
+  cv::Mat fit = cv::findHomography(ours, theirs, 0);
+  std::vector<cv::Point2d> mapped;
+  cv::perspectiveTransform(ours, mapped, fit);
+  double sse = 0;
+  for (size_t i = 0; i < mapped.size(); ++i) sse += std::pow(cv::norm(mapped[i] - theirs[i]), 2);
+  return std::sqrt(sse / mapped.size());
+}
+
+TEST(Mosaicker, StitchesASyntheticSurveyWhereTheGroundTruthSays) {
+  test::ScratchDir dir;
+  Survey survey = WriteSurvey(SmallSurvey(24), dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaicSummary sum = MosaicInput(dir / "survey/frames", store, FastOptions());
+  EXPECT_EQ(sum.frames, 24);
+  EXPECT_EQ(sum.stitched, 24);
+  EXPECT_EQ(sum.patches, 1);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  ASSERT_EQ(reopened.patches().size(), 1u);
+  PatchSidecar s = reopened.ReadSidecar(1);
+  EXPECT_EQ(s.n_images, 24);
+  EXPECT_LT(PatchRmsError(s, survey), 1.0);
+  // The patch image holds every frame: opaque where frames were, and as large as the sidecar says.
+  TiledImage image = TiledImage::Open(reopened.PatchImagePath(1), std::make_shared<TileCache>());
+  EXPECT_EQ(image.width(), s.size[0]);
+  EXPECT_TRUE(image.info().has_alpha);
+  cv::Vec3d c = Mat33(s.frames[12].frame_to_patch) * cv::Vec3d(240, 180, 1);
+  cv::Mat px = image.ReadRegion(0, cv::Rect(int(c[0] / c[2]) - 2, int(c[1] / c[2]) - 2, 4, 4));
+  EXPECT_EQ(cv::mean(px)[3], 255.0);
+  ASSERT_TRUE(s.frames[5].egomotion.has_value());
+}
+
+TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {
+  test::ScratchDir dir;
+  WriteSurvey(SmallSurvey(30), dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaickerOptions o = FastOptions();
+  o.patch_megapixels = 0.4;  // about two frames' worth of canvas
+  MosaicSummary sum = MosaicInput(dir / "survey/frames", store, o);
+  EXPECT_EQ(sum.stitched, 30);
+  EXPECT_GE(sum.patches, 3);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  int images = 0;
+  for (const auto& p : reopened.patches()) {
+    PatchSidecar s = reopened.ReadSidecar(p.id);
+    EXPECT_LE(s.size[0] * s.size[1], 400000) << "patch " << p.id;
+    images += s.n_images;
+    if (p.id > 1) {
+      ASSERT_TRUE(s.extra.contains("link")) << "patch " << p.id;
+      EXPECT_EQ(s.extra["link"]["previous_patch"], p.id - 1);
+    }
+  }
+  EXPECT_EQ(images, 30);
+  EXPECT_EQ(reopened.global().n_images, 30);
+}
+
+TEST(Mosaicker, BadFramesAreRejectedWithReasonsAndPatchesStayValid) {
+  test::ScratchDir dir;
+  WriteSurvey(SmallSurvey(12), dir / "survey");
+  const std::string frames = dir / "survey/frames";
+  // Frame 4 truncated, frame 6 another size, frame 8 featureless sand (flat), then a text file.
+  const std::string f4 = frames + "/frame_00004.jpg";
+  fs::resize_file(f4, fs::file_size(f4) / 3);
+  cv::imwrite(frames + "/frame_00006.jpg", cv::Mat(200, 300, CV_8UC3, cv::Scalar(90, 120, 100)));
+  cv::imwrite(frames + "/frame_00008.jpg", cv::Mat(360, 480, CV_8UC3, cv::Scalar(90, 120, 100)));
+  std::ofstream(frames + "/frame_00009.jpg") << "not a jpeg";
+  Store store = Store::Create(dir / "s.rolamos");
+  std::vector<FrameReport> reports;
+  MosaicSummary sum = MosaicInput(frames, store, FastOptions(),
+                                  [&](const FrameReport& r, int) { reports.push_back(r); });
+  ASSERT_EQ(reports.size(), 12u);
+  EXPECT_EQ(reports[6].status, "rejected");
+  EXPECT_NE(reports[6].reason.find("size_changed"), std::string::npos);
+  EXPECT_EQ(reports[8].reason, "featureless");
+  EXPECT_NE(reports[9].reason.find("unreadable"), std::string::npos);
+  EXPECT_NE(reports[4].reason.find("truncated"), std::string::npos);
+  EXPECT_EQ(sum.stitched, 8);  // every good frame
+  Store reopened = Store::Open(dir / "s.rolamos");
+  int rejected = 0;
+  for (const auto& p : reopened.patches()) rejected += static_cast<int>(reopened.ReadSidecar(p.id).rejected.size());
+  EXPECT_EQ(rejected, sum.rejected);
+}
+
+TEST(Mosaicker, ImpossibleOptionsAndInputsAreRefused) {
+  test::ScratchDir dir;
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaickerOptions o;
+  o.features = "surf";
+  EXPECT_THROW(Mosaicker(store, o), Error);
+  o = MosaickerOptions{};
+  o.patch_megapixels = 0;
+  EXPECT_THROW(Mosaicker(store, o), Error);
+  o = MosaickerOptions{};
+  o.calibration = dir / "missing.yml";
+  EXPECT_THROW(Mosaicker(store, o), Error);
+  EXPECT_THROW(MosaicInput(dir / "nothing-here", store, MosaickerOptions{}), Error);
+  std::ofstream(dir / "clip.mp4") << "not a video";
+  EXPECT_THROW(MosaicInput(dir / "clip.mp4", store, MosaickerOptions{}), Error);
+}
+
+}  // namespace
+}  // namespace rolamos

@@ -1,0 +1,80 @@
+#include "engine/preprocess.h"
+
+#include <fstream>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+#include "rolamos/error.hpp"
+#include "synth/seafloor_texture.h"
+#include "test_support.h"
+
+namespace rolamos {
+namespace {
+
+std::string ErrorOf(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(Calibration, ReadsOpenCvFilesAndNamesBadFields) {
+  test::ScratchDir dir;
+  {
+    cv::FileStorage fs(dir / "cam.yml", cv::FileStorage::WRITE);
+    fs << "image_width" << 640 << "image_height" << 480;
+    fs << "camera_matrix" << cv::Mat(cv::Matx33d(500, 0, 320, 0, 500, 240, 0, 0, 1));
+    fs << "distortion_coefficients" << cv::Mat(cv::Matx<double, 1, 5>(-0.2, 0.05, 0, 0, 0));
+  }
+  Calibration c = ReadCalibration(dir / "cam.yml");
+  EXPECT_EQ(c.image_size, cv::Size(640, 480));
+  EXPECT_EQ(c.distortion.total(), 5u);
+  {
+    cv::FileStorage fs(dir / "bad.json", cv::FileStorage::WRITE);
+    fs << "camera_matrix" << cv::Mat(cv::Matx22d(1, 0, 0, 1));
+  }
+  EXPECT_NE(ErrorOf([&] { ReadCalibration(dir / "bad.json"); }).find("camera_matrix"), std::string::npos);
+  {
+    cv::FileStorage fs(dir / "bad2.yml", cv::FileStorage::WRITE);
+    fs << "camera_matrix" << cv::Mat(cv::Matx33d(500, 0, 320, 0, 500, 240, 0, 0, 1));
+    fs << "distortion_coefficients" << cv::Mat(cv::Matx<double, 1, 3>(1, 2, 3));
+  }
+  EXPECT_NE(ErrorOf([&] { ReadCalibration(dir / "bad2.yml"); }).find("3 numbers"), std::string::npos);
+  std::ofstream(dir / "junk.yml") << "%YAML:1.0\ncamera_matrix: [1, 2\n";
+  EXPECT_NE(ErrorOf([&] { ReadCalibration(dir / "junk.yml"); }).find("junk.yml"), std::string::npos);
+  EXPECT_NE(ErrorOf([&] { ReadCalibration(dir / "none.yml"); }).find("no such"), std::string::npos);
+  // A calibration for another frame size is refused at the first frame.
+  PreprocessOptions o;
+  o.calibration = dir / "cam.yml";
+  Preprocessor p(o);
+  EXPECT_NE(ErrorOf([&] { p.Spatial(cv::Mat(100, 100, CV_8UC3, cv::Scalar::all(0))); }).find("640x480"),
+            std::string::npos);
+}
+
+TEST(Preprocess, TemporalTermRemovesParticlesWithoutSmearingTexture) {
+  cv::Mat ground = RenderSeafloor(0, 0, 700, 500);
+  const cv::Matx33d cur_to_prev(1, 0, 12, 0, 1, 7, 0, 0, 1);  // the camera moved
+  cv::Mat current = ground(cv::Rect(12, 7, 640, 480)).clone();
+  cv::Mat previous = ground(cv::Rect(0, 0, 640, 480)).clone();
+  cv::Mat noisy = current.clone();
+  cv::Mat noise(noisy.size(), CV_16SC3);
+  cv::randn(noise, 0, 4);
+  cv::Mat n16;
+  noisy.convertTo(n16, CV_16SC3);
+  n16 += noise;
+  n16.convertTo(noisy, CV_8UC3);
+  cv::circle(noisy, cv::Point(300, 200), 4, cv::Scalar(255, 255, 255), cv::FILLED);  // a particle
+  PreprocessOptions o;
+  Preprocessor p(o);
+  cv::Mat out = p.Temporal(noisy, previous, cur_to_prev);
+  const cv::Rect inner(20, 20, 600, 440);
+  EXPECT_GT(test::Psnr(out(inner), current(inner)), test::Psnr(noisy(inner), current(inner)) + 0.5);
+  // The particle disagrees with the previous frame: it is kept as it is, not half-blended.
+  EXPECT_EQ(out.at<cv::Vec3b>(200, 300), cv::Vec3b(255, 255, 255));
+}
+
+}  // namespace
+}  // namespace rolamos
