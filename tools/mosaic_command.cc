@@ -47,6 +47,14 @@ static int RunMosaic(MosaicSwitches s) {
               "peak memory %.0f MiB\n",
               s.output.c_str(), sum.frames, sum.stitched, sum.rejected, sum.patches, sum.seconds,
               sum.frames / std::max(sum.seconds, 1e-9), sum.peak_rss_mb);
+  std::string stages;
+  for (const auto& [name, sec] : sum.stage_seconds) {
+    char b[64];
+    std::snprintf(b, sizeof b, "%s%s %.0f ms", stages.empty() ? "" : ", ", name.c_str(),
+                  1000.0 * sec / std::max(1, sum.frames));
+    stages += b;
+  }
+  std::printf("per frame: %s\n", stages.c_str());
   std::printf("Look at it: build/rolamos info %s; build/rolamos export %s --patch 1 --scale 0.25 "
               "-o patch1.jpg\n", s.output.c_str(), s.output.c_str());
   return sum.stitched > 0 ? 0 : 1;

@@ -8,6 +8,8 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <opencv2/core.hpp>
 
@@ -15,6 +17,8 @@
 #include "rolamos/tiff_writer.hpp"
 
 namespace rolamos {
+
+struct PreparedFrame;  // a frame after pre-processing and feature extraction
 
 struct MosaickerOptions {
   // 1. Pre-processing
@@ -68,6 +72,8 @@ struct MosaicSummary {
   int frames = 0, stitched = 0, rejected = 0, patches = 0;
   double seconds = 0;
   double peak_rss_mb = 0;
+  // Time spent in each stage, summed over frames (seconds): where the time goes.
+  std::vector<std::pair<std::string, double>> stage_seconds;
 };
 
 class Mosaicker {
@@ -80,6 +86,12 @@ class Mosaicker {
 
   // One frame (BGR 8-bit; empty = unreadable, recorded with `error` as the reason).
   FrameReport Push(const cv::Mat& frame, const std::string& source, const std::string& error = "");
+  // Push in two halves, for pipelining: Prepare (pre-processing and features) may run on another
+  // thread, one frame ahead of Integrate (registration, checks, refinement, blending). Frames
+  // must be prepared and integrated in the same order, each half from one thread at a time.
+  std::shared_ptr<PreparedFrame> Prepare(const cv::Mat& frame, const std::string& source,
+                                         const std::string& error = "");
+  FrameReport Integrate(const std::shared_ptr<PreparedFrame>& frame);
   // Closes and writes the last patch, waits for the writer. Returns the totals.
   MosaicSummary Finish();
   // Called (from the writer thread) after each patch is committed to the store.

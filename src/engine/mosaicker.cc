@@ -1,6 +1,10 @@
 #include "rolamos/mosaicker.hpp"
 
 #include <chrono>
+#include <condition_variable>
+#include <deque>
+#include <mutex>
+#include <thread>
 #include <cmath>
 
 #include <opencv2/imgproc.hpp>
@@ -18,6 +22,13 @@
 #include "util/memory.h"
 
 namespace rolamos {
+
+struct PreparedFrame {
+  std::string source, error;
+  cv::Size size;
+  cv::Mat spatial, detect;
+  Features features;
+};
 
 namespace {
 
@@ -120,7 +131,8 @@ struct Mosaicker::Impl {
   std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
 
   // The first frame fixes the size and the camera.
-  cv::Size frame_size;
+  cv::Size reference_size;  // seen by Prepare (its own thread)
+  cv::Size frame_size;      // seen by Integrate
   cv::Matx33d K = cv::Matx33d::eye();
   cv::Mat weights;
   std::unique_ptr<MotionGate> gate;
@@ -139,6 +151,19 @@ struct Mosaicker::Impl {
   cv::Mat prev_filtered;
   int lost = 0;
   MosaicSummary summary;
+  // Stage timers, in the order of the pipeline.
+  enum Stage { kPreprocess, kDetectImage, kFeatures, kMatching, kEgomotion, kTemporal, kEcc, kBlend, kStages };
+  // Prepare (one thread) and Integrate (another) each write only their own stages.
+  double stage_seconds[kStages] = {};
+  struct Laps {
+    Impl* m;
+    std::chrono::steady_clock::time_point t = std::chrono::steady_clock::now();
+    void operator()(Stage s) {
+      const auto now = std::chrono::steady_clock::now();
+      m->stage_seconds[s] += std::chrono::duration<double>(now - t).count();
+      t = now;
+    }
+  };
 
   Impl(Store s, const MosaickerOptions& o)
       : options(o),
@@ -251,37 +276,62 @@ void Mosaicker::OnPatch(std::function<void(const PatchSidecar&)> callback) {
   impl_->writer.OnPatch(std::move(callback));
 }
 
-FrameReport Mosaicker::Push(const cv::Mat& input, const std::string& source, const std::string& error) {
+std::shared_ptr<PreparedFrame> Mosaicker::Prepare(const cv::Mat& input, const std::string& source,
+                                                  const std::string& error) {
   Impl& m = *impl_;
-  const auto t0 = std::chrono::steady_clock::now();
-  FrameReport r;
-  r.index = m.summary.frames++;
-  r.source = source;
-  auto done = [&](FrameReport rep) {
-    rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    return rep;
-  };
-  if (input.empty()) return done(m.Reject(r, error.empty() ? "unreadable" : error));
+  auto p = std::make_shared<PreparedFrame>();
+  p->source = source;
+  p->error = input.empty() ? (error.empty() ? "unreadable" : error) : "";
+  if (input.empty()) return p;
+  Impl::Laps lap{&m};
   cv::Mat frame = input;
   if (frame.depth() != CV_8U) frame.convertTo(frame, CV_8U, 1.0 / 257.0);
   if (frame.channels() == 1) cv::cvtColor(frame, frame, cv::COLOR_GRAY2BGR);
   if (frame.channels() == 4) cv::cvtColor(frame, frame, cv::COLOR_BGRA2BGR);
+  p->size = frame.size();
+  if (m.reference_size.area() == 0) m.reference_size = frame.size();
+  if (frame.size() != m.reference_size) return p;  // Integrate says why
+  p->spatial = m.pre.Spatial(frame);
+  lap(Impl::kPreprocess);
+  p->detect = m.pre.DetectionImage(p->spatial);
+  lap(Impl::kDetectImage);
+  p->features = m.extractor.Extract(p->detect);
+  lap(Impl::kFeatures);
+  return p;
+}
+
+FrameReport Mosaicker::Push(const cv::Mat& frame, const std::string& source, const std::string& error) {
+  return Integrate(Prepare(frame, source, error));
+}
+
+FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared) {
+  Impl& m = *impl_;
+  const PreparedFrame& p = *prepared;
+  const auto t0 = std::chrono::steady_clock::now();
+  Impl::Laps lap{&m};
+  FrameReport r;
+  r.index = m.summary.frames++;
+  r.source = p.source;
+  auto done = [&](FrameReport rep) {
+    rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return rep;
+  };
+  if (!p.error.empty()) return done(m.Reject(r, p.error));
   if (m.frame_size.area() == 0) {
-    m.frame_size = frame.size();
-    m.K = m.pre.CameraMatrix(frame.size());
-    m.weights = FeatherWeights(frame.size(), m.options.feather_sigma);
+    m.frame_size = p.size;
+    m.K = m.pre.CameraMatrix(p.size);
+    m.weights = FeatherWeights(p.size, m.options.feather_sigma);
     MotionGateOptions g;
     g.enabled = m.options.kalman;
-    m.gate = std::make_unique<MotionGate>(g, frame.size());
-  } else if (frame.size() != m.frame_size) {
-    return done(m.Reject(r, "size_changed: " + std::to_string(frame.cols) + "x" +
-                                std::to_string(frame.rows) + ", the survey is " +
+    m.gate = std::make_unique<MotionGate>(g, p.size);
+  }
+  if (p.size != m.frame_size)
+    return done(m.Reject(r, "size_changed: " + std::to_string(p.size.width) + "x" +
+                                std::to_string(p.size.height) + ", the survey is " +
                                 std::to_string(m.frame_size.width) + "x" +
                                 std::to_string(m.frame_size.height)));
-  }
-  cv::Mat spatial = m.pre.Spatial(frame);
-  cv::Mat detect = m.pre.DetectionImage(spatial);
-  Features features = m.extractor.Extract(detect);
+  const cv::Mat& spatial = p.spatial;
+  const Features& features = p.features;
   auto lost_one = [&](const std::string& reason) {
     FrameReport rep = m.Reject(r, reason);
     if (++m.lost >= m.options.max_lost_frames && m.canvas) {
@@ -301,7 +351,9 @@ FrameReport Mosaicker::Push(const cv::Mat& input, const std::string& source, con
     return done(r);
   }
   Matches matches = MatchFeatures(features, m.prev_features, m.extractor.options());
+  lap(Impl::kMatching);
   EgomotionResult ego = EstimateEgomotion(matches.from, matches.to, m.K, m.ego_options);
+  lap(Impl::kEgomotion);
   r.matches = ego.matches;
   r.inliers = ego.inliers;
   r.bilateral_error = ego.bilateral_error_mean;
@@ -325,6 +377,7 @@ FrameReport Mosaicker::Push(const cv::Mat& input, const std::string& source, con
     return done(r);
   }
   cv::Mat filtered = m.pre.Temporal(spatial, m.prev_filtered, ego.H);
+  lap(Impl::kTemporal);
   if (m.options.ecc) {
     cv::Mat gray;
     cv::cvtColor(filtered, gray, cv::COLOR_BGR2GRAY);
@@ -335,7 +388,9 @@ FrameReport Mosaicker::Push(const cv::Mat& input, const std::string& source, con
       to_patch = ecc.frame_to_patch;
     }
   }
+  lap(Impl::kEcc);
   m.Stitch(filtered, to_patch, features, r);
+  lap(Impl::kBlend);
   if (ego.motion) {
     Egomotion e;
     for (int i = 0; i < 9; ++i) e.R[static_cast<size_t>(i)] = ego.motion->R.val[i];
@@ -359,6 +414,10 @@ MosaicSummary Mosaicker::Finish() {
   m.summary.seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - m.start).count();
   m.summary.peak_rss_mb = PeakRssMb();
+  static const char* names[] = {"preprocess", "detection image", "features", "matching",
+                                "egomotion", "temporal", "ecc", "blend"};
+  m.summary.stage_seconds.clear();
+  for (int i = 0; i < Impl::kStages; ++i) m.summary.stage_seconds.emplace_back(names[i], m.stage_seconds[i]);
   return m.summary;
 }
 
@@ -366,11 +425,61 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
                           const std::function<void(const FrameReport&, int)>& on_frame) {
   auto source = FrameSource::Open(input);
   Mosaicker mosaicker(store, options);
-  InputFrame f;
-  while (source->Next(&f)) {
-    FrameReport r = mosaicker.Push(f.image, f.source, f.error);
-    if (on_frame) on_frame(r, source->count());
+  // Two stages on two cores: decoding, pre-processing and features of the next frame run while
+  // this one is registered, refined and blended. The queue holds two frames at most.
+  std::mutex mutex;
+  std::condition_variable changed;
+  std::deque<std::shared_ptr<PreparedFrame>> queue;
+  bool finished = false;
+  std::exception_ptr failure;
+  std::thread producer([&] {
+    try {
+      InputFrame f;
+      while (source->Next(&f)) {
+        auto prepared = mosaicker.Prepare(f.image, f.source, f.error);
+        std::unique_lock<std::mutex> lock(mutex);
+        changed.wait(lock, [&] { return queue.size() < 2 || finished; });
+        if (finished) return;
+        queue.push_back(std::move(prepared));
+        changed.notify_all();
+      }
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(mutex);
+      failure = std::current_exception();
+    }
+    std::lock_guard<std::mutex> lock(mutex);
+    finished = true;
+    changed.notify_all();
+  });
+  auto stop = [&] {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      finished = true;
+    }
+    changed.notify_all();
+    producer.join();
+  };
+  try {
+    for (;;) {
+      std::shared_ptr<PreparedFrame> next;
+      {
+        std::unique_lock<std::mutex> lock(mutex);
+        changed.wait(lock, [&] { return !queue.empty() || finished; });
+        if (queue.empty()) break;
+        next = std::move(queue.front());
+        queue.pop_front();
+        changed.notify_all();
+      }
+      FrameReport r = mosaicker.Integrate(next);
+      if (on_frame) on_frame(r, source->count());
+    }
+  } catch (...) {
+    stop();
+    throw;
   }
+  stop();
+  if (failure) std::rethrow_exception(failure);
   return mosaicker.Finish();
 }
+
 }  // namespace rolamos

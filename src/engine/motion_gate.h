@@ -16,7 +16,7 @@ struct MotionGateOptions {
   bool enabled = true;
   double gate_chi2 = 18.47;           // chi-square, 4 dof, p = 0.999
   double min_jump_fraction = 0.15;    // deviations below this fraction of the frame always pass
-  double min_jump_degrees = 12.0;     // and below this rotation
+  double min_jump_degrees = 25.0;     // and below this rotation
   double min_jump_scale = 0.08;       // and below this relative scale change
   int warmup_frames = 3;              // accepted while the filter learns
 

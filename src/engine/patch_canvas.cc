@@ -41,23 +41,32 @@ bool PatchCanvas::Fits(const cv::Rect2d& bounds) const {
 
 void PatchCanvas::GrowTo(const cv::Rect& needed) {
   if (!extent_.empty() && (extent_ & needed) == needed) return;
-  cv::Rect target = extent_.empty() ? needed : (extent_ | needed);
-  // Grow with slack so a patch is not copied at every frame, but never past the budget.
-  const int sx = target.width / 4, sy = target.height / 4;
-  cv::Rect slack(target.x - (needed.x < extent_.x || extent_.empty() ? sx : 0),
-                 target.y - (needed.y < extent_.y || extent_.empty() ? sy : 0), 0, 0);
-  slack.width = target.x + target.width + sx - slack.x;
-  slack.height = target.y + target.height + sy - slack.y;
-  if (static_cast<long long>(slack.width) * slack.height <= budget_) target = slack;
-  cv::Mat sum = cv::Mat::zeros(target.size(), CV_32FC3), weight = cv::Mat::zeros(target.size(), CV_32F);
+  const cv::Rect target = extent_.empty() ? needed : (extent_ | needed);
+  // Grow with room on the sides that grew (a frame's size, or a quarter of the canvas), so a
+  // patch is copied a few times, not at every frame. Near the budget the room shrinks to fit.
+  int room_x = std::max(needed.width, target.width / 4), room_y = std::max(needed.height, target.height / 4);
+  cv::Rect grown = target;
+  for (int attempt = 0; attempt < 8; ++attempt) {
+    const bool left = extent_.empty() || needed.x < extent_.x;
+    const bool up = extent_.empty() || needed.y < extent_.y;
+    const bool right = extent_.empty() || needed.br().x > extent_.br().x;
+    const bool down = extent_.empty() || needed.br().y > extent_.br().y;
+    grown = cv::Rect(cv::Point(target.x - (left ? room_x : 0), target.y - (up ? room_y : 0)),
+                     cv::Point(target.br().x + (right ? room_x : 0), target.br().y + (down ? room_y : 0)));
+    if (static_cast<long long>(grown.width) * grown.height <= budget_) break;
+    room_x /= 2;
+    room_y /= 2;
+    grown = target;
+  }
+  cv::Mat sum = cv::Mat::zeros(grown.size(), CV_32FC3), weight = cv::Mat::zeros(grown.size(), CV_32F);
   if (!extent_.empty()) {
-    const cv::Rect at(extent_.tl() - target.tl(), extent_.size());
+    const cv::Rect at(extent_.tl() - grown.tl(), extent_.size());
     sum_.copyTo(sum(at));
     weight_.copyTo(weight(at));
   }
   sum_ = sum;
   weight_ = weight;
-  extent_ = target;
+  extent_ = grown;
 }
 
 void PatchCanvas::Add(const cv::Mat& frame, const cv::Mat& weights, const cv::Matx33d& H) {
@@ -67,19 +76,28 @@ void PatchCanvas::Add(const cv::Mat& frame, const cv::Mat& weights, const cv::Ma
   // Warp into the ROI only: frame -> ROI pixel = T(-roi.tl) * H.
   const cv::Matx33d T(1, 0, -roi.x, 0, 1, -roi.y, 0, 0, 1);
   const cv::Mat M(T * H);
-  cv::Mat f32, wf, warped_w;
-  frame.convertTo(f32, CV_32FC3);
-  std::vector<cv::Mat> ch;
-  cv::split(f32, ch);
-  for (auto& c : ch) c = c.mul(weights);
-  cv::merge(ch, wf);
-  cv::Mat warped;
-  cv::warpPerspective(wf, warped, M, roi.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+  cv::Mat warped, warped_w;
+  // Pixels repeat past the frame edge (never mixed with black); the weights fade there.
+  cv::warpPerspective(frame, warped, M, roi.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
   cv::warpPerspective(weights, warped_w, M, roi.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT);
   const cv::Rect at(roi.tl() - extent_.tl(), roi.size());
   cv::Mat s = sum_(at), w = weight_(at);
-  s += warped;
-  w += warped_w;
+  cv::parallel_for_(cv::Range(0, roi.height), [&](const cv::Range& range) {
+    for (int y = range.start; y < range.end; ++y) {
+      const cv::Vec3b* px = warped.ptr<cv::Vec3b>(y);
+      const float* wt = warped_w.ptr<float>(y);
+      cv::Vec3f* acc = s.ptr<cv::Vec3f>(y);
+      float* wsum = w.ptr<float>(y);
+      for (int x = 0; x < roi.width; ++x) {
+        const float a = wt[x];
+        if (a <= 0.f) continue;
+        acc[x][0] += a * px[x][0];
+        acc[x][1] += a * px[x][1];
+        acc[x][2] += a * px[x][2];
+        wsum[x] += a;
+      }
+    }
+  });
 }
 
 cv::Mat PatchCanvas::Render(const cv::Rect& patch_rect) const {

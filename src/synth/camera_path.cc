@@ -62,7 +62,7 @@ std::vector<CameraPose> PlanCameraPath(const SurveyOptions& o, const cv::Rect2d&
     int lanes = std::max(1, static_cast<int>(std::floor(area.height / lane_gap)) + 1);
     const double lane_len = area.width;
     const int per_lane = std::max(2, static_cast<int>(lane_len / step));
-    const int turn_frames = 6;
+    const int turn_frames = 12;  // 15 degrees a frame: a vehicle turning, not a jump
     int n = 0;
     for (int lane = 0; n < o.frames; lane = (lane + 1) % lanes) {
       const bool forward = lane % 2 == 0;
