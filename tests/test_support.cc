@@ -12,6 +12,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "rolamos/error.hpp"
 #include "synth/seafloor_texture.h"
 
 namespace fs = std::filesystem;
@@ -81,6 +82,15 @@ std::string SharedData() {
   const char* env = std::getenv("ROLAMOS_SHARED_DATA");
   std::string dir = env ? env : std::string(ROLAMOS_SOURCE_DIR) + "/../shared/data";
   return fs::is_directory(dir) ? dir : "";
+}
+
+std::string ErrorOf(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
 }
 
 double MaskedPsnr(const cv::Mat& a, const cv::Mat& b) {

@@ -1,6 +1,7 @@
 // Helpers shared by the tests: scratch directories, generated images, the CLI, shared data.
 #pragma once
 
+#include <functional>
 #include <string>
 
 #include <opencv2/core.hpp>
@@ -36,6 +37,9 @@ bool HaveCommand(const std::string& name);
 std::string SharedData();
 
 double Psnr(const cv::Mat& a, const cv::Mat& b);
+
+// The message of the rolamos::Error that `f` throws ("" if it throws none).
+std::string ErrorOf(const std::function<void()>& f);
 // PSNR of the colour channels where `b`'s alpha (last channel) is non-zero.
 double MaskedPsnr(const cv::Mat& a, const cv::Mat& b);
 

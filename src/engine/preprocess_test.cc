@@ -12,14 +12,7 @@
 namespace rolamos {
 namespace {
 
-std::string ErrorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
+using test::ErrorOf;
 
 TEST(Calibration, ReadsOpenCvFilesAndNamesBadFields) {
   test::ScratchDir dir;

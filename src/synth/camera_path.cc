@@ -59,25 +59,39 @@ std::vector<CameraPose> PlanCameraPath(const SurveyOptions& o, const cv::Rect2d&
   if (o.path == "lawnmower") {
     // Lanes run along x (the frame's "forward" is its -y axis, so yaw = -90 deg for +x).
     const double lane_gap = foot_w * (1.0 - o.side_overlap);
-    int lanes = std::max(1, static_cast<int>(std::floor(area.height / lane_gap)) + 1);
-    const double lane_len = area.width;
+    const int lanes = std::max(1, static_cast<int>(std::floor(area.height / lane_gap)) + 1);
+    // Room for the half-circle turns inside the area.
+    const double r = lanes > 1 ? lane_gap / 2 : 0;
+    const double lane_start = area.x + r, lane_len = std::max(step, area.width - 2 * r);
     const int per_lane = std::max(2, static_cast<int>(lane_len / step));
-    const int turn_frames = 12;  // 15 degrees a frame: a vehicle turning, not a jump
+    // Lanes 0, 1, ..., L-1, then back L-2, ..., 0 and so on: every turn goes to the next lane,
+    // and later passes fly over earlier ones again (revisits).
+    auto lane_of = [&](int k) {
+      if (lanes == 1) return 0;
+      const int period = 2 * (lanes - 1);
+      const int m = k % period;
+      return m < lanes ? m : period - m;
+    };
     int n = 0;
-    for (int lane = 0; n < o.frames; lane = (lane + 1) % lanes) {
-      const bool forward = lane % 2 == 0;
-      const double y = area.y + std::min(area.height, lane * lane_gap);
+    for (int k = 0; n < o.frames; ++k) {
+      const int lane = lane_of(k), next = lane_of(k + 1);
+      const bool forward = k % 2 == 0;
+      const double y = area.y + lane * lane_gap;
       const double yaw = forward ? -CV_PI / 2 : CV_PI / 2;
       for (int i = 0; i < per_lane && n < o.frames; ++i, ++n) {
         const double s = i * lane_len / (per_lane - 1);
-        xy_yaw.emplace_back(forward ? area.x + s : area.x + lane_len - s, y, yaw);
+        xy_yaw.emplace_back(forward ? lane_start + s : lane_start + lane_len - s, y, yaw);
       }
-      // A gradual half-turn while side-stepping to the next lane.
-      const double next_y = area.y + std::min(area.height, ((lane + 1) % lanes) * lane_gap);
-      for (int k = 1; k < turn_frames && n < o.frames; ++k, ++n) {
-        const double f = double(k) / turn_frames;
-        const double x = forward ? area.x + lane_len : area.x;
-        xy_yaw.emplace_back(x, y + (next_y - y) * f, yaw + (forward ? CV_PI : -CV_PI) * f);
+      if (lanes == 1) continue;
+      // A half-circle to the next lane at half speed, heading along the arc, as a vehicle turns.
+      const double dir = next > lane ? 1.0 : -1.0;
+      const int turn_frames = std::max(2, static_cast<int>(std::ceil(CV_PI * r / (0.5 * step))));
+      const double x_end = forward ? lane_start + lane_len : lane_start;
+      for (int t = 1; t < turn_frames && n < o.frames; ++t, ++n) {
+        const double theta = CV_PI * t / turn_frames;
+        const double x = x_end + (forward ? 1 : -1) * r * std::sin(theta);
+        const double phi = forward ? dir * theta : CV_PI - dir * theta;  // travel direction
+        xy_yaw.emplace_back(x, y + dir * (r - r * std::cos(theta)), phi - CV_PI / 2);
       }
     }
   } else if (o.path == "spiral") {

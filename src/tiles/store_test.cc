@@ -12,17 +12,10 @@
 namespace rolamos {
 namespace {
 
+using test::ErrorOf;
+
 using test::ScratchDir;
 namespace fs = std::filesystem;
-
-std::string ErrorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
 
 PatchSidecar SampleSidecar(int id) {
   PatchSidecar s;

@@ -18,17 +18,10 @@
 namespace rolamos {
 namespace {
 
+using test::ErrorOf;
+
 using test::MakeImage;
 using test::ScratchDir;
-
-std::string ErrorOf(const std::function<void()>& f) {
-  try {
-    f();
-  } catch (const Error& e) {
-    return e.what();
-  }
-  return "";
-}
 
 std::string WriteSample(const ScratchDir& dir, Compression c, int w = 1500, int h = 1100) {
   TiffWriteOptions o;
