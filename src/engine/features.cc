@@ -73,23 +73,30 @@ Features FeatureExtractor::Extract(const cv::Mat& gray) const {
 Matches MatchFeatures(const Features& a, const Features& b, const FeatureOptions& options) {
   Matches m;
   if (a.descriptors.rows < 2 || b.descriptors.rows < 2) return m;
-  const bool binary = a.descriptors.type() == CV_8U;
-  cv::BFMatcher matcher(binary ? cv::NORM_HAMMING : cv::NORM_L2);
-  std::vector<std::vector<cv::DMatch>> ab, ba;
+  cv::BFMatcher matcher(a.descriptors.type() == CV_8U ? cv::NORM_HAMMING : cv::NORM_L2);
+  std::vector<std::vector<cv::DMatch>> ab;
   matcher.knnMatch(a.descriptors, b.descriptors, ab, 2);
-  if (options.cross_check) matcher.knnMatch(b.descriptors, a.descriptors, ba, 2);
-  auto passes_ratio = [&](const std::vector<cv::DMatch>& k) {
-    return k.size() == 2 ? k[0].distance < options.ratio * k[1].distance : k.size() == 1;
-  };
+  std::vector<cv::DMatch> candidates;
   for (const auto& k : ab) {
-    if (k.empty() || !passes_ratio(k)) continue;
-    const cv::DMatch& best = k[0];
-    if (options.cross_check) {
-      const auto& back = ba[static_cast<size_t>(best.trainIdx)];
-      if (back.empty() || back[0].trainIdx != best.queryIdx) continue;
-    }
-    m.from.push_back(a.points[static_cast<size_t>(best.queryIdx)]);
-    m.to.push_back(b.points[static_cast<size_t>(best.trainIdx)]);
+    const bool passes = k.size() == 2 ? k[0].distance < options.ratio * k[1].distance : k.size() == 1;
+    if (passes) candidates.push_back(k[0]);
+  }
+  if (options.cross_check && !candidates.empty()) {
+    // Mutual best: only the descriptors of b that some a chose need their best a (a fraction
+    // of a second full pass).
+    cv::Mat chosen(static_cast<int>(candidates.size()), b.descriptors.cols, b.descriptors.type());
+    for (size_t i = 0; i < candidates.size(); ++i)
+      b.descriptors.row(candidates[i].trainIdx).copyTo(chosen.row(static_cast<int>(i)));
+    std::vector<cv::DMatch> back;
+    matcher.match(chosen, a.descriptors, back);
+    std::vector<cv::DMatch> mutual;
+    for (size_t i = 0; i < candidates.size(); ++i)
+      if (back[i].trainIdx == candidates[i].queryIdx) mutual.push_back(candidates[i]);
+    candidates.swap(mutual);
+  }
+  for (const auto& c : candidates) {
+    m.from.push_back(a.points[static_cast<size_t>(c.queryIdx)]);
+    m.to.push_back(b.points[static_cast<size_t>(c.trainIdx)]);
   }
   return m;
 }
