@@ -57,6 +57,28 @@ def main():
              "|---|---|---|---|---|---|"]
     for label, rms, p95, share, f, m in rows:
         lines.append(f"| {label} | {rms:.2f} | {p95:.2f} | {share*100:.0f} % | {f:.1f} | {m:.0f} |")
+    # Peer: cv::Stitcher SCANS on the first 30 and 60 frames of the first survey, beside ours.
+    peer = os.path.join(ROOT, "build", "stitcher_peer_bench")
+    survey = os.path.join(a.out, "survey0")
+    frames = sorted(glob.glob(os.path.join(survey, "frames", "*")))
+    lines += ["", "| same frames | tool | frames used | seconds | peak RSS MB | result |", "|---|---|---|---|---|---|"]
+    for n in (30, 60):
+        if len(frames) < n:
+            continue
+        listing = os.path.join(a.out, f"frames{n}.txt")
+        open(listing, "w").write("\n".join(frames[:n]) + "\n")
+        store = os.path.join(a.out, f"peer{n}.rolamos")
+        subprocess.run(["rm", "-rf", store])
+        r = run([CLI, "mosaic", listing, "-o", store, "-q"])
+        t, rss = re.search(r"TIME ([\d.]+) (\d+)", r.stderr).groups()
+        stitched = int(re.search(r"(\d+) stitched", r.stdout).group(1))
+        patches = int(re.search(r"(\d+) patches", r.stdout).group(1))
+        lines.append(f"| {n} | rolamos mosaic | {stitched} | {float(t):.1f} | {int(rss)/1024:.0f} | {patches} patches, full resolution |")
+        r = run([peer, os.path.join(survey, "frames"), str(n)])
+        j = json.loads(r.stdout)
+        t, rss = re.search(r"TIME ([\d.]+) (\d+)", r.stderr).groups()
+        lines.append(f"| {n} | cv::Stitcher SCANS | {j['used']} | {float(t):.1f} | {int(rss)/1024:.0f} | "
+                     f"{j['status']}, {j['width']} x {j['height']}, drops the frames it cannot link |")
     report = "\n".join(lines)
     print(report)
     open(os.path.join(a.out, "engine.md"), "w").write(report + "\n")

@@ -8,6 +8,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
+#include <opencv2/videoio.hpp>
 
 #include "rolamos/error.hpp"
 #include "rolamos/synth.hpp"
@@ -136,6 +137,31 @@ TEST(Mosaicker, BadFramesAreRejectedWithReasonsAndPatchesStayValid) {
   int rejected = 0;
   for (const auto& p : reopened.patches()) rejected += static_cast<int>(reopened.ReadSidecar(p.id).rejected.size());
   EXPECT_EQ(rejected, sum.rejected);
+}
+
+TEST(Mosaicker, ReadsVideoAndFrameLists) {
+  test::ScratchDir dir;
+  Survey survey = WriteSurvey(SmallSurvey(16), dir / "survey");
+  // The same frames as a video (Motion-JPEG in AVI, which OpenCV writes without extra codecs)...
+  cv::VideoWriter video(dir / "dive.avi", cv::VideoWriter::fourcc('M', 'J', 'P', 'G'), 10,
+                        survey.frame_size);
+  if (!video.isOpened()) GTEST_SKIP() << "this OpenCV cannot write AVI";
+  std::ofstream list(dir / "frames.txt");
+  for (const auto& f : survey.frames) {
+    video.write(cv::imread(dir / ("survey/" + f.file)));
+    list << "survey/" << f.file << "\n";
+  }
+  video.release();
+  list.close();
+  Store from_video = Store::Create(dir / "v.rolamos");
+  MosaicSummary v = MosaicInput(dir / "dive.avi", from_video, FastOptions());
+  EXPECT_EQ(v.frames, 16);
+  EXPECT_GE(v.stitched, 15);
+  EXPECT_EQ(Store::Open(dir / "v.rolamos").ReadSidecar(1).frames[3].source, "dive.avi#3");
+  // ...and as a list of files relative to the list.
+  Store from_list = Store::Create(dir / "l.rolamos");
+  MosaicSummary l = MosaicInput(dir / "frames.txt", from_list, FastOptions());
+  EXPECT_EQ(l.stitched, 16);
 }
 
 TEST(Mosaicker, ImpossibleOptionsAndInputsAreRefused) {
