@@ -1,4 +1,6 @@
 // rolamos: one binary, one subcommand per job. Argument parsing only; the library does the work.
+#include <malloc.h>
+
 #include <cstdio>
 
 #include "rolamos/error.hpp"
@@ -6,6 +8,10 @@
 #include "command.h"
 
 int main(int argc, char** argv) {
+  // Frames, warps and tiles are megabytes each, allocated and freed at every frame: keep them in
+  // the heap instead of mapping and unmapping (and page-faulting) them each time.
+  mallopt(M_MMAP_THRESHOLD, 64 << 20);
+  mallopt(M_TRIM_THRESHOLD, 128 << 20);
   CLI::App app{"rolamos " ROLAMOS_VERSION_STRING
                ": seafloor maps from downward-looking underwater cameras"};
   app.set_version_flag("--version", "rolamos " ROLAMOS_VERSION_STRING);
