@@ -33,13 +33,11 @@ static int RunMosaic(MosaicSwitches s) {
   if (!o.calibration.empty()) so.camera = {{"calibration_file", o.calibration}};
   Store store = Store::LooksLikeStore(s.output) ? Store::Open(s.output) : Store::Create(s.output, so);
   Progress progress("mosaic", s.quiet);
-  const bool per_frame_lines = !Progress::StderrIsTerminal() && !s.quiet;
   MosaicSummary sum = MosaicInput(s.input, store, o, [&](const FrameReport& r, int total) {
     char detail[200];
     std::snprintf(detail, sizeof detail, "frame %d %s%s%s patch %d, %d/%d inliers", r.index,
                   r.status.c_str(), r.reason.empty() ? "" : " (", r.reason.empty() ? "" : (r.reason + ")").c_str(),
                   r.patch_id, r.inliers, r.matches);
-    if (per_frame_lines) std::fprintf(stderr, "%s\n", detail);
     progress.Update(total > 0 ? double(r.index + 1) / total : 0.0, detail);
   });
   progress.Done();

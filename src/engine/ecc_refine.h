@@ -13,7 +13,7 @@ struct EccOptions {
   bool enabled = true;
   double scale = 0.25;       // finest level, relative to the frame
   int levels = 2;            // pyramid levels (each half the one before)
-  int iterations = 40;
+  int iterations = 15;
   double min_correlation = 0.6;  // below this the refinement is not trusted
   double max_shift_px = 8.0;     // a correction larger than this (full-res pixels) is refused
   std::string motion = "homography";  // translation | euclidean | affine | homography
