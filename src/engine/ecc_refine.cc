@@ -37,8 +37,16 @@ cv::Mat HighPass(const cv::Mat& gray, const cv::Mat& mask, double sigma) {
   cv::Mat f, m, blurred, weight;
   gray.convertTo(f, CV_32F);
   mask.convertTo(m, CV_32F, 1.0 / 255.0);
-  cv::GaussianBlur(f.mul(m), blurred, cv::Size(), sigma);
-  cv::GaussianBlur(m, weight, cv::Size(), sigma);
+  // The local mean is smooth: compute it at a quarter of the resolution (a wide Gaussian at
+  // full size would cost more than the ECC iterations).
+  auto smooth = [&](const cv::Mat& in, cv::Mat& out) {
+    cv::Mat small;
+    cv::resize(in, small, cv::Size(), 0.25, 0.25, cv::INTER_AREA);
+    cv::GaussianBlur(small, small, cv::Size(), sigma / 4);
+    cv::resize(small, out, in.size(), 0, 0, cv::INTER_LINEAR);
+  };
+  smooth(f.mul(m), blurred);
+  smooth(m, weight);
   cv::Mat local_mean = blurred / cv::max(weight, 1e-3);
   cv::Mat out = (f - local_mean).mul(m);
   return out;

@@ -12,7 +12,8 @@ namespace rolamos {
 struct EccOptions {
   bool enabled = true;
   double scale = 0.25;       // finest level, relative to the frame
-  int levels = 2;            // pyramid levels (each half the one before)
+  int levels = 1;            // pyramid levels (each half the one before); features are
+                             // already within a pixel or two, so one level suffices
   int iterations = 15;
   double min_correlation = 0.6;  // below this the refinement is not trusted
   double max_shift_px = 8.0;     // a correction larger than this (full-res pixels) is refused
