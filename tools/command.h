@@ -27,6 +27,7 @@ struct TiffSwitches {
   int quality = 90;
   int tile = 256;
   int threads = 0;
+  int zstd_level = 9;
 };
 void AddTiffSwitches(CLI::App* cmd, TiffSwitches* s);
 // Throws rolamos::Error for an unknown codec name.

@@ -13,6 +13,8 @@ void AddTiffSwitches(CLI::App* cmd, TiffSwitches* s) {
   cmd->add_option("--tile", s->tile, "tile size, 256 or 512")->capture_default_str();
   cmd->add_option("--threads", s->threads, "compression threads (0 = one per core)")
       ->capture_default_str();
+  cmd->add_option("--zstd-level", s->zstd_level, "zstd level 1..22 (higher: smaller, slower)")
+      ->capture_default_str();
 }
 
 TiffWriteOptions ToWriteOptions(const TiffSwitches& s) {
@@ -25,6 +27,7 @@ TiffWriteOptions ToWriteOptions(const TiffSwitches& s) {
   o.quality = s.quality;
   o.tile_size = s.tile;
   o.threads = s.threads;
+  o.zstd_level = s.zstd_level;
   return o;
 }
 

@@ -28,8 +28,8 @@ struct MosaickerOptions {
   bool clahe = true;            // detection image only
   // 2. Egomotion
   std::string features = "sift";  // sift | orb | akaze
-  int max_features = 1500;
-  double detect_scale = 0.5;
+  int max_features = 1200;
+  double detect_scale = 0.4;
   double ratio = 0.8;
   bool cross_check = true;
   bool fundamental = true;        // the F-RANSAC / bilateral epipolar stage

@@ -28,6 +28,11 @@ struct PreparedFrame {
   cv::Size size;
   cv::Mat spatial, detect;
   Features features;
+  // Matched in the prepare stage against the frame prepared just before (usually the one it
+  // will be registered to); `matched_to` identifies those features so Integrate can tell.
+  std::shared_ptr<const Features> own;
+  std::shared_ptr<const Features> matched_to;
+  Matches matches;
 };
 
 namespace {
@@ -146,7 +151,8 @@ struct Mosaicker::Impl {
   std::vector<RejectedFrame> rejected;
   nlohmann::json link = nullptr;         // how this patch joins the one before
   // The last stitched frame: what the next one is registered to.
-  Features prev_features;
+  std::shared_ptr<const Features> prev_features;      // of the last stitched frame
+  std::shared_ptr<const Features> last_prepared;      // of the last frame Prepare saw
   cv::Matx33d prev_to_patch = cv::Matx33d::eye();
   cv::Mat prev_filtered;
   int lost = 0;
@@ -174,11 +180,12 @@ struct Mosaicker::Impl {
         ecc_options(ToEccOptions(o)),
         writer(s, o.tiff) {}
 
-  void StartPatch(const cv::Mat& filtered, const Features& f, const nlohmann::json& join);
+  void StartPatch(const cv::Mat& filtered, const std::shared_ptr<const Features>& f,
+                  const nlohmann::json& join);
   // Hands the patch to the writer; returns first-frame coordinates -> patch image pixels.
   cv::Matx33d ClosePatch();
-  void Stitch(const cv::Mat& filtered, const cv::Matx33d& to_patch, const Features& f,
-              const FrameReport& report);
+  void Stitch(const cv::Mat& filtered, const cv::Matx33d& to_patch,
+              const std::shared_ptr<const Features>& f, const FrameReport& report);
   FrameReport Reject(FrameReport r, const std::string& reason);
 };
 
@@ -191,7 +198,7 @@ FrameReport Mosaicker::Impl::Reject(FrameReport r, const std::string& reason) {
   return r;
 }
 
-void Mosaicker::Impl::StartPatch(const cv::Mat& filtered, const Features& f,
+void Mosaicker::Impl::StartPatch(const cv::Mat& filtered, const std::shared_ptr<const Features>& f,
                                  const nlohmann::json& join) {
   canvas = std::make_unique<PatchCanvas>(options.PixelBudget());
   patch_id = next_patch_id++;
@@ -205,7 +212,7 @@ void Mosaicker::Impl::StartPatch(const cv::Mat& filtered, const Features& f,
 }
 
 void Mosaicker::Impl::Stitch(const cv::Mat& filtered, const cv::Matx33d& to_patch,
-                             const Features& f, const FrameReport& report) {
+                             const std::shared_ptr<const Features>& f, const FrameReport& report) {
   canvas->Add(filtered, weights, to_patch);
   const cv::Rect2d b = PatchCanvas::FrameBounds(to_patch, frame_size);
   data_bounds = data_bounds.area() > 0 ? (data_bounds | b) : b;
@@ -295,8 +302,14 @@ std::shared_ptr<PreparedFrame> Mosaicker::Prepare(const cv::Mat& input, const st
   lap(Impl::kPreprocess);
   p->detect = m.pre.DetectionImage(p->spatial);
   lap(Impl::kDetectImage);
-  p->features = m.extractor.Extract(p->detect);
+  p->own = std::make_shared<const Features>(m.extractor.Extract(p->detect));
   lap(Impl::kFeatures);
+  if (m.last_prepared && !p->own->empty()) {
+    p->matches = MatchFeatures(*p->own, *m.last_prepared, m.extractor.options());
+    p->matched_to = m.last_prepared;
+    lap(Impl::kMatching);
+  }
+  if (!p->own->empty()) m.last_prepared = p->own;
   return p;
 }
 
@@ -331,7 +344,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
                                 std::to_string(m.frame_size.width) + "x" +
                                 std::to_string(m.frame_size.height)));
   const cv::Mat& spatial = p.spatial;
-  const Features& features = p.features;
+  const auto& features = p.own;
   auto lost_one = [&](const std::string& reason) {
     FrameReport rep = m.Reject(r, reason);
     if (++m.lost >= m.options.max_lost_frames && m.canvas) {
@@ -340,7 +353,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
     }
     return done(rep);
   };
-  if (static_cast<int>(features.points.size()) < m.options.min_inliers)
+  if (static_cast<int>(features->points.size()) < m.options.min_inliers)
     return lost_one("featureless");
   if (!m.canvas) {
     m.StartPatch(spatial, features, nullptr);
@@ -350,7 +363,10 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
     r.patch_id = m.patch_id;
     return done(r);
   }
-  Matches matches = MatchFeatures(features, m.prev_features, m.extractor.options());
+  // Usually Prepare matched against the right frame already; after a rejected frame, match again.
+  Matches matches = p.matched_to == m.prev_features
+                        ? p.matches
+                        : MatchFeatures(*features, *m.prev_features, m.extractor.options());
   lap(Impl::kMatching);
   EgomotionResult ego = EstimateEgomotion(matches.from, matches.to, m.K, m.ego_options);
   lap(Impl::kEgomotion);

@@ -105,21 +105,22 @@ cv::Mat PatchCanvas::Render(const cv::Rect& patch_rect) const {
   const cv::Rect inside = patch_rect & extent_;
   if (inside.empty()) return out;
   const cv::Rect src(inside.tl() - extent_.tl(), inside.size());
-  cv::Mat w = weight_(src), s = sum_(src);
-  cv::Mat safe = cv::max(w, 1e-12);
-  std::vector<cv::Mat> ch;
-  cv::split(s, ch);
-  for (auto& c : ch) cv::divide(c, safe, c);
-  // Alpha: full where any frame weighed in (edges of the warped frames fade in over a pixel).
-  cv::Mat alpha = w > kAlphaCut;
-  ch.push_back(cv::Mat());
-  alpha.convertTo(ch.back(), CV_32F);
-  cv::Mat bgra;
-  cv::merge(ch, bgra);
-  cv::Mat dst = out(cv::Rect(inside.tl() - patch_rect.tl(), inside.size()));
-  bgra.convertTo(dst, CV_8UC4);
-  // Colour under alpha 0 stays 0 (no data, not black data: the alpha says so).
-  dst.setTo(cv::Scalar::all(0), alpha == 0);
+  const cv::Point at = inside.tl() - patch_rect.tl();
+  // Blended colour where any frame weighed in, alpha 255 there; elsewhere all zero (no data,
+  // not black data: the alpha says so).
+  cv::parallel_for_(cv::Range(0, src.height), [&](const cv::Range& range) {
+    for (int y = range.start; y < range.end; ++y) {
+      const cv::Vec3f* s = sum_.ptr<cv::Vec3f>(src.y + y) + src.x;
+      const float* w = weight_.ptr<float>(src.y + y) + src.x;
+      cv::Vec4b* o = out.ptr<cv::Vec4b>(at.y + y) + at.x;
+      for (int x = 0; x < src.width; ++x) {
+        if (w[x] <= kAlphaCut) continue;
+        const float k = 1.0f / w[x];
+        o[x] = cv::Vec4b(cv::saturate_cast<uchar>(s[x][0] * k), cv::saturate_cast<uchar>(s[x][1] * k),
+                         cv::saturate_cast<uchar>(s[x][2] * k), 255);
+      }
+    }
+  });
   return out;
 }
 
