@@ -6,6 +6,18 @@
 
 namespace rolamos {
 
+namespace {
+
+cv::Rect Enclosing(const cv::Rect2d& r) {
+  const int x0 = static_cast<int>(std::floor(r.x)), y0 = static_cast<int>(std::floor(r.y));
+  const int x1 = static_cast<int>(std::ceil(r.x + r.width)), y1 = static_cast<int>(std::ceil(r.y + r.height));
+  return cv::Rect(x0, y0, x1 - x0 + 1, y1 - y0 + 1);
+}
+
+int FloorDiv(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
+
+}  // namespace
+
 cv::Rect2d PatchCanvas::FrameBounds(const cv::Matx33d& H, cv::Size frame) {
   std::vector<cv::Point2d> c{{-0.5, -0.5}, {frame.width - 0.5, -0.5},
                              {frame.width - 0.5, frame.height - 0.5}, {-0.5, frame.height - 0.5}},
@@ -21,99 +33,107 @@ cv::Rect2d PatchCanvas::FrameBounds(const cv::Matx33d& H, cv::Size frame) {
   return cv::Rect2d(x0, y0, x1 - x0, y1 - y0);
 }
 
-namespace {
-
-cv::Rect Enclosing(const cv::Rect2d& r) {
-  const int x0 = static_cast<int>(std::floor(r.x)), y0 = static_cast<int>(std::floor(r.y));
-  const int x1 = static_cast<int>(std::ceil(r.x + r.width)), y1 = static_cast<int>(std::ceil(r.y + r.height));
-  return cv::Rect(x0, y0, x1 - x0 + 1, y1 - y0 + 1);
-}
-
-}  // namespace
-
 bool PatchCanvas::Fits(const cv::Rect2d& bounds) const {
-  if (!std::isfinite(bounds.x) || !std::isfinite(bounds.width) || bounds.width > 1e8 ||
-      bounds.height > 1e8)
+  if (!std::isfinite(bounds.x) || !std::isfinite(bounds.y) || !std::isfinite(bounds.width) ||
+      !std::isfinite(bounds.height) || bounds.width > 1e8 || bounds.height > 1e8)
     return false;
   const cv::Rect need = data_.empty() ? Enclosing(bounds) : (data_ | Enclosing(bounds));
   return static_cast<long long>(need.width) * need.height <= budget_;
 }
 
-void PatchCanvas::GrowTo(const cv::Rect& needed) {
-  if (!extent_.empty() && (extent_ & needed) == needed) return;
-  const cv::Rect target = extent_.empty() ? needed : (extent_ | needed);
-  // Grow with room on the sides that grew (a frame's size, or a quarter of the canvas), so a
-  // patch is copied a few times, not at every frame. Near the budget the room shrinks to fit.
-  int room_x = std::max(needed.width, target.width / 4), room_y = std::max(needed.height, target.height / 4);
-  cv::Rect grown = target;
-  for (int attempt = 0; attempt < 8; ++attempt) {
-    const bool left = extent_.empty() || needed.x < extent_.x;
-    const bool up = extent_.empty() || needed.y < extent_.y;
-    const bool right = extent_.empty() || needed.br().x > extent_.br().x;
-    const bool down = extent_.empty() || needed.br().y > extent_.br().y;
-    grown = cv::Rect(cv::Point(target.x - (left ? room_x : 0), target.y - (up ? room_y : 0)),
-                     cv::Point(target.br().x + (right ? room_x : 0), target.br().y + (down ? room_y : 0)));
-    if (static_cast<long long>(grown.width) * grown.height <= budget_) break;
-    room_x /= 2;
-    room_y /= 2;
-    grown = target;
-  }
-  cv::Mat sum = cv::Mat::zeros(grown.size(), CV_32FC3), weight = cv::Mat::zeros(grown.size(), CV_32F);
-  if (!extent_.empty()) {
-    const cv::Rect at(extent_.tl() - grown.tl(), extent_.size());
-    sum_.copyTo(sum(at));
-    weight_.copyTo(weight(at));
-  }
-  sum_ = sum;
-  weight_ = weight;
-  extent_ = grown;
-}
-
 void PatchCanvas::Add(const cv::Mat& frame, const cv::Mat& weights, const cv::Matx33d& H) {
   const cv::Rect roi = Enclosing(FrameBounds(H, frame.size()));
-  GrowTo(roi);
   data_ = data_.empty() ? roi : (data_ | roi);
-  // Warp into the ROI only: frame -> ROI pixel = T(-roi.tl) * H.
+  // Warp into the ROI only: frame -> ROI pixel = T(-roi.tl) * H. Pixels repeat past the frame
+  // edge (never mixed with black); the weights fade there.
   const cv::Matx33d T(1, 0, -roi.x, 0, 1, -roi.y, 0, 0, 1);
   const cv::Mat M(T * H);
   cv::Mat warped, warped_w;
-  // Pixels repeat past the frame edge (never mixed with black); the weights fade there.
   cv::warpPerspective(frame, warped, M, roi.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
   cv::warpPerspective(weights, warped_w, M, roi.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT);
-  const cv::Rect at(roi.tl() - extent_.tl(), roi.size());
-  cv::Mat s = sum_(at), w = weight_(at);
-  cv::parallel_for_(cv::Range(0, roi.height), [&](const cv::Range& range) {
-    for (int y = range.start; y < range.end; ++y) {
-      const cv::Vec3b* px = warped.ptr<cv::Vec3b>(y);
-      const float* wt = warped_w.ptr<float>(y);
-      cv::Vec3f* acc = s.ptr<cv::Vec3f>(y);
-      float* wsum = w.ptr<float>(y);
-      for (int x = 0; x < roi.width; ++x) {
-        const float a = wt[x];
-        if (a <= 0.f) continue;
-        acc[x][0] += a * px[x][0];
-        acc[x][1] += a * px[x][1];
-        acc[x][2] += a * px[x][2];
-        wsum[x] += a;
+  // The blocks this frame touches (created here, on one thread), then filled in parallel.
+  const int bx0 = FloorDiv(roi.x, kBlock), by0 = FloorDiv(roi.y, kBlock);
+  const int bx1 = FloorDiv(roi.x + roi.width - 1, kBlock), by1 = FloorDiv(roi.y + roi.height - 1, kBlock);
+  std::vector<std::pair<cv::Rect, Block*>> parts;  // (block rect in patch coordinates, block)
+  for (int by = by0; by <= by1; ++by) {
+    for (int bx = bx0; bx <= bx1; ++bx) {
+      const cv::Rect block_rect(bx * kBlock, by * kBlock, kBlock, kBlock);
+      const cv::Rect overlap = block_rect & roi;
+      if (overlap.empty()) continue;
+      cv::Mat wpart = warped_w(overlap - roi.tl());
+      if (cv::countNonZero(wpart) == 0) continue;  // the ROI's empty corners
+      Block& b = blocks_[Key(bx, by)];
+      if (b.sum.empty()) {
+        b.sum = cv::Mat::zeros(kBlock, kBlock, CV_32FC3);
+        b.weight = cv::Mat::zeros(kBlock, kBlock, CV_32F);
+      }
+      parts.emplace_back(block_rect, &b);
+    }
+  }
+  cv::parallel_for_(cv::Range(0, static_cast<int>(parts.size())), [&](const cv::Range& range) {
+    for (int i = range.start; i < range.end; ++i) {
+      const cv::Rect& block_rect = parts[static_cast<size_t>(i)].first;
+      Block& b = *parts[static_cast<size_t>(i)].second;
+      const cv::Rect overlap = block_rect & roi;
+      for (int y = overlap.y; y < overlap.y + overlap.height; ++y) {
+        const cv::Vec3b* px = warped.ptr<cv::Vec3b>(y - roi.y) + (overlap.x - roi.x);
+        const float* wt = warped_w.ptr<float>(y - roi.y) + (overlap.x - roi.x);
+        cv::Vec3f* acc = b.sum.ptr<cv::Vec3f>(y - block_rect.y) + (overlap.x - block_rect.x);
+        float* wsum = b.weight.ptr<float>(y - block_rect.y) + (overlap.x - block_rect.x);
+        for (int x = 0; x < overlap.width; ++x) {
+          const float a = wt[x];
+          if (a <= 0.f) continue;
+          acc[x][0] += a * px[x][0];
+          acc[x][1] += a * px[x][1];
+          acc[x][2] += a * px[x][2];
+          wsum[x] += a;
+        }
       }
     }
   });
 }
 
+void PatchCanvas::Dense(const cv::Rect& rect, cv::Mat* sum, cv::Mat* weight, int factor) const {
+  CV_Assert(factor >= 1 && kBlock % factor == 0 && rect.x % factor == 0 && rect.y % factor == 0 &&
+            rect.width % factor == 0 && rect.height % factor == 0);
+  const cv::Size small(rect.width / factor, rect.height / factor);
+  *sum = cv::Mat::zeros(small, CV_32FC3);
+  *weight = cv::Mat::zeros(small, CV_32F);
+  const int bx0 = FloorDiv(rect.x, kBlock), by0 = FloorDiv(rect.y, kBlock);
+  const int bx1 = FloorDiv(rect.x + rect.width - 1, kBlock), by1 = FloorDiv(rect.y + rect.height - 1, kBlock);
+  for (int by = by0; by <= by1; ++by) {
+    for (int bx = bx0; bx <= bx1; ++bx) {
+      auto it = blocks_.find(Key(bx, by));
+      if (it == blocks_.end()) continue;
+      const cv::Rect block_rect(bx * kBlock, by * kBlock, kBlock, kBlock);
+      const cv::Rect overlap = block_rect & rect;
+      const cv::Rect src = overlap - block_rect.tl();
+      const cv::Rect dst((overlap.x - rect.x) / factor, (overlap.y - rect.y) / factor,
+                         overlap.width / factor, overlap.height / factor);
+      if (factor == 1) {
+        it->second.sum(src).copyTo((*sum)(dst));
+        it->second.weight(src).copyTo((*weight)(dst));
+      } else {
+        cv::resize(it->second.sum(src), (*sum)(dst), dst.size(), 0, 0, cv::INTER_AREA);
+        cv::resize(it->second.weight(src), (*weight)(dst), dst.size(), 0, 0, cv::INTER_AREA);
+      }
+    }
+  }
+}
+
 cv::Mat PatchCanvas::Render(const cv::Rect& patch_rect) const {
   cv::Mat out = cv::Mat::zeros(patch_rect.size(), CV_8UC4);
-  const cv::Rect inside = patch_rect & extent_;
-  if (inside.empty()) return out;
-  const cv::Rect src(inside.tl() - extent_.tl(), inside.size());
-  const cv::Point at = inside.tl() - patch_rect.tl();
+  if (patch_rect.empty()) return out;
+  cv::Mat sum, weight;
+  Dense(patch_rect, &sum, &weight);
   // Blended colour where any frame weighed in, alpha 255 there; elsewhere all zero (no data,
   // not black data: the alpha says so).
-  cv::parallel_for_(cv::Range(0, src.height), [&](const cv::Range& range) {
+  cv::parallel_for_(cv::Range(0, patch_rect.height), [&](const cv::Range& range) {
     for (int y = range.start; y < range.end; ++y) {
-      const cv::Vec3f* s = sum_.ptr<cv::Vec3f>(src.y + y) + src.x;
-      const float* w = weight_.ptr<float>(src.y + y) + src.x;
-      cv::Vec4b* o = out.ptr<cv::Vec4b>(at.y + y) + at.x;
-      for (int x = 0; x < src.width; ++x) {
+      const cv::Vec3f* s = sum.ptr<cv::Vec3f>(y);
+      const float* w = weight.ptr<float>(y);
+      cv::Vec4b* o = out.ptr<cv::Vec4b>(y);
+      for (int x = 0; x < patch_rect.width; ++x) {
         if (w[x] <= kAlphaCut) continue;
         const float k = 1.0f / w[x];
         o[x] = cv::Vec4b(cv::saturate_cast<uchar>(s[x][0] * k), cv::saturate_cast<uchar>(s[x][1] * k),
@@ -128,14 +148,33 @@ void PatchCanvas::ViewFromFrame(const cv::Matx33d& H, cv::Size frame, double sca
                                 cv::Mat* mask) const {
   const cv::Size out(std::max(8, static_cast<int>(frame.width * scale)),
                      std::max(8, static_cast<int>(frame.height * scale)));
-  // out pixel -> frame pixel -> patch -> canvas pixel.
+  // Only the canvas under the frame is made dense, then seen through the frame:
+  // out pixel -> frame pixel -> patch -> dense pixel.
+  // The canvas is averaged down by a power of two no larger than 1/scale (sums and weights
+  // alike, so their ratio stays the blended colour), which keeps this cheap at ECC's scale.
+  int factor = 1;
+  while (factor * 2 <= 1.0 / scale && factor * 2 <= kBlock / 4) factor *= 2;
+  cv::Rect region = Enclosing(FrameBounds(H, frame)) & data_;
+  if (region.empty()) {
+    *gray = cv::Mat::zeros(out, CV_8U);
+    *mask = cv::Mat::zeros(out, CV_8U);
+    return;
+  }
+  const int x0 = FloorDiv(region.x, factor) * factor, y0 = FloorDiv(region.y, factor) * factor;
+  const int x1 = -FloorDiv(-(region.x + region.width), factor) * factor;
+  const int y1 = -FloorDiv(-(region.y + region.height), factor) * factor;
+  region = cv::Rect(x0, y0, x1 - x0, y1 - y0);
+  cv::Mat sum, weight;
+  Dense(region, &sum, &weight, factor);
   const double s = 1.0 / scale;
   const cv::Matx33d S(s, 0, 0.5 * (s - 1), 0, s, 0.5 * (s - 1), 0, 0, 1);
-  const cv::Matx33d T(1, 0, -extent_.x, 0, 1, -extent_.y, 0, 0, 1);
+  // patch -> dense pixel: q = (p - region.tl + 0.5) / factor - 0.5
+  const double f = factor;
+  const cv::Matx33d T(1 / f, 0, (-region.x + 0.5) / f - 0.5, 0, 1 / f, (-region.y + 0.5) / f - 0.5, 0, 0, 1);
   const cv::Mat M(T * H * S);
   cv::Mat sum_view, w_view;
-  cv::warpPerspective(sum_, sum_view, M, out, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT);
-  cv::warpPerspective(weight_, w_view, M, out, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT);
+  cv::warpPerspective(sum, sum_view, M, out, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT);
+  cv::warpPerspective(weight, w_view, M, out, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT);
   std::vector<cv::Mat> ch;
   cv::split(sum_view, ch);
   cv::Mat safe = cv::max(w_view, 1e-12);

@@ -1,7 +1,12 @@
-// The patch being built in RAM: weighted colour sums and weight sums over a canvas that grows
-// with the frames, in patch coordinates (the first frame's pixel grid). Its pixel budget is the
-// paper's memory management: Fits() says whether one more frame keeps the patch within it.
+// The patch being built in RAM: weighted colour sums and weight sums in patch coordinates (the
+// first frame's pixel grid), kept in 256 x 256 blocks allocated where frames land, so the canvas
+// grows in any direction without ever being copied and holds memory only where there is data.
+// Its pixel budget is the paper's memory management: Fits() says whether one more frame keeps
+// the patch's bounding box within it.
 #pragma once
+
+#include <cstdint>
+#include <unordered_map>
 
 #include <opencv2/core.hpp>
 
@@ -15,9 +20,9 @@ class PatchCanvas {
 
   // Bounding box (patch coordinates) of a frame warped by frame_to_patch.
   static cv::Rect2d FrameBounds(const cv::Matx33d& frame_to_patch, cv::Size frame);
-  // Whether the canvas, grown to hold `bounds`, stays within the budget.
+  // Whether the patch's bounding box, grown to hold `bounds`, stays within the budget.
   bool Fits(const cv::Rect2d& bounds) const;
-  bool empty() const { return sum_.empty(); }
+  bool empty() const { return blocks_.empty(); }
   // Warps and accumulates a frame (BGR 8-bit) with its feather weights.
   void Add(const cv::Mat& frame, const cv::Mat& weights, const cv::Matx33d& frame_to_patch);
   // The blended mosaic (BGRA 8-bit, alpha 0 where nothing was added) of a patch rectangle.
@@ -26,20 +31,25 @@ class PatchCanvas {
   // at `scale` of its resolution (for ECC refinement).
   void ViewFromFrame(const cv::Matx33d& frame_to_patch, cv::Size frame, double scale,
                      cv::Mat* gray, cv::Mat* mask) const;
-  // Canvas rectangle in patch coordinates: the patch image's pixel (0, 0) is at origin().
-  cv::Rect extent() const { return extent_; }
-  cv::Point origin() const { return extent_.tl(); }
+  // Area covered by frames so far, in patch coordinates.
+  cv::Rect extent() const { return data_; }
   long long pixel_budget() const { return budget_; }
-  size_t memory_bytes() const { return sum_.total() * sum_.elemSize() + weight_.total() * weight_.elemSize(); }
+  size_t memory_bytes() const { return blocks_.size() * kBlock * kBlock * 16; }
 
  private:
-  void GrowTo(const cv::Rect& needed);
+  static constexpr int kBlock = 256;
+  struct Block {
+    cv::Mat sum;     // CV_32FC3: sum of weight * colour
+    cv::Mat weight;  // CV_32F: sum of weights
+  };
+  static int64_t Key(int bx, int by) { return (int64_t(bx) << 32) ^ uint32_t(by); }
+  // Dense copies of the sums over `rect` (zeros where no block exists), reduced by `factor`
+  // (1, 2, 4, ... up to the block size) with area averaging; `rect` must be aligned to it.
+  void Dense(const cv::Rect& rect, cv::Mat* sum, cv::Mat* weight, int factor = 1) const;
 
   long long budget_;
-  cv::Rect extent_;  // allocated, in patch coordinates (with room to grow)
-  cv::Rect data_;    // covered by frames so far: what the budget counts
-  cv::Mat sum_;      // CV_32FC3: sum of weight * colour
-  cv::Mat weight_;   // CV_32F: sum of weights
+  cv::Rect data_;
+  std::unordered_map<int64_t, Block> blocks_;
 };
 
 }  // namespace rolamos
