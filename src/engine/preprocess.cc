@@ -107,12 +107,11 @@ cv::Mat Preprocessor::DetectionImage(const cv::Mat& frame) const {
 cv::Mat Preprocessor::Temporal(const cv::Mat& current, const cv::Mat& previous,
                                const cv::Matx33d& current_to_previous) const {
   if (!options_.temporal || previous.empty()) return current;
-  cv::Mat prev_here, valid;
+  // Where the previous frame does not reach, the current pixel stays as it is: warping onto a
+  // copy of the current frame with a transparent border makes those pixels agree with it.
+  cv::Mat prev_here = current.clone();
   cv::warpPerspective(previous, prev_here, cv::Mat(current_to_previous), current.size(),
-                      cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT);
-  cv::warpPerspective(cv::Mat(previous.size(), CV_8U, cv::Scalar(255)), valid,
-                      cv::Mat(current_to_previous), current.size(),
-                      cv::INTER_NEAREST | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT);
+                      cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_TRANSPARENT);
   // Robust weight: full where the frames agree, none where they differ by more than the
   // tolerance (a particle, a fish, a misregistration). One 8-bit pass with a weight table.
   int lut[256];
@@ -124,13 +123,8 @@ cv::Mat Preprocessor::Temporal(const cv::Mat& current, const cv::Mat& previous,
     for (int y = range.start; y < range.end; ++y) {
       const cv::Vec3b* c = current.ptr<cv::Vec3b>(y);
       const cv::Vec3b* p = prev_here.ptr<cv::Vec3b>(y);
-      const uchar* v = valid.ptr<uchar>(y);
       cv::Vec3b* o = out.ptr<cv::Vec3b>(y);
       for (int x = 0; x < current.cols; ++x) {
-        if (!v[x]) {
-          o[x] = c[x];
-          continue;
-        }
         int d = 0;
         for (int k = 0; k < 3; ++k) d = std::max(d, std::abs(int(c[x][k]) - int(p[x][k])));
         const int w = lut[d];
