@@ -41,6 +41,7 @@ static int RunMosaic(MosaicSwitches s) {
     progress.Update(total > 0 ? double(r.index + 1) / total : 0.0, detail);
   });
   progress.Done();
+  if (!sum.calibration_note.empty()) std::printf("%s\n", sum.calibration_note.c_str());
   std::printf("%s: %d frames, %d stitched, %d rejected, %d patches, %.1f s (%.1f frames/s), "
               "peak memory %.0f MiB\n",
               s.output.c_str(), sum.frames, sum.stitched, sum.rejected, sum.patches, sum.seconds,
@@ -64,7 +65,9 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
   auto* cmd = app.add_subcommand("mosaic", "Mosaic frames (folder, list or video) into a store, online");
   cmd->add_option("input", s->input, "folder of frames, .txt list of frames, or a video")->required();
   cmd->add_option("-o,--output", s->output, "store to create (or add to)")->required();
-  cmd->add_option("--calibration", o.calibration, "OpenCV calibration file (YAML/XML/JSON)");
+  cmd->add_option("--calibration", o.calibration,
+                  "OpenCV calibration file (YAML/XML/JSON), or \"auto\" to estimate radial "
+                  "distortion from the first frames");
   cmd->add_flag("--no-bilateral", s->no_bilateral, "skip the bilateral filter");
   cmd->add_flag("--no-temporal", s->no_temporal, "skip the temporal filter");
   cmd->add_flag("--no-clahe", s->no_clahe, "no contrast normalisation of the detection image");

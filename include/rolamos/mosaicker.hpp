@@ -22,7 +22,9 @@ struct PreparedFrame;  // a frame after pre-processing and feature extraction
 
 struct MosaickerOptions {
   // 1. Pre-processing
-  std::string calibration;      // OpenCV calibration file ("" = frames already rectified)
+  // OpenCV calibration file; "" = frames already rectified; "auto" = estimate radial distortion
+  // from the first frames (MosaicInput writes it to <store>/calibration.yml)
+  std::string calibration;
   bool bilateral = true;
   bool temporal = true;
   bool clahe = true;            // detection image only
@@ -74,6 +76,7 @@ struct MosaicSummary {
   double peak_rss_mb = 0;
   // Time spent in each stage, summed over frames (seconds): where the time goes.
   std::vector<std::pair<std::string, double>> stage_seconds;
+  std::string calibration_note;  // what --calibration auto found, when used
 };
 
 class Mosaicker {

@@ -18,6 +18,7 @@
 #include "engine/patch_canvas.h"
 #include "engine/patch_writer.h"
 #include "engine/preprocess.h"
+#include "engine/self_calibration.h"
 #include "rolamos/error.hpp"
 #include "util/memory.h"
 
@@ -437,8 +438,43 @@ MosaicSummary Mosaicker::Finish() {
   return m.summary;
 }
 
-MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& options,
+namespace {
+
+// --calibration auto: radial distortion from the first frames, written into the store so the
+// run can be repeated with it. Returns the options to use and a one-line account.
+MosaickerOptions AutoCalibrate(const std::string& input, const Store& store,
+                               MosaickerOptions options, std::string* note) {
+  auto source = FrameSource::Open(input);
+  std::vector<cv::Mat> gray;
+  InputFrame f;
+  while (gray.size() < 10 && source->Next(&f)) {
+    if (f.image.empty()) continue;
+    cv::Mat g;
+    cv::cvtColor(f.image, g, f.image.channels() == 3 ? cv::COLOR_BGR2GRAY : cv::COLOR_BGRA2GRAY);
+    if (!gray.empty() && g.size() != gray[0].size()) continue;
+    gray.push_back(g);
+  }
+  if (gray.size() < 2) Fail(input, "--calibration auto needs two readable frames");
+  SelfCalibrationResult r = EstimateRadialDistortion(gray, ToFeatureOptions(options));
+  const std::string path = store.dir() + "/calibration.yml";
+  WriteCalibration(path, r.calibration);
+  char buf[256];
+  std::snprintf(buf, sizeof buf,
+                "calibration auto: k1 = %.3f (f = 0.9 x width assumed), homography inliers %d -> %d "
+                "over %d frame pairs; written to %s",
+                r.k1, r.inliers_uncorrected, r.inliers_corrected, r.pairs, path.c_str());
+  *note = buf;
+  options.calibration = path;
+  return options;
+}
+
+}  // namespace
+
+MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& given,
                           const std::function<void(const FrameReport&, int)>& on_frame) {
+  std::string note;
+  const MosaickerOptions options =
+      given.calibration == "auto" ? AutoCalibrate(input, store, given, &note) : given;
   auto source = FrameSource::Open(input);
   Mosaicker mosaicker(store, options);
   // Two stages on two cores: decoding, pre-processing and features of the next frame run while
@@ -495,7 +531,9 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
   }
   stop();
   if (failure) std::rethrow_exception(failure);
-  return mosaicker.Finish();
+  MosaicSummary summary = mosaicker.Finish();
+  summary.calibration_note = note;
+  return summary;
 }
 
 }  // namespace rolamos

@@ -164,6 +164,20 @@ TEST(Mosaicker, ReadsVideoAndFrameLists) {
   EXPECT_EQ(l.stitched, 16);
 }
 
+TEST(Mosaicker, AutoCalibrationIsEstimatedAndKeptInTheStore) {
+  test::ScratchDir dir;
+  WriteSurvey(SmallSurvey(10), dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaickerOptions o = FastOptions();
+  o.calibration = "auto";
+  MosaicSummary sum = MosaicInput(dir / "survey/frames", store, o);
+  EXPECT_EQ(sum.stitched, 10);
+  EXPECT_NE(sum.calibration_note.find("k1 = "), std::string::npos);
+  EXPECT_TRUE(fs::exists(dir / "s.rolamos/calibration.yml"));
+  // Mosaicker alone has no frames to estimate from: a clear error, not a guess.
+  EXPECT_THROW(Mosaicker(store, o), Error);
+}
+
 TEST(Mosaicker, ImpossibleOptionsAndInputsAreRefused) {
   test::ScratchDir dir;
   Store store = Store::Create(dir / "s.rolamos");

@@ -55,6 +55,7 @@ class Preprocessor {
  private:
   PreprocessOptions options_;
   std::optional<Calibration> calibration_;
+  cv::Matx33d rectified_K_ = cv::Matx33d::eye();  // camera of the undistorted frames
   cv::Mat map_x_, map_y_;
 };
 

@@ -1,5 +1,7 @@
 #include "engine/self_calibration.h"
 
+#include <cmath>
+
 #include <opencv2/calib3d.hpp>
 
 #include "rolamos/error.hpp"
@@ -8,18 +10,43 @@ namespace rolamos {
 
 namespace {
 
-int InliersWith(const std::vector<Matches>& pairs, const cv::Matx33d& K, double k1) {
+// Truncated squared transfer error of all matches under the homography each pair fits best
+// (a smooth score: inlier counts saturate and leave a broad plateau), and the inliers.
+struct Score {
+  double cost = 0;
+  int inliers = 0;
+};
+
+Score ScoreWith(const std::vector<Matches>& pairs, const cv::Matx33d& K, double k1) {
   const cv::Mat D = (cv::Mat_<double>(1, 4) << k1, 0, 0, 0);
-  int total = 0;
+  const double t2 = 3.0 * 3.0;
+  Score score;
   for (const auto& m : pairs) {
     std::vector<cv::Point2f> a, b;
     cv::undistortPoints(m.from, a, cv::Mat(K), D, cv::noArray(), cv::Mat(K));
     cv::undistortPoints(m.to, b, cv::Mat(K), D, cv::noArray(), cv::Mat(K));
     std::vector<uchar> mask;
-    cv::findHomography(a, b, cv::USAC_MAGSAC, 2.0, mask, 5000, 0.999);
-    for (uchar v : mask) total += v;
+    cv::Mat H = cv::findHomography(a, b, cv::USAC_MAGSAC, 2.0, mask, 5000, 0.999);
+    if (H.empty()) {
+      score.cost += t2 * a.size();
+      continue;
+    }
+    std::vector<cv::Point2f> ia, ib;
+    for (size_t i = 0; i < a.size(); ++i)
+      if (mask[i]) ia.push_back(a[i]), ib.push_back(b[i]);
+    if (ia.size() >= 8) {
+      cv::Mat refined = cv::findHomography(ia, ib, 0);
+      if (!refined.empty()) H = refined;
+    }
+    std::vector<cv::Point2f> mapped;
+    cv::perspectiveTransform(a, mapped, H);
+    for (size_t i = 0; i < a.size(); ++i) {
+      const double e2 = std::pow(mapped[i].x - b[i].x, 2) + std::pow(mapped[i].y - b[i].y, 2);
+      score.cost += std::min(e2, t2);
+      score.inliers += e2 < 4.0;
+    }
   }
-  return total;
+  return score;
 }
 
 }  // namespace
@@ -48,25 +75,26 @@ SelfCalibrationResult EstimateRadialDistortion(const std::vector<cv::Mat>& gray,
   r.calibration.image_size = size;
   r.calibration.distortion = cv::Mat::zeros(1, 4, CV_64F);
   if (pairs.empty()) return r;
-  r.inliers_uncorrected = InliersWith(pairs, K, 0.0);
+  const Score zero = ScoreWith(pairs, K, 0.0);
+  r.inliers_uncorrected = zero.inliers;
   // Coarse grid, then a finer one around the best.
   double best = 0;
-  int best_score = r.inliers_uncorrected;
+  Score best_score = zero;
   for (double k1 = -0.4; k1 <= 0.8 + 1e-9; k1 += 0.05) {
-    const int s = InliersWith(pairs, K, k1);
-    if (s > best_score) best_score = s, best = k1;
+    const Score s = ScoreWith(pairs, K, k1);
+    if (s.cost < best_score.cost) best_score = s, best = k1;
   }
   const double centre = best;
   for (double k1 = centre - 0.04; k1 <= centre + 0.04 + 1e-9; k1 += 0.01) {
-    const int s = InliersWith(pairs, K, k1);
-    if (s > best_score) best_score = s, best = k1;
+    const Score s = ScoreWith(pairs, K, k1);
+    if (s.cost < best_score.cost) best_score = s, best = k1;
   }
-  if (best_score < (1.0 + min_gain) * r.inliers_uncorrected) {
+  if (best_score.cost > (1.0 - min_gain) * zero.cost) {
     r.inliers_corrected = r.inliers_uncorrected;
     return r;  // no clear gain: leave the frames alone
   }
   r.k1 = best;
-  r.inliers_corrected = best_score;
+  r.inliers_corrected = best_score.inliers;
   r.calibration.distortion.at<double>(0) = best;
   return r;
 }

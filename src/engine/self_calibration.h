@@ -1,6 +1,7 @@
 // Radial distortion from the survey itself, for frames that come without a calibration: the
-// coefficient k1 (principal point at the centre, focal length 0.9 x width assumed) that lets the
-// most matches between consecutive frames agree with one homography. A flat seafloor seen through
+// coefficient k1 (principal point at the centre, focal length 0.9 x width assumed) with which the
+// matches between consecutive frames agree best with one homography (least truncated squared
+// transfer error). A flat seafloor seen through
 // a distorting lens only fits homographies once the distortion is taken out.
 #pragma once
 
@@ -18,12 +19,12 @@ struct SelfCalibrationResult {
   Calibration calibration;
   double k1 = 0;
   int pairs = 0;
-  int inliers_uncorrected = 0;  // homography inliers summed over the pairs, k1 = 0
+  int inliers_uncorrected = 0;  // matches within 2 px of their pair's homography, k1 = 0
   int inliers_corrected = 0;    // the same at the chosen k1
 };
 
-// `gray` are the first frames of the survey in order. k1 stays 0 unless it gains `min_gain` more
-// inliers (frames without distortion keep their pixels as they are).
+// `gray` are the first frames of the survey in order. k1 stays 0 unless it lowers the error by
+// `min_gain` (frames without distortion keep their pixels as they are).
 SelfCalibrationResult EstimateRadialDistortion(const std::vector<cv::Mat>& gray,
                                                const FeatureOptions& features,
                                                double min_gain = 0.05);
