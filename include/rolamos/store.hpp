@@ -5,6 +5,7 @@
 #pragma once
 
 #include <array>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -88,6 +89,8 @@ struct PatchEntry {
   std::string sidecar;  // relative to the store
 };
 
+// A handle: copies share one manifest state (the engine's background writer and the caller see
+// the same patches), and every method is safe to call from several threads.
 class Store {
  public:
   // Creates a new store; refuses a path that exists and is not an empty directory.
@@ -119,16 +122,19 @@ class Store {
   std::string crs() const;
 
  private:
+  struct State {
+    std::mutex mutex;
+    nlohmann::json camera = nullptr;
+    std::string crs;
+    std::vector<PatchEntry> patches;
+    GlobalRecord global;
+    nlohmann::json extra = nlohmann::json::object();
+  };
   Store() = default;
   void WriteManifestLocked() const;
 
   std::string dir_;
-  mutable std::shared_ptr<std::mutex> mutex_ = std::make_shared<std::mutex>();
-  nlohmann::json camera_ = nullptr;
-  std::string crs_;
-  std::vector<PatchEntry> patches_;
-  GlobalRecord global_;
-  nlohmann::json extra_ = nlohmann::json::object();
+  std::shared_ptr<State> state_ = std::make_shared<State>();
 };
 
 }  // namespace rolamos

@@ -61,9 +61,9 @@ Store Store::Create(const std::string& dir, const StoreOptions& options) {
   if (ec) Fail(dir, "cannot create the store directory: " + ec.message());
   Store s;
   s.dir_ = dir;
-  s.camera_ = options.camera;
-  s.crs_ = options.crs;
-  std::lock_guard<std::mutex> lock(*s.mutex_);
+  s.state_->camera = options.camera;
+  s.state_->crs = options.crs;
+  std::lock_guard<std::mutex> lock(s.state_->mutex);
   s.WriteManifestLocked();
   return s;
 }
@@ -88,8 +88,8 @@ Store Store::Open(const std::string& dir) {
                        std::to_string(kStoreVersion) + ")");
   Store s;
   s.dir_ = dir;
-  s.camera_ = j.value("camera", json(nullptr));
-  if (j.contains("crs") && j["crs"].is_string()) s.crs_ = j["crs"].get<std::string>();
+  s.state_->camera = j.value("camera", json(nullptr));
+  if (j.contains("crs") && j["crs"].is_string()) s.state_->crs = j["crs"].get<std::string>();
   if (!j.contains("patches") || !j["patches"].is_array())
     Fail(manifest, "field \"patches\" must be an array");
   for (size_t i = 0; i < j["patches"].size(); ++i) {
@@ -103,60 +103,59 @@ Store Store::Open(const std::string& dir) {
                  p["sidecar"].get<std::string>()};
     CheckRelative(e.image, where);
     CheckRelative(e.sidecar, where);
-    s.patches_.push_back(e);
+    s.state_->patches.push_back(e);
   }
   if (!j.contains("global")) Fail(manifest, "missing field \"global\"");
-  s.global_ = GlobalFromJson(j["global"], manifest + ": global");
-  s.extra_ = json::object();
+  s.state_->global = GlobalFromJson(j["global"], manifest + ": global");
   for (auto it = j.begin(); it != j.end(); ++it) {
     static const char* known[] = {"format", "version", "created_by", "camera", "crs",
                                   "patches", "global", "mosaic"};
     bool is_known = false;
     for (const char* k : known) is_known = is_known || it.key() == k;
-    if (!is_known) s.extra_[it.key()] = it.value();
+    if (!is_known) s.state_->extra[it.key()] = it.value();
   }
   return s;
 }
 
 void Store::WriteManifestLocked() const {
-  json j = extra_;
+  json j = state_->extra;
   j["format"] = kStoreFormat;
   j["version"] = kStoreVersion;
   j["created_by"] = "rolamos " ROLAMOS_VERSION_STRING;
-  j["camera"] = camera_;
-  j["crs"] = crs_.empty() ? json(nullptr) : json(crs_);
+  j["camera"] = state_->camera;
+  j["crs"] = state_->crs.empty() ? json(nullptr) : json(state_->crs);
   json patches = json::array();
-  for (const auto& p : patches_)
+  for (const auto& p : state_->patches)
     patches.push_back({{"id", p.id}, {"image", p.image}, {"sidecar", p.sidecar}});
   j["patches"] = patches;
-  j["global"] = GlobalToJson(global_);
+  j["global"] = GlobalToJson(state_->global);
   j["mosaic"] = HasMosaic() ? json(kMosaic) : json(nullptr);
   WriteFileAtomic(ManifestPath(), j.dump(2) + "\n");
 }
 
 int Store::NextPatchId() const {
-  std::lock_guard<std::mutex> lock(*mutex_);
+  std::lock_guard<std::mutex> lock(state_->mutex);
   int next = 1;
-  for (const auto& p : patches_) next = std::max(next, p.id + 1);
+  for (const auto& p : state_->patches) next = std::max(next, p.id + 1);
   return next;
 }
 
 void Store::CommitPatch(const PatchSidecar& sidecar) {
-  std::lock_guard<std::mutex> lock(*mutex_);
+  std::lock_guard<std::mutex> lock(state_->mutex);
   const std::string image = PatchImagePath(sidecar.id);
   if (!fs::exists(image)) Fail(image, "patch image must be written before its sidecar is committed");
-  for (const auto& p : patches_)
+  for (const auto& p : state_->patches)
     if (p.id == sidecar.id) Fail(ManifestPath(), "patch " + std::to_string(sidecar.id) + " exists");
   WriteFileAtomic(PatchSidecarPath(sidecar.id), SidecarToJson(sidecar).dump(1) + "\n");
-  patches_.push_back({sidecar.id, PatchStem(sidecar.id) + ".tif", PatchStem(sidecar.id) + ".json"});
-  global_.n_patches = static_cast<int>(patches_.size());
-  global_.n_images += sidecar.n_images;
+  state_->patches.push_back({sidecar.id, PatchStem(sidecar.id) + ".tif", PatchStem(sidecar.id) + ".json"});
+  state_->global.n_patches = static_cast<int>(state_->patches.size());
+  state_->global.n_images += sidecar.n_images;
   WriteManifestLocked();
 }
 
 void Store::UpdateSidecar(const PatchSidecar& sidecar) {
-  std::lock_guard<std::mutex> lock(*mutex_);
-  for (const auto& p : patches_) {
+  std::lock_guard<std::mutex> lock(state_->mutex);
+  for (const auto& p : state_->patches) {
     if (p.id == sidecar.id) {
       WriteFileAtomic((fs::path(dir_) / p.sidecar).string(), SidecarToJson(sidecar).dump(1) + "\n");
       return;
@@ -166,15 +165,15 @@ void Store::UpdateSidecar(const PatchSidecar& sidecar) {
 }
 
 std::vector<PatchEntry> Store::patches() const {
-  std::lock_guard<std::mutex> lock(*mutex_);
-  return patches_;
+  std::lock_guard<std::mutex> lock(state_->mutex);
+  return state_->patches;
 }
 
 PatchSidecar Store::ReadSidecar(int id) const {
   std::string path;
   {
-    std::lock_guard<std::mutex> lock(*mutex_);
-    for (const auto& p : patches_)
+    std::lock_guard<std::mutex> lock(state_->mutex);
+    for (const auto& p : state_->patches)
       if (p.id == id) path = (fs::path(dir_) / p.sidecar).string();
   }
   if (path.empty()) Fail(ManifestPath(), "no patch " + std::to_string(id));
@@ -186,24 +185,24 @@ PatchSidecar Store::ReadSidecar(int id) const {
 }
 
 GlobalRecord Store::global() const {
-  std::lock_guard<std::mutex> lock(*mutex_);
-  return global_;
+  std::lock_guard<std::mutex> lock(state_->mutex);
+  return state_->global;
 }
 
 void Store::SetGlobal(const GlobalRecord& global) {
-  std::lock_guard<std::mutex> lock(*mutex_);
-  global_ = global;
+  std::lock_guard<std::mutex> lock(state_->mutex);
+  state_->global = global;
   WriteManifestLocked();
 }
 
 nlohmann::json Store::camera() const {
-  std::lock_guard<std::mutex> lock(*mutex_);
-  return camera_;
+  std::lock_guard<std::mutex> lock(state_->mutex);
+  return state_->camera;
 }
 
 std::string Store::crs() const {
-  std::lock_guard<std::mutex> lock(*mutex_);
-  return crs_;
+  std::lock_guard<std::mutex> lock(state_->mutex);
+  return state_->crs;
 }
 
 }  // namespace rolamos

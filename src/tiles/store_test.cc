@@ -130,6 +130,22 @@ TEST(Store, CreateCommitReopen) {
     EXPECT_TRUE(m["global"].contains(key)) << key;
 }
 
+TEST(Store, CopiesShareOneManifest) {
+  // The engine commits patches from its writer thread through its own copy of the handle; a
+  // later SetGlobal through the caller's copy must not forget them.
+  ScratchDir dir;
+  Store caller = Store::Create(dir / "s.rolamos");
+  Store writer = caller;
+  AddPatch(writer, 1);
+  EXPECT_EQ(caller.patches().size(), 1u);
+  GlobalRecord g = caller.global();
+  g.scale = 0.25;
+  caller.SetGlobal(g);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  EXPECT_EQ(reopened.patches().size(), 1u);
+  EXPECT_DOUBLE_EQ(reopened.global().scale, 0.25);
+}
+
 TEST(Store, KilledWriterLeavesAStoreThatOpens) {
   ScratchDir dir;
   const std::string path = dir / "s.rolamos";
