@@ -131,6 +131,20 @@ TEST(MotionGate, PassesSmoothMotionAndStopsATurnAbout) {
   EXPECT_EQ(gate.Check(next), "");
 }
 
+TEST(MotionGate, ASustainedNewMotionIsReacquired) {
+  MotionGate gate(MotionGateOptions{}, cv::Size(640, 480));
+  FrameMotion forward;
+  forward.dy = 60;
+  for (int i = 0; i < 10; ++i) EXPECT_EQ(gate.Check(forward), "");
+  // The vehicle now goes sideways, steadily: the first frame of it is suspect, the second one
+  // that moves alike restarts the filter, and the motion is followed from then on.
+  FrameMotion sideways;
+  sideways.dx = 150;
+  EXPECT_EQ(gate.Check(sideways), "kalman_gate");
+  EXPECT_EQ(gate.Check(sideways), "");
+  EXPECT_EQ(gate.Check(sideways), "");
+}
+
 TEST(MotionGate, MotionOfAHomography) {
   const double a = 0.1;
   const cv::Matx33d H(1.1 * std::cos(a), -1.1 * std::sin(a), 0, 1.1 * std::sin(a), 1.1 * std::cos(a), 0, 0, 0, 1);

@@ -58,6 +58,15 @@ void MotionGate::Reset() {
   kf_.errorCovPost = cv::Mat::eye(12, 12, CV_64F) * 1e4;
   kf_.statePost = cv::Mat::zeros(12, 1, CV_64F);
   seen_ = 0;
+  rejected_in_row_ = 0;
+  last_rejected_.release();
+}
+
+void MotionGate::Restart(const cv::Mat& z) {
+  Reset();
+  z.copyTo(kf_.statePost.rowRange(0, 4));
+  kf_.errorCovPost = cv::Mat::eye(12, 12, CV_64F) * 1e2;
+  seen_ = options_.warmup_frames;
 }
 
 std::string MotionGate::Check(const FrameMotion& m, int gap) {
@@ -80,11 +89,27 @@ std::string MotionGate::Check(const FrameMotion& m, int gap) {
                         std::abs(y.at<double>(2)) > options_.min_jump_degrees * CV_PI / 180 ||
                         std::abs(y.at<double>(3)) > options_.min_jump_scale;
   if (last_d2_ > options_.gate_chi2 && big_jump) {
+    // Consecutive rejected frames that move alike: a real change of motion, not an outlier.
+    const bool agrees_with_last =
+        !last_rejected_.empty() &&
+        std::hypot(z.at<double>(0) - last_rejected_.at<double>(0),
+                   z.at<double>(1) - last_rejected_.at<double>(1)) < options_.min_jump_fraction * size &&
+        std::abs(std::remainder(z.at<double>(2) - last_rejected_.at<double>(2), 2 * CV_PI)) <
+            options_.min_jump_degrees * CV_PI / 180 &&
+        std::abs(z.at<double>(3) - last_rejected_.at<double>(3)) < options_.min_jump_scale;
+    ++rejected_in_row_;
+    if (agrees_with_last && rejected_in_row_ >= options_.reacquire_after) {
+      Restart(z);
+      return "";
+    }
+    last_rejected_ = z.clone();
     // Not stitched: the filter keeps its prediction (errorCovPost grows with the next predict).
     kf_.statePost = kf_.statePre.clone();
     kf_.errorCovPost = kf_.errorCovPre.clone();
     return "kalman_gate";
   }
+  rejected_in_row_ = 0;
+  last_rejected_.release();
   kf_.correct(z);
   ++seen_;
   return "";

@@ -19,6 +19,9 @@ struct MotionGateOptions {
   double min_jump_degrees = 25.0;     // and below this rotation
   double min_jump_scale = 0.08;       // and below this relative scale change
   int warmup_frames = 3;              // accepted while the filter learns
+  // After this many rejections in a row whose motions agree with each other, the vehicle has
+  // changed its motion for real: the filter restarts from it instead of rejecting the rest.
+  int reacquire_after = 2;
 
   bool IsValid(std::string* error) const;
 };
@@ -41,8 +44,12 @@ class MotionGate {
  private:
   MotionGateOptions options_;
   cv::Size frame_;
+  void Restart(const cv::Mat& z);
+
   cv::KalmanFilter kf_;
   int seen_ = 0;
+  int rejected_in_row_ = 0;
+  cv::Mat last_rejected_;  // the motion of the last rejected frame
   double last_d2_ = 0;
 };
 

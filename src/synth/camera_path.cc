@@ -106,20 +106,24 @@ std::vector<CameraPose> PlanCameraPath(const SurveyOptions& o, const cv::Rect2d&
       theta += step / arc;
       r = std::min(max_r, ring_gap * theta / (2 * CV_PI));
     }
-  } else {  // random walk that turns back on itself now and then (revisits)
-    std::normal_distribution<double> turn(0.0, 0.15);
-    cv::Point2d p(area.x + area.width / 2, area.y + area.height / 2);
+  } else {  // a random walk that wanders and, near the edges, turns back inwards (revisits)
+    std::normal_distribution<double> turn(0.0, 0.12);
+    const double max_turn = 15.0 * CV_PI / 180;  // a vehicle's turn rate per frame
+    const cv::Point2d centre(area.x + area.width / 2, area.y + area.height / 2);
+    cv::Point2d p = centre;
     double heading = 0;
     for (int n = 0; n < o.frames; ++n) {
       xy_yaw.emplace_back(p.x, p.y, heading - CV_PI / 2);
-      heading += turn(rng);
-      cv::Point2d next = p + step * cv::Point2d(std::cos(heading), std::sin(heading));
-      if (!area.contains(next)) {
-        heading = WrapAngle(heading + CV_PI * 0.6);
-        next = p + step * cv::Point2d(std::cos(heading), std::sin(heading));
+      double change = turn(rng);
+      const cv::Point2d ahead = p + 3 * step * cv::Point2d(std::cos(heading), std::sin(heading));
+      if (!area.contains(ahead)) {  // steer towards the centre, as fast as the vehicle turns
+        const double to_centre = std::atan2(centre.y - p.y, centre.x - p.x);
+        change = WrapAngle(to_centre - heading);
       }
-      p.x = std::clamp(next.x, area.x, area.x + area.width);
-      p.y = std::clamp(next.y, area.y, area.y + area.height);
+      heading = WrapAngle(heading + std::clamp(change, -max_turn, max_turn));
+      p += step * cv::Point2d(std::cos(heading), std::sin(heading));
+      p.x = std::clamp(p.x, area.x, area.x + area.width);
+      p.y = std::clamp(p.y, area.y, area.y + area.height);
     }
   }
 
