@@ -260,7 +260,14 @@ cv::Matx33d Mosaicker::Impl::ClosePatch() {
   job.sidecar.last_homography = frames.back().frame_to_patch;
   job.sidecar.frames = frames;
   job.sidecar.rejected = rejected;
-  if (!link.is_null()) job.sidecar.extra["link"] = link;
+  if (!link.is_null()) {
+    // The link was found in first-frame coordinates; the patch image's pixels are T of those.
+    nlohmann::json l = link;
+    cv::Matx33d to_previous;
+    for (int i = 0; i < 9; ++i) to_previous.val[i] = l["to_previous"][static_cast<size_t>(i)];
+    l["to_previous"] = ToArray(to_previous * T.inv());
+    job.sidecar.extra["link"] = l;
+  }
   job.sidecar.extra["pixel_budget"] = canvas->pixel_budget();
   job.canvas = std::move(canvas);
   job.data_rect = rect;

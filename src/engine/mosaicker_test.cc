@@ -90,7 +90,9 @@ TEST(Mosaicker, StitchesASyntheticSurveyWhereTheGroundTruthSays) {
 
 TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {
   test::ScratchDir dir;
-  WriteSurvey(SmallSurvey(30), dir / "survey");
+  Survey survey = WriteSurvey(SmallSurvey(30), dir / "survey");
+  std::map<std::string, cv::Matx33d> gt;
+  for (const auto& f : survey.frames) gt[fs::path(f.file).filename().string()] = Mat33(f.frame_to_world);
   Store store = Store::Create(dir / "s.rolamos");
   MosaickerOptions o = FastOptions();
   o.patch_megapixels = 0.4;  // about two frames' worth of canvas
@@ -99,6 +101,7 @@ TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {
   EXPECT_GE(sum.patches, 3);
   Store reopened = Store::Open(dir / "s.rolamos");
   int images = 0;
+  PatchSidecar previous;
   for (const auto& p : reopened.patches()) {
     PatchSidecar s = reopened.ReadSidecar(p.id);
     EXPECT_LE(s.size[0] * s.size[1], 400000) << "patch " << p.id;
@@ -106,7 +109,20 @@ TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {
     if (p.id > 1) {
       ASSERT_TRUE(s.extra.contains("link")) << "patch " << p.id;
       EXPECT_EQ(s.extra["link"]["previous_patch"], p.id - 1);
+      // The link maps this patch's pixels to the previous patch's: this patch's first frame
+      // lands where ground truth says it lies relative to the previous patch's last frame.
+      std::array<double, 9> l;
+      for (int i = 0; i < 9; ++i) l[static_cast<size_t>(i)] = s.extra["link"]["to_previous"][static_cast<size_t>(i)];
+      const auto name = [](const FrameRecord& f) { return fs::path(f.source).filename().string(); };
+      const cv::Matx33d first_to_last = gt[name(previous.frames.back())].inv() * gt[name(s.frames.front())];
+      const cv::Matx33d ours = Mat33(l) * Mat33(s.first_homography);
+      const cv::Matx33d truth = Mat33(previous.last_homography) * first_to_last;
+      for (const cv::Vec3d p0 : {cv::Vec3d(0, 0, 1), cv::Vec3d(479, 359, 1), cv::Vec3d(240, 180, 1)}) {
+        cv::Vec3d a = ours * p0, b = truth * p0;
+        EXPECT_LT(std::hypot(a[0] / a[2] - b[0] / b[2], a[1] / a[2] - b[1] / b[2]), 3.0) << "patch " << p.id;
+      }
     }
+    previous = s;
   }
   EXPECT_EQ(images, 30);
   EXPECT_EQ(reopened.global().n_images, 30);
