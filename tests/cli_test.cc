@@ -145,6 +145,12 @@ TEST(Cli, BadInputGivesAClearErrorAndNonZeroExit) {
   }
   EXPECT_FALSE(fs::exists(dir / "x.tif"));
   EXPECT_FALSE(fs::exists(dir / "x.png"));
+  // Usage errors: exit 2 and say what is missing.
+  auto r = RunCli("export " + (dir / "d.rolamos"));
+  EXPECT_EQ(r.exit_code, 2) << r.output;
+  EXPECT_NE(r.output.find("--output"), std::string::npos) << r.output;
+  EXPECT_EQ(RunCli("frobnicate").exit_code, 2);
+  EXPECT_EQ(RunCli("--version").exit_code, 0);
   EXPECT_FALSE(fs::exists(dir / "new.rolamos/store.json"));
 }
 
