@@ -20,6 +20,7 @@ int main(int argc, char** argv) {
   rolamos::cli::AddDemoCommand(app, &run);
   rolamos::cli::AddSynthCommand(app, &run);
   rolamos::cli::AddMosaicCommand(app, &run);
+  rolamos::cli::AddComposeCommand(app, &run);
   rolamos::cli::AddConvertCommand(app, &run);
   rolamos::cli::AddInfoCommand(app, &run);
   rolamos::cli::AddExportCommand(app, &run);

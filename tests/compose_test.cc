@@ -1,0 +1,119 @@
+// Engine patches composed into the global mosaic: placement through the links, pixels where the
+// ground truth says, the paper's scaled mosaic, and patches that cannot be placed left out.
+#include "rolamos/compose.hpp"
+
+#include <filesystem>
+#include <map>
+
+#include <gtest/gtest.h>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "rolamos/mosaicker.hpp"
+#include "rolamos/synth.hpp"
+#include "rolamos/tiled_image.hpp"
+#include "test_support.h"
+
+namespace rolamos {
+namespace {
+
+namespace fs = std::filesystem;
+
+cv::Matx33d Mat33(const std::array<double, 9>& a) {
+  cv::Matx33d m;
+  for (int i = 0; i < 9; ++i) m.val[i] = a[static_cast<size_t>(i)];
+  return m;
+}
+
+class ComposeTest : public testing::Test {
+ protected:
+  void SetUp() override {
+    SurveyOptions so;
+    so.frame_width = 480;
+    so.frame_height = 360;
+    so.focal_px = 420;
+    so.frames = 30;
+    survey_ = WriteSurvey(so, dir_ / "survey");
+    store_ = std::make_unique<Store>(Store::Create(dir_ / "s.rolamos"));
+    MosaickerOptions mo;
+    mo.patch_megapixels = 0.4;  // several patches, linked one to the next
+    mo.tiff.compression = Compression::kZstd;
+    MosaicSummary sum = MosaicInput(dir_ / "survey/frames", *store_, mo);
+    ASSERT_GE(sum.patches, 3);
+  }
+  test::ScratchDir dir_;
+  Survey survey_;
+  std::unique_ptr<Store> store_;
+};
+
+TEST_F(ComposeTest, PatchesLandWhereTheGroundTruthSays) {
+  ComposeOptions o;
+  o.tiff.compression = Compression::kZstd;
+  ComposeResult r = ComposeMosaic(*store_, o);
+  EXPECT_TRUE(r.left_out.empty());
+  EXPECT_DOUBLE_EQ(r.scale, 1.0);
+  Store s = Store::Open(dir_ / "s.rolamos");
+  ASSERT_TRUE(s.HasMosaic());
+  EXPECT_EQ(s.global().size[0], r.width);
+  TiledImage mosaic = TiledImage::Open(s.MosaicPath(), std::make_shared<TileCache>());
+  EXPECT_EQ(mosaic.width(), r.width);
+  // Every frame's grid through patch_to_global against ground truth, one best-fit homography.
+  std::map<std::string, cv::Matx33d> gt;
+  for (const auto& f : survey_.frames) gt[fs::path(f.file).filename().string()] = Mat33(f.frame_to_world);
+  std::vector<cv::Point2d> grid, ours, theirs;
+  for (int i = 0; i < 5; ++i)
+    for (int j = 0; j < 5; ++j) grid.emplace_back(i * 119.75, j * 89.75);
+  std::pair<cv::Matx33d, std::string> sample;
+  for (const auto& p : s.patches()) {
+    PatchSidecar side = s.ReadSidecar(p.id);
+    ASSERT_TRUE(side.patch_to_global.has_value());
+    for (const auto& f : side.frames) {
+      const cv::Matx33d to_mosaic = Mat33(*side.patch_to_global) * Mat33(f.frame_to_patch);
+      std::vector<cv::Point2d> a, b;
+      cv::perspectiveTransform(grid, a, cv::Mat(to_mosaic));
+      cv::perspectiveTransform(grid, b, cv::Mat(gt[fs::path(f.source).filename().string()]));
+      ours.insert(ours.end(), a.begin(), a.end());
+      theirs.insert(theirs.end(), b.begin(), b.end());
+      if (f.index == 17) sample = {to_mosaic, fs::path(f.source).filename().string()};
+    }
+  }
+  cv::Mat fit = cv::findHomography(ours, theirs, 0);
+  std::vector<cv::Point2d> mapped;
+  cv::perspectiveTransform(ours, mapped, fit);
+  double sse = 0;
+  for (size_t i = 0; i < mapped.size(); ++i) sse += std::pow(cv::norm(mapped[i] - theirs[i]), 2);
+  EXPECT_LT(std::sqrt(sse / mapped.size()), 2.0);
+  // And the mosaic's pixels there show the frame.
+  cv::Mat whole = mosaic.ReadRegion(0, cv::Rect(0, 0, static_cast<int>(r.width), static_cast<int>(r.height)));
+  cv::Mat seen;
+  cv::warpPerspective(whole, seen, cv::Mat(sample.first), cv::Size(480, 360), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP);
+  cv::cvtColor(seen, seen, cv::COLOR_BGRA2BGR);
+  cv::Mat frame = cv::imread(dir_ / ("survey/frames/" + sample.second));
+  const cv::Rect centre(140, 105, 200, 150);
+  EXPECT_GT(test::Psnr(seen(centre), frame(centre)), 30.0);
+}
+
+TEST_F(ComposeTest, ScaledMosaicFitsThePixelLimit) {
+  ComposeOptions o;
+  o.max_pixels = 200000;
+  ComposeResult r = ComposeMosaic(*store_, o);
+  EXPECT_LT(r.scale, 1.0);
+  EXPECT_LE(r.width * r.height, 200000);
+  EXPECT_GT(r.width * r.height, 180000);
+  EXPECT_DOUBLE_EQ(Store::Open(dir_ / "s.rolamos").global().scale, r.scale);
+}
+
+TEST_F(ComposeTest, APatchThatCannotBePlacedIsReportedNotGuessed) {
+  PatchSidecar second = store_->ReadSidecar(2);
+  second.extra.erase("link");  // as if tracking had been lost before patch 2
+  store_->UpdateSidecar(second);
+  ComposeResult r = ComposeMosaic(*store_, ComposeOptions{});
+  ASSERT_FALSE(r.left_out.empty());
+  EXPECT_EQ(r.left_out.front().first, 2);
+  EXPECT_NE(r.left_out.front().second.find("not linked"), std::string::npos);
+  EXPECT_GE(r.patches_used, 1);
+}
+
+}  // namespace
+}  // namespace rolamos

@@ -1,0 +1,48 @@
+#include <cstdio>
+
+#include "command.h"
+#include "rolamos/compose.hpp"
+#include "util/memory.h"
+#include "util/progress.h"
+
+namespace rolamos::cli {
+
+struct ComposeSwitches {
+  std::string store;
+  long long max_pixels = 0;
+  double cache_mb = 256;
+  TiffSwitches tiff{"webp", 90, 256, 0};
+  bool quiet = false;
+};
+
+static int RunCompose(const ComposeSwitches& s) {
+  ComposeOptions o;
+  o.max_pixels = s.max_pixels;
+  o.cache_mb = s.cache_mb;
+  o.tiff = ToWriteOptions(s.tiff);
+  Progress progress("compose", s.quiet);
+  ComposeResult r = ComposeMosaic(Store::Open(s.store), o, [&](double f) { progress.Update(f); });
+  progress.Done();
+  for (const auto& [id, why] : r.left_out) std::printf("patch %d left out: %s\n", id, why.c_str());
+  const double seconds = progress.ElapsedSeconds();
+  std::printf("%s/mosaic.tif: %lld x %lld at scale %.4g from %d patches, %.1f s (%.1f Mpx/s), peak "
+              "memory %.0f MiB\n",
+              s.store.c_str(), r.width, r.height, r.scale, r.patches_used, seconds,
+              double(r.width) * double(r.height) / 1e6 / std::max(seconds, 1e-9), PeakRssMb());
+  return 0;
+}
+
+void AddComposeCommand(CLI::App& app, Runner* run) {
+  auto s = std::make_shared<ComposeSwitches>();
+  auto* cmd = app.add_subcommand(
+      "compose", "Place the store's patches in one frame and compose mosaic.tif, out of core");
+  cmd->add_option("store", s->store, "the store")->required();
+  cmd->add_option("--max-pixels", s->max_pixels, "scale the mosaic to fit this many pixels (0 = full)")
+      ->capture_default_str();
+  cmd->add_option("--cache-mb", s->cache_mb, "tile cache for reading patches")->capture_default_str();
+  AddTiffSwitches(cmd, &s->tiff);
+  cmd->add_flag("-q,--quiet", s->quiet, "no progress bar");
+  cmd->callback([s, run] { *run = [s] { return RunCompose(*s); }; });
+}
+
+}  // namespace rolamos::cli
