@@ -40,6 +40,7 @@ cv::Matx33d ToMat(const Homography& h) {
 struct Placed {
   int id = 0;
   std::string path;
+  std::shared_ptr<TiledImage> image;  // opened once, read band after band
   cv::Matx33d to_global;  // patch level-0 pixel -> global pixel (before offset and scale)
   cv::Size size;
   cv::Matx33d to_mosaic;  // patch level-0 pixel -> mosaic pixel
@@ -144,9 +145,10 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
     const cv::Rect2d band(0, double(y), double(result.width), double(rows));
     cv::Mat acc = cv::Mat::zeros(rows, static_cast<int>(result.width), CV_32FC3);
     cv::Mat wsum = cv::Mat::zeros(rows, static_cast<int>(result.width), CV_32F);
-    for (const auto& p : placed) {
+    for (auto& p : placed) {
       if ((p.bounds & band).area() <= 0) continue;
-      TiledImage image = TiledImage::Open(p.path, cache);
+      if (!p.image) p.image = std::make_shared<TiledImage>(TiledImage::Open(p.path, cache));
+      const TiledImage& image = *p.image;
       // The band's footprint in the patch, with room for the feather.
       const cv::Matx33d from_mosaic = p.to_mosaic.inv();
       const cv::Rect2d need = Bounds(from_mosaic * cv::Matx33d(1, 0, 0, 0, 1, double(y), 0, 0, 1),
