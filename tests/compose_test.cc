@@ -1,8 +1,10 @@
 // Engine patches composed into the global mosaic: placement through the links, pixels where the
 // ground truth says, the paper's scaled mosaic, and patches that cannot be placed left out.
 #include "rolamos/compose.hpp"
+#include "rolamos/georeference.hpp"
 
 #include <filesystem>
+#include <fstream>
 #include <map>
 
 #include <gtest/gtest.h>
@@ -113,6 +115,56 @@ TEST_F(ComposeTest, APatchThatCannotBePlacedIsReportedNotGuessed) {
   EXPECT_EQ(r.left_out.front().first, 2);
   EXPECT_NE(r.left_out.front().second.find("not linked"), std::string::npos);
   EXPECT_GE(r.patches_used, 1);
+}
+
+}  // namespace
+}  // namespace rolamos
+
+namespace rolamos {
+namespace {
+
+// Navigation made from the ground truth (2 mm a texture pixel, in UTM 55S): the fitted
+// georeference must put every frame centre where its navigation does.
+TEST_F(ComposeTest, NavigationGeoreferencesTheMosaic) {
+  ComposeResult r = ComposeMosaic(*store_, ComposeOptions{});
+  ASSERT_TRUE(r.left_out.empty());
+  const std::string csv = dir_ / "nav.csv";
+  {
+    std::ofstream out(csv);
+    out << "frame,epsg,gt0_E0,gt1_dE_dcol,gt2_dE_drow,gt3_N0,gt4_dN_dcol,gt5_dN_drow\n";
+    for (const auto& f : survey_.frames) {
+      // Navigation is one affine per frame: frame -> world linearised at the frame centre, then
+      // 2 mm per texture pixel east and south of an origin.
+      const cv::Matx33d W = Mat33(f.frame_to_world);
+      const cv::Vec3d c = W * cv::Vec3d(239.5, 179.5, 1), cx = W * cv::Vec3d(240.5, 179.5, 1),
+                      cy = W * cv::Vec3d(239.5, 180.5, 1);
+      const double wx = c[0] / c[2], wy = c[1] / c[2];
+      const double dxc = cx[0] / cx[2] - wx, dyc = cx[1] / cx[2] - wy;
+      const double dxr = cy[0] / cy[2] - wx, dyr = cy[1] / cy[2] - wy;
+      const double E0 = 500000 + 0.002 * (wx - 239.5 * dxc - 179.5 * dxr);
+      const double N0 = 5200000 - 0.002 * (wy - 239.5 * dyc - 179.5 * dyr);
+      out.precision(12);
+      out << fs::path(f.file).filename().string() << ",32755," << E0 << "," << 0.002 * dxc << ","
+          << 0.002 * dxr << "," << N0 << "," << -0.002 * dyc << "," << -0.002 * dyr << "\n";
+    }
+  }
+  GeoreferenceResult g = GeoreferenceMosaic(*store_, ReadFrameNavigationCsv(csv));
+  EXPECT_EQ(g.frames_used, 30);
+  EXPECT_LT(g.median_residual_m, 0.01);  // 5 texture pixels
+  EXPECT_NEAR(std::hypot(g.georef.geotransform[1], g.georef.geotransform[4]), 0.002, 0.0002);
+  auto back = ReadGeoref(dir_ / "s.rolamos/mosaic.tif");
+  ASSERT_TRUE(back.has_value());
+  EXPECT_NE(back->crs.find("UTM zone 55S"), std::string::npos);
+  EXPECT_TRUE(Store::Open(dir_ / "s.rolamos").global().georef.has_value());
+}
+
+TEST(Navigation, MalformedCsvIsNamed) {
+  test::ScratchDir dir;
+  std::ofstream(dir / "a.csv") << "frame,epsg,gt0\n1.tif,32755,5\n";
+  EXPECT_NE(test::ErrorOf([&] { ReadFrameNavigationCsv(dir / "a.csv"); }).find("gt0..gt5"), std::string::npos);
+  std::ofstream(dir / "b.csv") << "frame,epsg,gt0,gt1,gt2,gt3,gt4,gt5\n1.tif,32755,5,x,0,1,0,-1\n";
+  EXPECT_NE(test::ErrorOf([&] { ReadFrameNavigationCsv(dir / "b.csv"); }).find("b.csv:2: column gt1 is not a number"),
+            std::string::npos);
 }
 
 }  // namespace

@@ -1,7 +1,9 @@
+#include <cmath>
 #include <cstdio>
 
 #include "command.h"
 #include "rolamos/compose.hpp"
+#include "rolamos/georeference.hpp"
 #include "util/memory.h"
 #include "util/progress.h"
 
@@ -9,6 +11,7 @@ namespace rolamos::cli {
 
 struct ComposeSwitches {
   std::string store;
+  std::string navigation;
   long long max_pixels = 0;
   double cache_mb = 256;
   TiffSwitches tiff{"webp", 90, 256, 0};
@@ -24,6 +27,12 @@ static int RunCompose(const ComposeSwitches& s) {
   ComposeResult r = ComposeMosaic(Store::Open(s.store), o, [&](double f) { progress.Update(f); });
   progress.Done();
   for (const auto& [id, why] : r.left_out) std::printf("patch %d left out: %s\n", id, why.c_str());
+  if (!s.navigation.empty()) {
+    GeoreferenceResult g = GeoreferenceMosaic(Store::Open(s.store), ReadFrameNavigationCsv(s.navigation));
+    std::printf("georeferenced from %d frames (%s): pixel %.4g m, residual median %.3f m, max %.3f m\n",
+                g.frames_used, g.georef.crs.c_str(), std::hypot(g.georef.geotransform[1], g.georef.geotransform[4]),
+                g.median_residual_m, g.max_residual_m);
+  }
   const double seconds = progress.ElapsedSeconds();
   std::printf("%s/mosaic.tif: %lld x %lld at scale %.4g from %d patches, %.1f s (%.1f Mpx/s), peak "
               "memory %.0f MiB\n",
@@ -37,6 +46,8 @@ void AddComposeCommand(CLI::App& app, Runner* run) {
   auto* cmd = app.add_subcommand(
       "compose", "Place the store's patches in one frame and compose mosaic.tif, out of core");
   cmd->add_option("store", s->store, "the store")->required();
+  cmd->add_option("--navigation", s->navigation,
+                  "CSV of per-frame georeference (frame, epsg, gt0..gt5[, sequence]) to place the mosaic on the map");
   cmd->add_option("--max-pixels", s->max_pixels, "scale the mosaic to fit this many pixels (0 = full)")
       ->capture_default_str();
   cmd->add_option("--cache-mb", s->cache_mb, "tile cache for reading patches")->capture_default_str();

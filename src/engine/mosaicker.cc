@@ -269,6 +269,7 @@ cv::Matx33d Mosaicker::Impl::ClosePatch() {
     job.sidecar.extra["link"] = l;
   }
   job.sidecar.extra["pixel_budget"] = canvas->pixel_budget();
+  job.sidecar.extra["frame_size"] = {frame_size.width, frame_size.height};
   job.canvas = std::move(canvas);
   job.data_rect = rect;
   writer.Submit(std::move(job));

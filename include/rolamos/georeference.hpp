@@ -1,0 +1,37 @@
+// Georeferencing a composed mosaic from per-frame navigation: each frame's pixel -> map affine
+// (as in a GeoTIFF, or a CSV of them) against where the frame lies in the mosaic, fitted as one
+// similarity transform over all frames; the mosaic gets its CRS and geotransform.
+#pragma once
+
+#include <map>
+#include <string>
+
+#include "rolamos/georef.hpp"
+#include "rolamos/store.hpp"
+
+namespace rolamos {
+
+// A frame's navigation: pixel (col, row) -> map (x, y), and its CRS.
+struct FrameNavigation {
+  std::string crs;  // "EPSG:32755"
+  std::array<double, 6> geotransform{};
+};
+
+// Reads a CSV with the columns frame, epsg, gt0..gt5 (GDAL geotransform order; headers may carry
+// a suffix, as gt1_dE_dcol) and optionally sequence. Keys: "sequence/frame" or "frame".
+// Throws Error naming the file, the line and the column.
+std::map<std::string, FrameNavigation> ReadFrameNavigationCsv(const std::string& path);
+
+struct GeoreferenceResult {
+  Georef georef;
+  int frames_used = 0;
+  double median_residual_m = 0;
+  double max_residual_m = 0;
+};
+
+// Fits the mosaic's georeference from the frames of its placed patches (compose first) and
+// writes it into mosaic.tif and the global record. Throws Error when fewer than two frames have
+// navigation or their CRSs differ.
+GeoreferenceResult GeoreferenceMosaic(Store store, const std::map<std::string, FrameNavigation>& nav);
+
+}  // namespace rolamos

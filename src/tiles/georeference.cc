@@ -1,0 +1,160 @@
+#include "rolamos/georeference.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include <opencv2/calib3d.hpp>
+
+#include "rolamos/error.hpp"
+#include "util/files.h"
+
+namespace fs = std::filesystem;
+
+namespace rolamos {
+
+namespace {
+
+std::vector<std::string> SplitCsv(const std::string& line) {
+  std::vector<std::string> out;
+  std::stringstream ss(line);
+  std::string cell;
+  while (std::getline(ss, cell, ',')) {
+    while (!cell.empty() && (cell.back() == '\r' || cell.back() == ' ')) cell.pop_back();
+    out.push_back(cell);
+  }
+  return out;
+}
+
+cv::Matx33d ToMat(const Homography& h) {
+  cv::Matx33d m;
+  for (int i = 0; i < 9; ++i) m.val[i] = h[static_cast<size_t>(i)];
+  return m;
+}
+
+}  // namespace
+
+std::map<std::string, FrameNavigation> ReadFrameNavigationCsv(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) Fail(path, "cannot be read");
+  std::string line;
+  if (!std::getline(in, line)) Fail(path, "is empty");
+  const auto header = SplitCsv(line);
+  int frame = -1, epsg = -1, sequence = -1, gt[6] = {-1, -1, -1, -1, -1, -1};
+  for (int i = 0; i < static_cast<int>(header.size()); ++i) {
+    const std::string h = ToLower(header[static_cast<size_t>(i)]);
+    if (h == "frame") frame = i;
+    if (h == "epsg") epsg = i;
+    if (h == "sequence") sequence = i;
+    for (int k = 0; k < 6; ++k)
+      if (h == "gt" + std::to_string(k) || h.rfind("gt" + std::to_string(k) + "_", 0) == 0) gt[k] = i;
+  }
+  if (frame < 0 || epsg < 0 || *std::min_element(gt, gt + 6) < 0)
+    Fail(path, "needs the columns frame, epsg and gt0..gt5");
+  std::map<std::string, FrameNavigation> nav;
+  int number = 1;
+  while (std::getline(in, line)) {
+    ++number;
+    if (line.empty()) continue;
+    const auto cells = SplitCsv(line);
+    const std::string where = path + ":" + std::to_string(number);
+    if (cells.size() < header.size()) Fail(where, "has " + std::to_string(cells.size()) + " columns, the header " +
+                                                      std::to_string(header.size()));
+    FrameNavigation f;
+    f.crs = "EPSG:" + cells[static_cast<size_t>(epsg)];
+    for (int k = 0; k < 6; ++k) {
+      try {
+        size_t used = 0;
+        f.geotransform[static_cast<size_t>(k)] = std::stod(cells[static_cast<size_t>(gt[k])], &used);
+        if (used != cells[static_cast<size_t>(gt[k])].size()) throw std::invalid_argument("");
+      } catch (const std::exception&) {
+        Fail(where, "column " + header[static_cast<size_t>(gt[k])] + " is not a number");
+      }
+      if (!std::isfinite(f.geotransform[static_cast<size_t>(k)]))
+        Fail(where, "column " + header[static_cast<size_t>(gt[k])] + " is not finite");
+    }
+    const std::string key = (sequence >= 0 ? cells[static_cast<size_t>(sequence)] + "/" : "") +
+                            cells[static_cast<size_t>(frame)];
+    nav[key] = f;
+  }
+  if (nav.empty()) Fail(path, "lists no frames");
+  return nav;
+}
+
+GeoreferenceResult GeoreferenceMosaic(Store store, const std::map<std::string, FrameNavigation>& nav) {
+  if (!store.HasMosaic()) Fail(store.dir(), "has no mosaic.tif yet (run compose first)");
+  // Correspondences: points around each frame's centre, in mosaic pixels and in map units.
+  std::vector<cv::Point2d> mosaic_pts, map_pts;
+  std::vector<int> owner;
+  std::string crs;
+  int frames = 0;
+  for (const auto& entry : store.patches()) {
+    const PatchSidecar s = store.ReadSidecar(entry.id);
+    if (!s.patch_to_global) continue;  // not placed in the mosaic
+    if (!s.extra.contains("frame_size") || !s.extra["frame_size"].is_array() || s.extra["frame_size"].size() != 2)
+      Fail(store.PatchSidecarPath(entry.id), "has no \"frame_size\" (written by rolamos mosaic)");
+    const double width = s.extra["frame_size"][0].get<double>(), height = s.extra["frame_size"][1].get<double>();
+    for (const auto& f : s.frames) {
+      const fs::path src(f.source);
+      const std::string name = src.filename().string();
+      const std::string with_seq = src.parent_path().filename().string() + "/" + name;
+      auto it = nav.find(with_seq);
+      if (it == nav.end()) it = nav.find(name);
+      if (it == nav.end()) continue;
+      if (crs.empty()) crs = it->second.crs;
+      if (it->second.crs != crs)
+        Fail(store.dir(), "frames are in different CRSs (" + crs + ", " + it->second.crs + ")");
+      const cv::Matx33d to_mosaic = ToMat(*s.patch_to_global) * ToMat(f.frame_to_patch);
+      const auto& g = it->second.geotransform;
+      // Points near the centre, where lens distortion matters least.
+      for (const cv::Point2d p : {cv::Point2d(0.5, 0.5), cv::Point2d(0.35, 0.5), cv::Point2d(0.65, 0.5),
+                                  cv::Point2d(0.5, 0.35), cv::Point2d(0.5, 0.65)}) {
+        const double col = p.x * (width - 1), row = p.y * (height - 1);
+        const cv::Vec3d m = to_mosaic * cv::Vec3d(col, row, 1);
+        mosaic_pts.emplace_back(m[0] / m[2], m[1] / m[2]);
+        map_pts.emplace_back(g[0] + col * g[1] + row * g[2], g[3] + col * g[4] + row * g[5]);
+        owner.push_back(frames);
+      }
+      ++frames;
+    }
+  }
+  if (frames < 2) Fail(store.dir(), "fewer than two placed frames have navigation");
+  // Similarity mosaic -> map, fitted around the means (map coordinates are large numbers).
+  cv::Point2d mc(0, 0), nc(0, 0);
+  for (size_t i = 0; i < mosaic_pts.size(); ++i) mc += mosaic_pts[i], nc += map_pts[i];
+  mc *= 1.0 / mosaic_pts.size();
+  nc *= 1.0 / map_pts.size();
+  std::vector<cv::Point2f> a, b;
+  for (size_t i = 0; i < mosaic_pts.size(); ++i) {
+    a.emplace_back(cv::Point2f(mosaic_pts[i] - mc));
+    b.emplace_back(cv::Point2f(map_pts[i] - nc));
+  }
+  std::vector<uchar> inliers;
+  cv::Mat A = cv::estimateAffinePartial2D(a, b, inliers, cv::LMEDS);
+  if (A.empty()) Fail(store.dir(), "the navigation does not fit any similarity transform");
+  const cv::Matx23d T(A);
+  GeoreferenceResult r;
+  r.georef.crs = crs;
+  // map = T * (mosaic - mc) + nc  ->  GDAL order
+  r.georef.geotransform = {nc.x + T(0, 2) - T(0, 0) * mc.x - T(0, 1) * mc.y, T(0, 0), T(0, 1),
+                           nc.y + T(1, 2) - T(1, 0) * mc.x - T(1, 1) * mc.y, T(1, 0), T(1, 1)};
+  std::vector<double> residuals;
+  for (size_t i = 0; i < mosaic_pts.size(); i += 5) {  // frame centres
+    const auto xy = r.georef.PixelToMap(mosaic_pts[i].x, mosaic_pts[i].y);
+    residuals.push_back(std::hypot(xy[0] - map_pts[i].x, xy[1] - map_pts[i].y));
+  }
+  std::sort(residuals.begin(), residuals.end());
+  r.frames_used = frames;
+  r.median_residual_m = residuals[residuals.size() / 2];
+  r.max_residual_m = residuals.back();
+  WriteGeoref(store.MosaicPath(), r.georef);
+  GlobalRecord global = store.global();
+  global.georef = r.georef;
+  global.georef->crs = CrsToWkt(crs);
+  store.SetGlobal(global);
+  return r;
+}
+
+}  // namespace rolamos
