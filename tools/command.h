@@ -21,6 +21,7 @@ void AddDemoCommand(CLI::App& app, Runner* run);
 void AddSynthCommand(CLI::App& app, Runner* run);
 void AddMosaicCommand(CLI::App& app, Runner* run);
 void AddComposeCommand(CLI::App& app, Runner* run);
+void AddServeCommand(CLI::App& app, Runner* run);
 
 // --compression/--quality/--tile shared by every command that writes a TIFF.
 struct TiffSwitches {

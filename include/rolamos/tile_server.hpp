@@ -1,0 +1,44 @@
+// `rolamos serve`: tiles of a store's mosaic and patches over HTTP, cut on demand from the
+// pyramidal BigTIFFs through the bounded tile cache. Speaks XYZ (/tiles/NAME/Z/X/Y.jpg, Z = 0 is
+// the whole image in one tile, for Leaflet/QGIS) and Deep Zoom (/dzi/NAME.dzi, for OpenSeadragon),
+// with ETag/Cache-Control. Image names come from the store's manifest ("mosaic", "patch-N"); no
+// part of a URL is ever used as a file path.
+#pragma once
+
+#include <memory>
+#include <string>
+
+#include "rolamos/store.hpp"
+
+namespace rolamos {
+
+struct TileServerOptions {
+  std::string bind = "127.0.0.1";  // loopback unless told otherwise
+  int port = 8080;                 // 0: any free port
+  int threads = 0;                 // 0: two per core
+  double cache_mb = 256;
+  int jpeg_quality = 85;
+
+  bool IsValid(std::string* error) const;
+};
+
+class TileServer {
+ public:
+  // Opens every image of the store; throws Error when the store or an option is bad.
+  TileServer(Store store, const TileServerOptions& options);
+  ~TileServer();
+  TileServer(const TileServer&) = delete;
+  TileServer& operator=(const TileServer&) = delete;
+
+  // Binds and serves in a background thread; returns the port. Throws Error if it cannot bind.
+  int Start();
+  void Stop();
+  // Blocks until Stop() (from another thread or a signal handler).
+  void Wait();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace rolamos

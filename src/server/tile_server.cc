@@ -1,0 +1,258 @@
+#include "rolamos/tile_server.hpp"
+
+#include <httplib.h>
+
+#include <cmath>
+#include <filesystem>
+#include <map>
+#include <thread>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "rolamos/error.hpp"
+#include "rolamos/tiled_image.hpp"
+
+namespace rolamos {
+
+bool TileServerOptions::IsValid(std::string* error) const {
+  if (port < 0 || port > 65535) {
+    *error = "port " + std::to_string(port) + " is outside 0..65535";
+    return false;
+  }
+  if (threads < 0 || threads > 256) {
+    *error = "threads must be 0..256";
+    return false;
+  }
+  if (jpeg_quality < 1 || jpeg_quality > 100) {
+    *error = "JPEG quality must be 1..100";
+    return false;
+  }
+  TileCacheOptions c;
+  c.max_memory_mb = cache_mb;
+  return c.IsValid(error);
+}
+
+namespace {
+
+constexpr int kTile = 256;
+
+struct Served {
+  std::string name;
+  std::unique_ptr<TiledImage> image;
+  std::string version;  // changes when the file does: part of every ETag
+  int dzi_max_level = 0;
+};
+
+bool ParseIndex(const std::string& s, long long* out) {
+  if (s.empty() || s.size() > 12) return false;
+  for (char c : s)
+    if (c < '0' || c > '9') return false;
+  *out = std::stoll(s);
+  return true;
+}
+
+}  // namespace
+
+struct TileServer::Impl {
+  explicit Impl(Store s) : store(std::move(s)) {}
+  Store store;
+  TileServerOptions options;
+  std::shared_ptr<TileCache> cache;
+  std::map<std::string, Served> images;
+  httplib::Server http;
+  std::thread thread;
+  int port = 0;
+
+  // A tile of `image` at DZI level `level` (size ceil(w / 2^(max - level))), or an empty Mat.
+  cv::Mat Tile(const Served& s, int level, long long tx, long long ty) const {
+    const double scale = std::ldexp(1.0, level - s.dzi_max_level);
+    const long long w = static_cast<long long>(std::ceil(s.image->width() * scale));
+    const long long h = static_cast<long long>(std::ceil(s.image->height() * scale));
+    if (tx * kTile >= w || ty * kTile >= h) return {};
+    const int tw = static_cast<int>(std::min<long long>(kTile, w - tx * kTile));
+    const int th = static_cast<int>(std::min<long long>(kTile, h - ty * kTile));
+    return s.image->ReadResampled(tx * kTile / scale, ty * kTile / scale, scale, cv::Size(tw, th));
+  }
+
+  void Reply(const httplib::Request& req, httplib::Response& res, const Served& s, int level,
+             long long tx, long long ty, const std::string& ext) {
+    const std::string etag = "\"" + s.version + "-" + std::to_string(level) + "-" +
+                             std::to_string(tx) + "-" + std::to_string(ty) + ext + "\"";
+    res.set_header("ETag", etag);
+    res.set_header("Cache-Control", "public, max-age=3600");
+    if (req.get_header_value("If-None-Match") == etag) {
+      res.status = 304;
+      return;
+    }
+    cv::Mat tile;
+    try {
+      tile = Tile(s, level, tx, ty);
+    } catch (const Error& e) {
+      res.status = 500;
+      res.set_content(e.what(), "text/plain");
+      return;
+    }
+    if (tile.empty()) {
+      res.status = 404;
+      res.set_content("tile outside the image\n", "text/plain");
+      return;
+    }
+    if (tile.depth() == CV_16U) tile.convertTo(tile, CV_8U, 1.0 / 257.0);
+    std::vector<uchar> bytes;
+    if (ext == "png") {
+      cv::imencode(".png", tile, bytes, {cv::IMWRITE_PNG_COMPRESSION, 1});
+      res.set_content(std::string(bytes.begin(), bytes.end()), "image/png");
+    } else {
+      if (tile.channels() == 4) cv::cvtColor(tile, tile, cv::COLOR_BGRA2BGR);
+      if (tile.channels() == 2) cv::extractChannel(tile, tile, 0);
+      cv::imencode(".jpg", tile, bytes, {cv::IMWRITE_JPEG_QUALITY, options.jpeg_quality});
+      res.set_content(std::string(bytes.begin(), bytes.end()), "image/jpeg");
+    }
+  }
+
+  const Served* Find(const std::string& name, httplib::Response& res) const {
+    auto it = images.find(name);
+    if (it == images.end()) {
+      res.status = 404;
+      res.set_content("no such image (see /api/images)\n", "text/plain");
+      return nullptr;
+    }
+    return &it->second;
+  }
+
+  void Routes() {
+    http.Get("/api/images", [this](const httplib::Request&, httplib::Response& res) {
+      nlohmann::json list = nlohmann::json::array();
+      for (const auto& [name, s] : images) {
+        nlohmann::json levels = nlohmann::json::array();
+        for (const auto& l : s.image->info().levels) levels.push_back({l.width, l.height});
+        list.push_back({{"name", name}, {"width", s.image->width()}, {"height", s.image->height()},
+                        {"levels", levels}, {"tile_size", kTile},
+                        {"xyz", "/tiles/" + name + "/{z}/{x}/{y}.jpg"},
+                        {"xyz_max_zoom", s.dzi_max_level - DziToXyzShift(s)},
+                        {"dzi", "/dzi/" + name + ".dzi"}});
+      }
+      res.set_content(list.dump(1), "application/json");
+    });
+    // XYZ: z = 0 is the whole image within one tile.
+    http.Get(R"(/tiles/([^/]+)/([^/]+)/([^/]+)/([^/.]+)\.([a-z]+))",
+             [this](const httplib::Request& req, httplib::Response& res) {
+               const Served* s = Find(req.matches[1], res);
+               if (!s) return;
+               long long z, x, y;
+               const std::string ext = req.matches[5];
+               if (!ParseIndex(req.matches[2], &z) || !ParseIndex(req.matches[3], &x) ||
+                   !ParseIndex(req.matches[4], &y) || (ext != "jpg" && ext != "png")) {
+                 res.status = 400;
+                 res.set_content("expected /tiles/NAME/Z/X/Y.jpg|png with whole numbers\n", "text/plain");
+                 return;
+               }
+               const long long level = z + DziToXyzShift(*s);
+               if (level > s->dzi_max_level) {
+                 res.status = 404;
+                 res.set_content("zoom beyond full resolution\n", "text/plain");
+                 return;
+               }
+               Reply(req, res, *s, static_cast<int>(level), x, y, ext);
+             });
+    http.Get(R"(/dzi/([^/]+)\.dzi)", [this](const httplib::Request& req, httplib::Response& res) {
+      const Served* s = Find(req.matches[1], res);
+      if (!s) return;
+      res.set_content("<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n"
+                      "<Image xmlns=\"http://schemas.microsoft.com/deepzoom/2008\" Format=\"jpg\" "
+                      "Overlap=\"0\" TileSize=\"" + std::to_string(kTile) + "\">\n  <Size Width=\"" +
+                          std::to_string(s->image->width()) + "\" Height=\"" +
+                          std::to_string(s->image->height()) + "\"/>\n</Image>\n",
+                      "application/xml");
+    });
+    http.Get(R"(/dzi/([^/]+)_files/([^/]+)/([^/_]+)_([^/.]+)\.([a-z]+))",
+             [this](const httplib::Request& req, httplib::Response& res) {
+               const Served* s = Find(req.matches[1], res);
+               if (!s) return;
+               long long level, x, y;
+               const std::string ext = req.matches[5];
+               if (!ParseIndex(req.matches[2], &level) || !ParseIndex(req.matches[3], &x) ||
+                   !ParseIndex(req.matches[4], &y) || (ext != "jpg" && ext != "png")) {
+                 res.status = 400;
+                 res.set_content("expected /dzi/NAME_files/LEVEL/X_Y.jpg|png\n", "text/plain");
+                 return;
+               }
+               if (level > s->dzi_max_level) {
+                 res.status = 404;
+                 res.set_content("level beyond full resolution\n", "text/plain");
+                 return;
+               }
+               Reply(req, res, *s, static_cast<int>(level), x, y, ext);
+             });
+    http.set_error_handler([](const httplib::Request&, httplib::Response& res) {
+      if (res.body.empty()) res.set_content("not found\n", "text/plain");
+    });
+  }
+
+  // XYZ zoom 0 fits the image in one tile: the finest DZI level that does, so that
+  // DZI level = XYZ zoom + this.
+  static long long DziToXyzShift(const Served& s) {
+    const double side = double(std::max(s.image->width(), s.image->height()));
+    const long long zooms = side <= kTile ? 0 : static_cast<long long>(std::ceil(std::log2(side / kTile)));
+    return std::max(0LL, s.dzi_max_level - zooms);
+  }
+};
+
+TileServer::TileServer(Store store, const TileServerOptions& options)
+    : impl_(std::make_unique<Impl>(store)) {
+  std::string error;
+  if (!options.IsValid(&error)) Fail("serve", error);
+  Impl& m = *impl_;
+  m.options = options;
+  TileCacheOptions co;
+  co.max_memory_mb = options.cache_mb;
+  m.cache = std::make_shared<TileCache>(co);
+  auto add = [&](const std::string& name, const std::string& path) {
+    Served s;
+    s.name = name;
+    s.image = std::make_unique<TiledImage>(TiledImage::Open(path, m.cache));
+    std::error_code ec;
+    const auto t = std::filesystem::last_write_time(path, ec).time_since_epoch().count();
+    s.version = std::to_string(t) + "-" + std::to_string(std::filesystem::file_size(path, ec));
+    const long long side = std::max(s.image->width(), s.image->height());
+    s.dzi_max_level = static_cast<int>(std::ceil(std::log2(double(std::max(1LL, side)))));
+    m.images[name] = std::move(s);
+  };
+  if (store.HasMosaic()) add("mosaic", store.MosaicPath());
+  for (const auto& p : store.patches())
+    add("patch-" + std::to_string(p.id), (std::filesystem::path(store.dir()) / p.image).string());
+  if (m.images.empty()) Fail(store.dir(), "has no mosaic and no patches to serve");
+  m.Routes();
+  const int threads = options.threads > 0 ? options.threads
+                                          : 2 * static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  m.http.new_task_queue = [threads] { return new httplib::ThreadPool(static_cast<size_t>(threads)); };
+}
+
+TileServer::~TileServer() { Stop(); }
+
+int TileServer::Start() {
+  Impl& m = *impl_;
+  if (m.options.port == 0) {
+    m.port = m.http.bind_to_any_port(m.options.bind);
+  } else {
+    m.port = m.http.bind_to_port(m.options.bind, m.options.port) ? m.options.port : -1;
+  }
+  if (m.port <= 0)
+    Fail(m.options.bind + ":" + std::to_string(m.options.port), "cannot listen there (in use, or not an address of this machine)");
+  m.thread = std::thread([&m] { m.http.listen_after_bind(); });
+  return m.port;
+}
+
+void TileServer::Stop() {
+  if (!impl_) return;
+  impl_->http.stop();
+  if (impl_->thread.joinable()) impl_->thread.join();
+}
+
+void TileServer::Wait() {
+  if (impl_->thread.joinable()) impl_->thread.join();
+}
+
+}  // namespace rolamos

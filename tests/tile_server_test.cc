@@ -1,0 +1,110 @@
+// The tile server over real HTTP on loopback: tiles match the stored pixels at every zoom, the
+// Deep Zoom descriptor is right, caching works, and malformed or hostile requests get 4xx.
+#include "rolamos/tile_server.hpp"
+
+#include <httplib.h>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "rolamos/tiled_image.hpp"
+#include "test_support.h"
+
+namespace rolamos {
+namespace {
+
+class TileServerTest : public testing::Test {
+ protected:
+  void SetUp() override {
+    auto r = test::RunCli("demo -q --size 1500 --compression zstd -o " + (dir_ / "d.rolamos"));
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    TileServerOptions o;
+    o.port = 0;
+    server_ = std::make_unique<TileServer>(Store::Open(dir_ / "d.rolamos"), o);
+    port_ = server_->Start();
+    client_ = std::make_unique<httplib::Client>("127.0.0.1", port_);
+    image_ = std::make_unique<TiledImage>(TiledImage::Open(dir_ / "d.rolamos/patches/000001.tif"));
+  }
+  void TearDown() override { server_->Stop(); }
+
+  cv::Mat Get(const std::string& path, int expect = 200) {
+    auto res = client_->Get(path.c_str());
+    EXPECT_TRUE(res) << path;
+    if (!res) return {};
+    EXPECT_EQ(res->status, expect) << path << ": " << res->body;
+    if (res->status != 200) return {};
+    std::vector<uchar> bytes(res->body.begin(), res->body.end());
+    return cv::imdecode(bytes, cv::IMREAD_UNCHANGED);
+  }
+
+  test::ScratchDir dir_;
+  std::unique_ptr<TileServer> server_;
+  int port_ = 0;
+  std::unique_ptr<httplib::Client> client_;
+  std::unique_ptr<TiledImage> image_;
+};
+
+TEST_F(TileServerTest, TilesAreTheStoredPixelsAtEveryZoom) {
+  auto list = client_->Get("/api/images");
+  ASSERT_TRUE(list);
+  auto j = nlohmann::json::parse(list->body);
+  ASSERT_EQ(j.size(), 1u);
+  EXPECT_EQ(j[0]["name"], "patch-1");
+  const int max_zoom = j[0]["xyz_max_zoom"];
+  EXPECT_EQ(max_zoom, 3);  // 1500 px: 188, 375, 750, 1500 -> zooms 0..3
+  // Full resolution: exactly the stored pixels (PNG is lossless).
+  cv::Mat t = Get("/tiles/patch-1/3/1/2.png");
+  ASSERT_FALSE(t.empty());
+  EXPECT_EQ(cv::norm(t, image_->ReadRegion(0, cv::Rect(256, 512, 256, 256)), cv::NORM_INF), 0.0);
+  // Edge tile: only what is there.
+  cv::Mat edge = Get("/tiles/patch-1/3/5/5.png");
+  EXPECT_EQ(edge.size(), cv::Size(1500 - 5 * 256, 1500 - 5 * 256));
+  // Zoom 0: the whole image in one tile, the area average of it.
+  cv::Mat whole = Get("/tiles/patch-1/0/0/0.jpg");
+  ASSERT_EQ(whole.size(), cv::Size(188, 188));
+  cv::Mat expected = image_->ReadResampled(0, 0, 1.0 / 8, cv::Size(188, 188));
+  EXPECT_GE(test::Psnr(whole, expected), 30.0);
+  // Deep Zoom: descriptor and the same tiles under their levels.
+  auto dzi = client_->Get("/dzi/patch-1.dzi");
+  ASSERT_TRUE(dzi);
+  EXPECT_NE(dzi->body.find("Width=\"1500\" Height=\"1500\""), std::string::npos) << dzi->body;
+  cv::Mat same = Get("/dzi/patch-1_files/11/1_2.png");  // ceil(log2 1500) = 11: full resolution
+  EXPECT_EQ(cv::norm(same, t, cv::NORM_INF), 0.0);
+  cv::Mat one_pixel = Get("/dzi/patch-1_files/0/0_0.png");
+  EXPECT_EQ(one_pixel.size(), cv::Size(1, 1));
+}
+
+TEST_F(TileServerTest, CachingHeadersAndRevalidation) {
+  auto first = client_->Get("/tiles/patch-1/2/1/1.jpg");
+  ASSERT_TRUE(first);
+  const std::string etag = first->get_header_value("ETag");
+  EXPECT_FALSE(etag.empty());
+  EXPECT_NE(first->get_header_value("Cache-Control").find("max-age"), std::string::npos);
+  auto again = client_->Get("/tiles/patch-1/2/1/1.jpg", {{"If-None-Match", etag}});
+  ASSERT_TRUE(again);
+  EXPECT_EQ(again->status, 304);
+}
+
+TEST_F(TileServerTest, MalformedAndHostileRequestsGet4xx) {
+  for (const std::string path : {"/tiles/patch-1/a/0/0.jpg", "/tiles/patch-1/1/-1/0.jpg",
+                                 "/tiles/patch-1/1/0/0.gif", "/tiles/patch-1/99999999999999/0/0.jpg",
+                                 "/dzi/patch-1_files/x/0_0.jpg"}) {
+    auto r = client_->Get(path.c_str());
+    ASSERT_TRUE(r) << path;
+    EXPECT_GE(r->status, 400) << path;
+    EXPECT_LT(r->status, 500) << path;
+  }
+  for (const std::string path : {"/tiles/patch-1/4/0/0.jpg", "/tiles/patch-1/3/9/0.jpg",
+                                 "/tiles/patch-9/0/0/0.jpg", "/tiles/..%2F..%2Fstore.json/0/0/0.jpg",
+                                 "/../../etc/passwd", "/dzi/patch-1_files/12/0_0.jpg", "/nothing"}) {
+    auto r = client_->Get(path.c_str());
+    ASSERT_TRUE(r) << path;
+    EXPECT_EQ(r->status, 404) << path;
+  }
+  // Still serving after all that.
+  EXPECT_FALSE(Get("/tiles/patch-1/0/0/0.jpg").empty());
+}
+
+}  // namespace
+}  // namespace rolamos

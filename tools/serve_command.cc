@@ -1,0 +1,46 @@
+#include <csignal>
+#include <cstdio>
+
+#include "command.h"
+#include "rolamos/tile_server.hpp"
+
+namespace rolamos::cli {
+
+struct ServeSwitches {
+  std::string store;
+  TileServerOptions options;
+};
+
+static int RunServe(const ServeSwitches& s) {
+  // Ctrl-C and SIGTERM are waited for here, not handled in whatever thread they hit.
+  sigset_t stop_signals;
+  sigemptyset(&stop_signals);
+  sigaddset(&stop_signals, SIGINT);
+  sigaddset(&stop_signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
+  TileServer server(Store::Open(s.store), s.options);
+  const int port = server.Start();
+  std::printf("serving %s on http://%s:%d  (images: /api/images; XYZ: /tiles/NAME/{z}/{x}/{y}.jpg; "
+              "Deep Zoom: /dzi/NAME.dzi). Ctrl-C stops.\n",
+              s.store.c_str(), s.options.bind.c_str(), port);
+  std::fflush(stdout);
+  int signal = 0;
+  sigwait(&stop_signals, &signal);
+  server.Stop();
+  std::printf("stopped\n");
+  return 0;
+}
+
+void AddServeCommand(CLI::App& app, Runner* run) {
+  auto s = std::make_shared<ServeSwitches>();
+  auto* cmd = app.add_subcommand("serve", "Serve a store's mosaic and patches as map tiles over HTTP");
+  cmd->add_option("store", s->store, "the store")->required();
+  cmd->add_option("--port", s->options.port, "port (0: any free one)")->capture_default_str();
+  cmd->add_option("--bind", s->options.bind, "address to listen on")->capture_default_str();
+  cmd->add_option("--cache-mb", s->options.cache_mb, "tile cache memory")->capture_default_str();
+  cmd->add_option("--threads", s->options.threads, "request threads (0: two per core)")
+      ->capture_default_str();
+  cmd->callback([s, run] { *run = [s] { return RunServe(*s); }; });
+}
+
+}  // namespace rolamos::cli
