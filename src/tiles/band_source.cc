@@ -115,6 +115,7 @@ class GdalBandSource : public BandSource {
  public:
   GdalBandSource(const std::string& path, double cache_mb) : path_(path) {
     EnsureGdal();
+    TakeGdalError();
     GDALSetCacheMax64(static_cast<GIntBig>(cache_mb * 1024 * 1024));
     ds_.reset(GDALDataset::Open(path.c_str(), GDAL_OF_RASTER | GDAL_OF_READONLY));
     if (!ds_) Fail(path, "neither OpenImageIO nor GDAL can read it (" + TakeGdalError() + ")");

@@ -38,6 +38,7 @@ void ExportCog(const std::string& source, const std::string& output, const CogOp
   std::string error;
   if (!options.IsValid(&error)) Fail(output, error);
   EnsureGdal();
+  TakeGdalError();  // report only this export's errors
   GDALDatasetUniquePtr src(GDALDataset::Open(source.c_str(), GDAL_OF_RASTER | GDAL_OF_READONLY));
   if (!src) Fail(source, "GDAL cannot open it: " + TakeGdalError());
   GDALDriver* driver = GetGDALDriverManager()->GetDriverByName("COG");

@@ -48,6 +48,7 @@ std::array<double, 2> Georef::PixelToMap(double x, double y) const {
 
 std::string CrsToWkt(const std::string& user_crs) {
   EnsureGdal();
+  TakeGdalError();
   OGRSpatialReference srs;
   if (user_crs.empty() || srs.SetFromUserInput(user_crs.c_str()) != OGRERR_NONE)
     Fail("CRS '" + user_crs.substr(0, 200) + "'", "GDAL cannot parse it (" + TakeGdalError() + ")");
@@ -64,6 +65,7 @@ void WriteGeoref(const std::string& tiff_path, const Georef& georef) {
   if (!georef.IsValid(&error)) Fail(tiff_path, "georeference: " + error);
   const std::string wkt = CrsToWkt(georef.crs);
   EnsureGdal();
+  TakeGdalError();  // only errors of this call count below
   GDALDatasetUniquePtr ds(GDALDataset::Open(tiff_path.c_str(), GDAL_OF_RASTER | GDAL_OF_UPDATE));
   if (!ds) Fail(tiff_path, "GDAL cannot open it to write the georeference: " + TakeGdalError());
   double gt[6];
@@ -78,10 +80,9 @@ void WriteGeoref(const std::string& tiff_path, const Georef& georef) {
 std::optional<Georef> ReadGeoref(const std::string& path) {
   EnsureGdal();
   GDALDatasetUniquePtr ds(GDALDataset::Open(path.c_str(), GDAL_OF_RASTER | GDAL_OF_READONLY));
-  if (!ds) {
-    TakeGdalError();
-    return std::nullopt;
-  }
+  // Whatever GDAL complained about while probing is not this caller's error: leave none behind.
+  TakeGdalError();
+  if (!ds) return std::nullopt;
   const OGRSpatialReference* srs = ds->GetSpatialRef();
   double gt[6];
   if (!srs || srs->IsEmpty() || ds->GetGeoTransform(gt) != CE_None) return std::nullopt;
