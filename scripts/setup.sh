@@ -9,7 +9,7 @@ PACKAGES=(
   libopencv-dev libeigen3-dev libtiff-dev libtiff-tools libgdal-dev gdal-bin python3-gdal
   libopenimageio-dev openimageio-tools libvips-tools
   libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev nlohmann-json3-dev libcpp-httplib-dev
-  libzstd-dev libwebp-dev libjpeg-dev time
+  libzstd-dev libwebp-dev libjpeg-dev time wrk curl
 )
 
 missing=()
