@@ -13,6 +13,7 @@
 
 #include "rolamos/error.hpp"
 #include "rolamos/tiled_image.hpp"
+#include "server/tile_pyramid.h"
 
 namespace rolamos {
 
@@ -36,13 +37,12 @@ bool TileServerOptions::IsValid(std::string* error) const {
 
 namespace {
 
-constexpr int kTile = 256;
+constexpr int kTile = TilePyramid::kTile;
 
 struct Served {
   std::string name;
-  std::unique_ptr<TiledImage> image;
+  std::unique_ptr<TilePyramid> tiles;
   std::string version;  // changes when the file does: part of every ETag
-  int dzi_max_level = 0;
 };
 
 bool ParseIndex(const std::string& s, long long* out) {
@@ -65,17 +65,6 @@ struct TileServer::Impl {
   std::thread thread;
   int port = 0;
 
-  // A tile of `image` at DZI level `level` (size ceil(w / 2^(max - level))), or an empty Mat.
-  cv::Mat Tile(const Served& s, int level, long long tx, long long ty) const {
-    const double scale = std::ldexp(1.0, level - s.dzi_max_level);
-    const long long w = static_cast<long long>(std::ceil(s.image->width() * scale));
-    const long long h = static_cast<long long>(std::ceil(s.image->height() * scale));
-    if (tx * kTile >= w || ty * kTile >= h) return {};
-    const int tw = static_cast<int>(std::min<long long>(kTile, w - tx * kTile));
-    const int th = static_cast<int>(std::min<long long>(kTile, h - ty * kTile));
-    return s.image->ReadResampled(tx * kTile / scale, ty * kTile / scale, scale, cv::Size(tw, th));
-  }
-
   void Reply(const httplib::Request& req, httplib::Response& res, const Served& s, int level,
              long long tx, long long ty, const std::string& ext) {
     const std::string etag = "\"" + s.version + "-" + std::to_string(level) + "-" +
@@ -88,7 +77,7 @@ struct TileServer::Impl {
     }
     cv::Mat tile;
     try {
-      tile = Tile(s, level, tx, ty);
+      tile = s.tiles->Tile(level, tx, ty);
     } catch (const Error& e) {
       res.status = 500;
       res.set_content(e.what(), "text/plain");
@@ -99,17 +88,8 @@ struct TileServer::Impl {
       res.set_content("tile outside the image\n", "text/plain");
       return;
     }
-    if (tile.depth() == CV_16U) tile.convertTo(tile, CV_8U, 1.0 / 257.0);
-    std::vector<uchar> bytes;
-    if (ext == "png") {
-      cv::imencode(".png", tile, bytes, {cv::IMWRITE_PNG_COMPRESSION, 1});
-      res.set_content(std::string(bytes.begin(), bytes.end()), "image/png");
-    } else {
-      if (tile.channels() == 4) cv::cvtColor(tile, tile, cv::COLOR_BGRA2BGR);
-      if (tile.channels() == 2) cv::extractChannel(tile, tile, 0);
-      cv::imencode(".jpg", tile, bytes, {cv::IMWRITE_JPEG_QUALITY, options.jpeg_quality});
-      res.set_content(std::string(bytes.begin(), bytes.end()), "image/jpeg");
-    }
+    const auto bytes = TilePyramid::Encode(tile, ext, options.jpeg_quality);
+    res.set_content(std::string(bytes.begin(), bytes.end()), ext == "png" ? "image/png" : "image/jpeg");
   }
 
   const Served* Find(const std::string& name, httplib::Response& res) const {
@@ -127,11 +107,12 @@ struct TileServer::Impl {
       nlohmann::json list = nlohmann::json::array();
       for (const auto& [name, s] : images) {
         nlohmann::json levels = nlohmann::json::array();
-        for (const auto& l : s.image->info().levels) levels.push_back({l.width, l.height});
-        list.push_back({{"name", name}, {"width", s.image->width()}, {"height", s.image->height()},
+        const TiledImage& image = s.tiles->image();
+        for (const auto& l : image.info().levels) levels.push_back({l.width, l.height});
+        list.push_back({{"name", name}, {"width", image.width()}, {"height", image.height()},
                         {"levels", levels}, {"tile_size", kTile},
                         {"xyz", "/tiles/" + name + "/{z}/{x}/{y}.jpg"},
-                        {"xyz_max_zoom", s.dzi_max_level - DziToXyzShift(s)},
+                        {"xyz_max_zoom", s.tiles->xyz_max_zoom()},
                         {"dzi", "/dzi/" + name + ".dzi"}});
       }
       res.set_content(list.dump(1), "application/json");
@@ -149,8 +130,8 @@ struct TileServer::Impl {
                  res.set_content("expected /tiles/NAME/Z/X/Y.jpg|png with whole numbers\n", "text/plain");
                  return;
                }
-               const long long level = z + DziToXyzShift(*s);
-               if (level > s->dzi_max_level) {
+               const long long level = z + s->tiles->xyz_shift();
+               if (level > s->tiles->max_level()) {
                  res.status = 404;
                  res.set_content("zoom beyond full resolution\n", "text/plain");
                  return;
@@ -163,8 +144,8 @@ struct TileServer::Impl {
       res.set_content("<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n"
                       "<Image xmlns=\"http://schemas.microsoft.com/deepzoom/2008\" Format=\"jpg\" "
                       "Overlap=\"0\" TileSize=\"" + std::to_string(kTile) + "\">\n  <Size Width=\"" +
-                          std::to_string(s->image->width()) + "\" Height=\"" +
-                          std::to_string(s->image->height()) + "\"/>\n</Image>\n",
+                          std::to_string(s->tiles->image().width()) + "\" Height=\"" +
+                          std::to_string(s->tiles->image().height()) + "\"/>\n</Image>\n",
                       "application/xml");
     });
     http.Get(R"(/dzi/([^/]+)_files/([^/]+)/([^/_]+)_([^/.]+)\.([a-z]+))",
@@ -179,7 +160,7 @@ struct TileServer::Impl {
                  res.set_content("expected /dzi/NAME_files/LEVEL/X_Y.jpg|png\n", "text/plain");
                  return;
                }
-               if (level > s->dzi_max_level) {
+               if (level > s->tiles->max_level()) {
                  res.status = 404;
                  res.set_content("level beyond full resolution\n", "text/plain");
                  return;
@@ -191,13 +172,6 @@ struct TileServer::Impl {
     });
   }
 
-  // XYZ zoom 0 fits the image in one tile: the finest DZI level that does, so that
-  // DZI level = XYZ zoom + this.
-  static long long DziToXyzShift(const Served& s) {
-    const double side = double(std::max(s.image->width(), s.image->height()));
-    const long long zooms = side <= kTile ? 0 : static_cast<long long>(std::ceil(std::log2(side / kTile)));
-    return std::max(0LL, s.dzi_max_level - zooms);
-  }
 };
 
 TileServer::TileServer(Store store, const TileServerOptions& options)
@@ -212,12 +186,10 @@ TileServer::TileServer(Store store, const TileServerOptions& options)
   auto add = [&](const std::string& name, const std::string& path) {
     Served s;
     s.name = name;
-    s.image = std::make_unique<TiledImage>(TiledImage::Open(path, m.cache));
+    s.tiles = std::make_unique<TilePyramid>(std::make_shared<TiledImage>(TiledImage::Open(path, m.cache)));
     std::error_code ec;
     const auto t = std::filesystem::last_write_time(path, ec).time_since_epoch().count();
     s.version = std::to_string(t) + "-" + std::to_string(std::filesystem::file_size(path, ec));
-    const long long side = std::max(s.image->width(), s.image->height());
-    s.dzi_max_level = static_cast<int>(std::ceil(std::log2(double(std::max(1LL, side)))));
     m.images[name] = std::move(s);
   };
   if (store.HasMosaic()) add("mosaic", store.MosaicPath());

@@ -1,0 +1,46 @@
+#include "server/tile_pyramid.h"
+
+#include <cmath>
+
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+namespace rolamos {
+
+TilePyramid::TilePyramid(std::shared_ptr<TiledImage> image) : image_(std::move(image)) {
+  const double side = double(std::max(image_->width(), image_->height()));
+  max_level_ = static_cast<int>(std::ceil(std::log2(std::max(1.0, side))));
+  const int zooms = side <= kTile ? 0 : static_cast<int>(std::ceil(std::log2(side / kTile)));
+  xyz_shift_ = std::max(0, max_level_ - zooms);
+}
+
+cv::Size TilePyramid::LevelSize(int level) const {
+  const double scale = std::ldexp(1.0, level - max_level_);
+  return cv::Size(static_cast<int>(std::ceil(image_->width() * scale)),
+                  static_cast<int>(std::ceil(image_->height() * scale)));
+}
+
+cv::Mat TilePyramid::Tile(int level, long long tx, long long ty) const {
+  if (level < 0 || level > max_level_ || tx < 0 || ty < 0) return {};
+  const double scale = std::ldexp(1.0, level - max_level_);
+  const cv::Size size = LevelSize(level);
+  if (tx * kTile >= size.width || ty * kTile >= size.height) return {};
+  const int tw = static_cast<int>(std::min<long long>(kTile, size.width - tx * kTile));
+  const int th = static_cast<int>(std::min<long long>(kTile, size.height - ty * kTile));
+  return image_->ReadResampled(tx * kTile / scale, ty * kTile / scale, scale, cv::Size(tw, th));
+}
+
+std::vector<uchar> TilePyramid::Encode(cv::Mat tile, const std::string& ext, int jpeg_quality) {
+  if (tile.depth() == CV_16U) tile.convertTo(tile, CV_8U, 1.0 / 257.0);
+  std::vector<uchar> bytes;
+  if (ext == "png") {
+    cv::imencode(".png", tile, bytes, {cv::IMWRITE_PNG_COMPRESSION, 1});
+  } else {
+    if (tile.channels() == 4) cv::cvtColor(tile, tile, cv::COLOR_BGRA2BGR);
+    if (tile.channels() == 2) cv::extractChannel(tile, tile, 0);
+    cv::imencode(".jpg", tile, bytes, {cv::IMWRITE_JPEG_QUALITY, jpeg_quality});
+  }
+  return bytes;
+}
+
+}  // namespace rolamos

@@ -1,0 +1,39 @@
+// The tile grid served and exported for one image: Deep Zoom levels (level L is the image scaled
+// by 2^(L - max), max = ceil(log2(longest side)), down to one pixel) cut into 256-pixel tiles on
+// demand from the stored pyramid, and the XYZ zoom numbering over the same levels (zoom 0 = the
+// finest level that fits one tile).
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "rolamos/tiled_image.hpp"
+
+namespace rolamos {
+
+class TilePyramid {
+ public:
+  static constexpr int kTile = 256;
+  explicit TilePyramid(std::shared_ptr<TiledImage> image);
+
+  const TiledImage& image() const { return *image_; }
+  int max_level() const { return max_level_; }
+  // DZI level of XYZ zoom 0; XYZ zoom z is DZI level z + xyz_shift().
+  int xyz_shift() const { return xyz_shift_; }
+  int xyz_max_zoom() const { return max_level_ - xyz_shift_; }
+  cv::Size LevelSize(int level) const;
+  // Tile (tx, ty) of a DZI level, BGR(A); empty when outside the level.
+  cv::Mat Tile(int level, long long tx, long long ty) const;
+  // "jpg" or "png"; JPEG drops alpha.
+  static std::vector<uchar> Encode(cv::Mat tile, const std::string& ext, int jpeg_quality);
+
+ private:
+  std::shared_ptr<TiledImage> image_;
+  int max_level_ = 0;
+  int xyz_shift_ = 0;
+};
+
+}  // namespace rolamos
