@@ -22,6 +22,7 @@ void AddSynthCommand(CLI::App& app, Runner* run);
 void AddMosaicCommand(CLI::App& app, Runner* run);
 void AddComposeCommand(CLI::App& app, Runner* run);
 void AddServeCommand(CLI::App& app, Runner* run);
+void AddTilesCommand(CLI::App& app, Runner* run);
 
 // --compression/--quality/--tile shared by every command that writes a TIFF.
 struct TiffSwitches {

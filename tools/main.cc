@@ -22,6 +22,7 @@ int main(int argc, char** argv) {
   rolamos::cli::AddMosaicCommand(app, &run);
   rolamos::cli::AddComposeCommand(app, &run);
   rolamos::cli::AddServeCommand(app, &run);
+  rolamos::cli::AddTilesCommand(app, &run);
   rolamos::cli::AddConvertCommand(app, &run);
   rolamos::cli::AddInfoCommand(app, &run);
   rolamos::cli::AddExportCommand(app, &run);

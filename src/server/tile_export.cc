@@ -1,0 +1,124 @@
+#include "rolamos/tile_export.hpp"
+
+#include <unistd.h>
+
+#include <atomic>
+#include <filesystem>
+#include <fstream>
+
+#include <nlohmann/json.hpp>
+
+#include "rolamos/error.hpp"
+#include "server/tile_pyramid.h"
+#include "util/files.h"
+
+namespace fs = std::filesystem;
+
+namespace rolamos {
+
+bool TileExportOptions::IsValid(std::string* error) const {
+  if (format != "dzi" && format != "xyz") {
+    *error = "tile format \"" + format + "\" is not dzi or xyz";
+    return false;
+  }
+  if (ext != "jpg" && ext != "png") {
+    *error = "tile encoding \"" + ext + "\" is not jpg or png";
+    return false;
+  }
+  if (jpeg_quality < 1 || jpeg_quality > 100) {
+    *error = "JPEG quality must be 1..100";
+    return false;
+  }
+  TileCacheOptions c;
+  c.max_memory_mb = cache_mb;
+  return c.IsValid(error);
+}
+
+namespace {
+
+void WriteBytes(const fs::path& path, const std::vector<uchar>& bytes) {
+  std::ofstream out(path, std::ios::binary);
+  out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+  if (!out) Fail(path.string(), "cannot be written");
+}
+
+}  // namespace
+
+TileExportResult ExportTiles(Store store, const std::string& dir, const TileExportOptions& options,
+                             const ProgressFn& progress) {
+  std::string error;
+  if (!options.IsValid(&error)) Fail("tiles", error);
+  std::error_code ec;
+  if (fs::exists(dir, ec)) Fail(dir, "exists already; tiles go into a new directory");
+  TileCacheOptions co;
+  co.max_memory_mb = options.cache_mb;
+  auto cache = std::make_shared<TileCache>(co);
+  std::vector<std::pair<std::string, std::string>> images;  // name, file
+  if (store.HasMosaic()) images.emplace_back("mosaic", store.MosaicPath());
+  for (const auto& p : store.patches())
+    images.emplace_back("patch-" + std::to_string(p.id), (fs::path(store.dir()) / p.image).string());
+  if (images.empty()) Fail(store.dir(), "has no mosaic and no patches to export");
+
+  const fs::path tmp = TemporarySibling(fs::absolute(dir).lexically_normal().string());
+  fs::create_directories(tmp, ec);
+  if (ec) Fail(dir, "cannot be created: " + ec.message());
+  TileExportResult result;
+  try {
+    std::vector<TilePyramid> pyramids;
+    long long total = 0;
+    for (const auto& [name, path] : images) {
+      pyramids.emplace_back(std::make_shared<TiledImage>(TiledImage::Open(path, cache)));
+      const auto& t = pyramids.back();
+      for (int level = options.format == "xyz" ? t.xyz_shift() : 0; level <= t.max_level(); ++level) {
+        const cv::Size s = t.LevelSize(level);
+        total += static_cast<long long>((s.width + 255) / 256) * ((s.height + 255) / 256);
+      }
+    }
+    nlohmann::json index = nlohmann::json::array();
+    std::atomic<long long> done{0};
+    for (size_t i = 0; i < images.size(); ++i) {
+      const std::string& name = images[i].first;
+      const TilePyramid& t = pyramids[i];
+      const bool dzi = options.format == "dzi";
+      if (dzi) {
+        std::ofstream(tmp / (name + ".dzi"))
+            << "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<Image xmlns=\"http://schemas.microsoft.com/"
+               "deepzoom/2008\" Format=\"" << options.ext << "\" Overlap=\"0\" TileSize=\"256\">\n  <Size Width=\""
+            << t.image().width() << "\" Height=\"" << t.image().height() << "\"/>\n</Image>\n";
+      }
+      for (int level = dzi ? 0 : t.xyz_shift(); level <= t.max_level(); ++level) {
+        const cv::Size s = t.LevelSize(level);
+        const int nx = (s.width + 255) / 256, ny = (s.height + 255) / 256;
+        const fs::path level_dir = dzi ? tmp / (name + "_files") / std::to_string(level)
+                                       : tmp / name / std::to_string(level - t.xyz_shift());
+        for (int x = 0; x < nx && !dzi; ++x) fs::create_directories(level_dir / std::to_string(x));
+        if (dzi) fs::create_directories(level_dir);
+        cv::parallel_for_(cv::Range(0, nx * ny), [&](const cv::Range& r) {
+          for (int k = r.start; k < r.end; ++k) {
+            const int x = k % nx, y = k / nx;
+            const auto bytes = TilePyramid::Encode(t.Tile(level, x, y), options.ext, options.jpeg_quality);
+            WriteBytes(dzi ? level_dir / (std::to_string(x) + "_" + std::to_string(y) + "." + options.ext)
+                           : level_dir / std::to_string(x) / (std::to_string(y) + "." + options.ext),
+                       bytes);
+            ++done;
+          }
+        });
+        if (progress) progress(double(done) / std::max(1LL, total));
+      }
+      index.push_back({{"name", name}, {"width", t.image().width()}, {"height", t.image().height()},
+                       {"format", options.format}, {"tile_size", 256},
+                       {"url", dzi ? name + ".dzi" : name + "/{z}/{x}/{y}." + options.ext},
+                       {"max_zoom", dzi ? t.max_level() : t.xyz_max_zoom()}});
+    }
+    std::ofstream(tmp / "images.json") << index.dump(1) << "\n";
+    result.images = static_cast<int>(images.size());
+    result.tiles = done;
+    RenameFile(tmp.string(), dir);
+  } catch (...) {
+    fs::remove_all(tmp, ec);
+    throw;
+  }
+  return result;
+}
+
+}  // namespace rolamos
