@@ -16,17 +16,12 @@
 #include "rolamos/synth.hpp"
 #include "rolamos/tiled_image.hpp"
 #include "test_support.h"
+#include "util/homography.h"
 
 namespace rolamos {
 namespace {
 
 namespace fs = std::filesystem;
-
-cv::Matx33d Mat33(const std::array<double, 9>& a) {
-  cv::Matx33d m;
-  for (int i = 0; i < 9; ++i) m.val[i] = a[static_cast<size_t>(i)];
-  return m;
-}
 
 class ComposeTest : public testing::Test {
  protected:
@@ -62,7 +57,7 @@ TEST_F(ComposeTest, PatchesLandWhereTheGroundTruthSays) {
   EXPECT_EQ(mosaic.width(), r.width);
   // Every frame's grid through patch_to_global against ground truth, one best-fit homography.
   std::map<std::string, cv::Matx33d> gt;
-  for (const auto& f : survey_.frames) gt[fs::path(f.file).filename().string()] = Mat33(f.frame_to_world);
+  for (const auto& f : survey_.frames) gt[fs::path(f.file).filename().string()] = ToMatx(f.frame_to_world);
   std::vector<cv::Point2d> grid, ours, theirs;
   for (int i = 0; i < 5; ++i)
     for (int j = 0; j < 5; ++j) grid.emplace_back(i * 119.75, j * 89.75);
@@ -71,7 +66,7 @@ TEST_F(ComposeTest, PatchesLandWhereTheGroundTruthSays) {
     PatchSidecar side = s.ReadSidecar(p.id);
     ASSERT_TRUE(side.patch_to_global.has_value());
     for (const auto& f : side.frames) {
-      const cv::Matx33d to_mosaic = Mat33(*side.patch_to_global) * Mat33(f.frame_to_patch);
+      const cv::Matx33d to_mosaic = ToMatx(*side.patch_to_global) * ToMatx(f.frame_to_patch);
       std::vector<cv::Point2d> a, b;
       cv::perspectiveTransform(grid, a, cv::Mat(to_mosaic));
       cv::perspectiveTransform(grid, b, cv::Mat(gt[fs::path(f.source).filename().string()]));
@@ -135,7 +130,7 @@ TEST_F(ComposeTest, NavigationGeoreferencesTheMosaic) {
     for (const auto& f : survey_.frames) {
       // Navigation is one affine per frame: frame -> world linearised at the frame centre, then
       // 2 mm per texture pixel east and south of an origin.
-      const cv::Matx33d W = Mat33(f.frame_to_world);
+      const cv::Matx33d W = ToMatx(f.frame_to_world);
       const cv::Vec3d c = W * cv::Vec3d(239.5, 179.5, 1), cx = W * cv::Vec3d(240.5, 179.5, 1),
                       cy = W * cv::Vec3d(239.5, 180.5, 1);
       const double wx = c[0] / c[2], wy = c[1] / c[2];

@@ -20,6 +20,7 @@
 #include "engine/preprocess.h"
 #include "engine/self_calibration.h"
 #include "rolamos/error.hpp"
+#include "util/homography.h"
 #include "util/memory.h"
 
 namespace rolamos {
@@ -85,11 +86,6 @@ double MaxCornerShift(const cv::Matx33d& a, const cv::Matx33d& b, cv::Size s) {
   return worst;
 }
 
-Homography ToArray(const cv::Matx33d& m) {
-  Homography h;
-  for (int i = 0; i < 9; ++i) h[static_cast<size_t>(i)] = m.val[i] / m(2, 2);
-  return h;
-}
 
 }  // namespace
 
@@ -220,7 +216,7 @@ void Mosaicker::Impl::Stitch(const cv::Mat& filtered, const cv::Matx33d& to_patc
   FrameRecord rec;
   rec.index = report.index;
   rec.source = report.source;
-  rec.frame_to_patch = ToArray(to_patch);
+  rec.frame_to_patch = ToArray9(to_patch);
   rec.matches = report.matches;
   rec.inliers = report.inliers;
   rec.ecc = report.ecc;
@@ -252,9 +248,7 @@ cv::Matx33d Mosaicker::Impl::ClosePatch() {
   job.sidecar.n_images = static_cast<int>(frames.size());
   job.sidecar.offset = {double(-rect.x), double(-rect.y)};
   for (auto& f : frames) {
-    cv::Matx33d h;
-    for (int i = 0; i < 9; ++i) h.val[i] = f.frame_to_patch[static_cast<size_t>(i)];
-    f.frame_to_patch = ToArray(T * h);
+    f.frame_to_patch = ToArray9(T * ToMatx(f.frame_to_patch));
   }
   job.sidecar.first_homography = frames.front().frame_to_patch;
   job.sidecar.last_homography = frames.back().frame_to_patch;
@@ -263,9 +257,7 @@ cv::Matx33d Mosaicker::Impl::ClosePatch() {
   if (!link.is_null()) {
     // The link was found in first-frame coordinates; the patch image's pixels are T of those.
     nlohmann::json l = link;
-    cv::Matx33d to_previous;
-    for (int i = 0; i < 9; ++i) to_previous.val[i] = l["to_previous"][static_cast<size_t>(i)];
-    l["to_previous"] = ToArray(to_previous * T.inv());
+    l["to_previous"] = ToArray9(ToMatx(l["to_previous"].get<Homography>()) * T.inv());
     job.sidecar.extra["link"] = l;
   }
   job.sidecar.extra["pixel_budget"] = canvas->pixel_budget();
@@ -394,7 +386,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
     const int old_id = m.patch_id;
     const cv::Matx33d T = m.ClosePatch();
     m.StartPatch(spatial, features,
-                 {{"previous_patch", old_id}, {"to_previous", ToArray(T * to_patch)}});
+                 {{"previous_patch", old_id}, {"to_previous", ToArray9(T * to_patch)}});
     r.started_patch = true;
     m.Stitch(spatial, cv::Matx33d::eye(), features, r);
     r.status = "stitched";

@@ -14,6 +14,7 @@
 #include "rolamos/synth.hpp"
 #include "rolamos/tiled_image.hpp"
 #include "test_support.h"
+#include "util/homography.h"
 
 namespace rolamos {
 namespace {
@@ -35,24 +36,18 @@ MosaickerOptions FastOptions() {
   return o;
 }
 
-cv::Matx33d Mat33(const std::array<double, 9>& a) {
-  cv::Matx33d m;
-  for (int i = 0; i < 9; ++i) m.val[i] = a[static_cast<size_t>(i)];
-  return m;
-}
-
 // Where frames land in the patch against where they are on the ground, after one best-fit
 // homography for the whole patch (the measure): RMS over a 5x5 grid in every frame.
 double PatchRmsError(const PatchSidecar& s, const Survey& truth) {
   std::map<std::string, cv::Matx33d> gt;
-  for (const auto& f : truth.frames) gt[fs::path(f.file).filename().string()] = Mat33(f.frame_to_world);
+  for (const auto& f : truth.frames) gt[fs::path(f.file).filename().string()] = ToMatx(f.frame_to_world);
   std::vector<cv::Point2d> grid, ours, theirs;
   for (int i = 0; i < 5; ++i)
     for (int j = 0; j < 5; ++j)
       grid.emplace_back(i * (truth.frame_size.width - 1) / 4.0, j * (truth.frame_size.height - 1) / 4.0);
   for (const auto& f : s.frames) {
     std::vector<cv::Point2d> a, b;
-    cv::perspectiveTransform(grid, a, cv::Mat(Mat33(f.frame_to_patch)));
+    cv::perspectiveTransform(grid, a, cv::Mat(ToMatx(f.frame_to_patch)));
     cv::perspectiveTransform(grid, b, cv::Mat(gt[fs::path(f.source).filename().string()]));
     ours.insert(ours.end(), a.begin(), a.end());
     theirs.insert(theirs.end(), b.begin(), b.end());
@@ -82,7 +77,7 @@ TEST(Mosaicker, StitchesASyntheticSurveyWhereTheGroundTruthSays) {
   TiledImage image = TiledImage::Open(reopened.PatchImagePath(1), std::make_shared<TileCache>());
   EXPECT_EQ(image.width(), s.size[0]);
   EXPECT_TRUE(image.info().has_alpha);
-  cv::Vec3d c = Mat33(s.frames[12].frame_to_patch) * cv::Vec3d(240, 180, 1);
+  cv::Vec3d c = ToMatx(s.frames[12].frame_to_patch) * cv::Vec3d(240, 180, 1);
   cv::Mat px = image.ReadRegion(0, cv::Rect(int(c[0] / c[2]) - 2, int(c[1] / c[2]) - 2, 4, 4));
   EXPECT_EQ(cv::mean(px)[3], 255.0);
   ASSERT_TRUE(s.frames[5].egomotion.has_value());
@@ -90,7 +85,7 @@ TEST(Mosaicker, StitchesASyntheticSurveyWhereTheGroundTruthSays) {
   // shows frame 12 (at its centre, where its own weight dominates the blend).
   cv::Mat whole = image.ReadRegion(0, cv::Rect(0, 0, static_cast<int>(image.width()), static_cast<int>(image.height())));
   cv::Mat seen;
-  cv::warpPerspective(whole, seen, cv::Mat(Mat33(s.frames[12].frame_to_patch)), cv::Size(480, 360),
+  cv::warpPerspective(whole, seen, cv::Mat(ToMatx(s.frames[12].frame_to_patch)), cv::Size(480, 360),
                       cv::INTER_LINEAR | cv::WARP_INVERSE_MAP);
   cv::Mat frame = cv::imread(dir / ("survey/" + survey.frames[12].file));
   cv::cvtColor(seen, seen, cv::COLOR_BGRA2BGR);
@@ -102,7 +97,7 @@ TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {
   test::ScratchDir dir;
   Survey survey = WriteSurvey(SmallSurvey(30), dir / "survey");
   std::map<std::string, cv::Matx33d> gt;
-  for (const auto& f : survey.frames) gt[fs::path(f.file).filename().string()] = Mat33(f.frame_to_world);
+  for (const auto& f : survey.frames) gt[fs::path(f.file).filename().string()] = ToMatx(f.frame_to_world);
   Store store = Store::Create(dir / "s.rolamos");
   MosaickerOptions o = FastOptions();
   o.patch_megapixels = 0.4;  // about two frames' worth of canvas
@@ -125,8 +120,8 @@ TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {
       for (int i = 0; i < 9; ++i) l[static_cast<size_t>(i)] = s.extra["link"]["to_previous"][static_cast<size_t>(i)];
       const auto name = [](const FrameRecord& f) { return fs::path(f.source).filename().string(); };
       const cv::Matx33d first_to_last = gt[name(previous.frames.back())].inv() * gt[name(s.frames.front())];
-      const cv::Matx33d ours = Mat33(l) * Mat33(s.first_homography);
-      const cv::Matx33d truth = Mat33(previous.last_homography) * first_to_last;
+      const cv::Matx33d ours = ToMatx(l) * ToMatx(s.first_homography);
+      const cv::Matx33d truth = ToMatx(previous.last_homography) * first_to_last;
       for (const cv::Vec3d p0 : {cv::Vec3d(0, 0, 1), cv::Vec3d(479, 359, 1), cv::Vec3d(240, 180, 1)}) {
         cv::Vec3d a = ours * p0, b = truth * p0;
         EXPECT_LT(std::hypot(a[0] / a[2] - b[0] / b[2], a[1] / a[2] - b[1] / b[2]), 3.0) << "patch " << p.id;

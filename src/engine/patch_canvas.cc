@@ -4,6 +4,8 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "util/homography.h"
+
 namespace rolamos {
 
 namespace {
@@ -19,18 +21,7 @@ int FloorDiv(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
 }  // namespace
 
 cv::Rect2d PatchCanvas::FrameBounds(const cv::Matx33d& H, cv::Size frame) {
-  std::vector<cv::Point2d> c{{-0.5, -0.5}, {frame.width - 0.5, -0.5},
-                             {frame.width - 0.5, frame.height - 0.5}, {-0.5, frame.height - 0.5}},
-      w;
-  cv::perspectiveTransform(c, w, cv::Mat(H));
-  double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
-  for (const auto& p : w) {
-    x0 = std::min(x0, p.x);
-    y0 = std::min(y0, p.y);
-    x1 = std::max(x1, p.x);
-    y1 = std::max(y1, p.y);
-  }
-  return cv::Rect2d(x0, y0, x1 - x0, y1 - y0);
+  return WarpedBounds(H, frame);
 }
 
 bool PatchCanvas::Fits(const cv::Rect2d& bounds) const {

@@ -31,10 +31,7 @@ class PatchCanvas {
   // at `scale` of its resolution (for ECC refinement).
   void ViewFromFrame(const cv::Matx33d& frame_to_patch, cv::Size frame, double scale,
                      cv::Mat* gray, cv::Mat* mask) const;
-  // Area covered by frames so far, in patch coordinates.
-  cv::Rect extent() const { return data_; }
   long long pixel_budget() const { return budget_; }
-  size_t memory_bytes() const { return blocks_.size() * kBlock * kBlock * 16; }
 
  private:
   static constexpr int kBlock = 256;

@@ -53,10 +53,7 @@ TileExportResult ExportTiles(Store store, const std::string& dir, const TileExpo
   TileCacheOptions co;
   co.max_memory_mb = options.cache_mb;
   auto cache = std::make_shared<TileCache>(co);
-  std::vector<std::pair<std::string, std::string>> images;  // name, file
-  if (store.HasMosaic()) images.emplace_back("mosaic", store.MosaicPath());
-  for (const auto& p : store.patches())
-    images.emplace_back("patch-" + std::to_string(p.id), (fs::path(store.dir()) / p.image).string());
+  const auto images = StoreImages(store);
   if (images.empty()) Fail(store.dir(), "has no mosaic and no patches to export");
 
   const fs::path tmp = TemporarySibling(fs::absolute(dir).lexically_normal().string());
@@ -81,10 +78,7 @@ TileExportResult ExportTiles(Store store, const std::string& dir, const TileExpo
       const TilePyramid& t = pyramids[i];
       const bool dzi = options.format == "dzi";
       if (dzi) {
-        std::ofstream(tmp / (name + ".dzi"))
-            << "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<Image xmlns=\"http://schemas.microsoft.com/"
-               "deepzoom/2008\" Format=\"" << options.ext << "\" Overlap=\"0\" TileSize=\"256\">\n  <Size Width=\""
-            << t.image().width() << "\" Height=\"" << t.image().height() << "\"/>\n</Image>\n";
+        std::ofstream(tmp / (name + ".dzi")) << t.DziDescriptor(options.ext);
       }
       for (int level = dzi ? 0 : t.xyz_shift(); level <= t.max_level(); ++level) {
         const cv::Size s = t.LevelSize(level);

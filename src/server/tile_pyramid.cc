@@ -1,6 +1,7 @@
 #include "server/tile_pyramid.h"
 
 #include <cmath>
+#include <filesystem>
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
@@ -41,6 +42,23 @@ std::vector<uchar> TilePyramid::Encode(cv::Mat tile, const std::string& ext, int
     cv::imencode(".jpg", tile, bytes, {cv::IMWRITE_JPEG_QUALITY, jpeg_quality});
   }
   return bytes;
+}
+
+std::string TilePyramid::DziDescriptor(const std::string& ext) const {
+  return "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n"
+         "<Image xmlns=\"http://schemas.microsoft.com/deepzoom/2008\" Format=\"" + ext +
+         "\" Overlap=\"0\" TileSize=\"" + std::to_string(kTile) + "\">\n  <Size Width=\"" +
+         std::to_string(image_->width()) + "\" Height=\"" + std::to_string(image_->height()) +
+         "\"/>\n</Image>\n";
+}
+
+std::vector<std::pair<std::string, std::string>> StoreImages(const Store& store) {
+  std::vector<std::pair<std::string, std::string>> images;
+  if (store.HasMosaic()) images.emplace_back("mosaic", store.MosaicPath());
+  for (const auto& p : store.patches())
+    images.emplace_back("patch-" + std::to_string(p.id),
+                        (std::filesystem::path(store.dir()) / p.image).string());
+  return images;
 }
 
 }  // namespace rolamos

@@ -10,6 +10,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "rolamos/store.hpp"
 #include "rolamos/tiled_image.hpp"
 
 namespace rolamos {
@@ -29,11 +30,17 @@ class TilePyramid {
   cv::Mat Tile(int level, long long tx, long long ty) const;
   // "jpg" or "png"; JPEG drops alpha.
   static std::vector<uchar> Encode(cv::Mat tile, const std::string& ext, int jpeg_quality);
+  // The Deep Zoom descriptor (NAME.dzi) of this image.
+  std::string DziDescriptor(const std::string& ext) const;
 
  private:
   std::shared_ptr<TiledImage> image_;
   int max_level_ = 0;
   int xyz_shift_ = 0;
 };
+
+// What a store offers as tiled images, by the names the server and the export use:
+// ("mosaic", its file) when composed, then ("patch-N", file) for every patch.
+std::vector<std::pair<std::string, std::string>> StoreImages(const Store& store);
 
 }  // namespace rolamos

@@ -141,12 +141,7 @@ struct TileServer::Impl {
     http.Get(R"(/dzi/([^/]+)\.dzi)", [this](const httplib::Request& req, httplib::Response& res) {
       const Served* s = Find(req.matches[1], res);
       if (!s) return;
-      res.set_content("<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n"
-                      "<Image xmlns=\"http://schemas.microsoft.com/deepzoom/2008\" Format=\"jpg\" "
-                      "Overlap=\"0\" TileSize=\"" + std::to_string(kTile) + "\">\n  <Size Width=\"" +
-                          std::to_string(s->tiles->image().width()) + "\" Height=\"" +
-                          std::to_string(s->tiles->image().height()) + "\"/>\n</Image>\n",
-                      "application/xml");
+      res.set_content(s->tiles->DziDescriptor("jpg"), "application/xml");
     });
     http.Get(R"(/dzi/([^/]+)_files/([^/]+)/([^/_]+)_([^/.]+)\.([a-z]+))",
              [this](const httplib::Request& req, httplib::Response& res) {
@@ -192,9 +187,7 @@ TileServer::TileServer(Store store, const TileServerOptions& options)
     s.version = std::to_string(t) + "-" + std::to_string(std::filesystem::file_size(path, ec));
     m.images[name] = std::move(s);
   };
-  if (store.HasMosaic()) add("mosaic", store.MosaicPath());
-  for (const auto& p : store.patches())
-    add("patch-" + std::to_string(p.id), (std::filesystem::path(store.dir()) / p.image).string());
+  for (const auto& [name, path] : StoreImages(store)) add(name, path);
   if (m.images.empty()) Fail(store.dir(), "has no mosaic and no patches to serve");
   m.Routes();
   const int threads = options.threads > 0 ? options.threads

@@ -6,15 +6,10 @@
 
 #include "rolamos/error.hpp"
 #include "test_support.h"
+#include "util/homography.h"
 
 namespace rolamos {
 namespace {
-
-cv::Matx33d Mat33(const std::array<double, 9>& a) {
-  cv::Matx33d m;
-  for (int i = 0; i < 9; ++i) m.val[i] = a[i];
-  return m;
-}
 
 SurveyOptions Clean(const std::string& path) {
   SurveyOptions o;
@@ -41,7 +36,7 @@ TEST(Synth, GroundTruthHomographiesRelateFrames) {
     for (int i : {0, 5, 11}) {
       const int j = i + 1;
       cv::Mat fi = cv::imread(dir / back.frames[i].file), fj = cv::imread(dir / back.frames[j].file);
-      const cv::Matx33d H = Mat33(back.frames[j].frame_to_world).inv() * Mat33(back.frames[i].frame_to_world);
+      const cv::Matx33d H = ToMatx(back.frames[j].frame_to_world).inv() * ToMatx(back.frames[i].frame_to_world);
       cv::Mat warped, mask;
       cv::warpPerspective(fi, warped, cv::Mat(H), fj.size());
       cv::warpPerspective(cv::Mat(fi.size(), CV_8U, cv::Scalar(255)), mask, cv::Mat(H), fj.size(),

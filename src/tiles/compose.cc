@@ -8,6 +8,7 @@
 
 #include "rolamos/error.hpp"
 #include "rolamos/tiled_image.hpp"
+#include "util/homography.h"
 
 namespace rolamos {
 
@@ -31,11 +32,6 @@ bool ComposeOptions::IsValid(std::string* error) const {
 
 namespace {
 
-cv::Matx33d ToMat(const Homography& h) {
-  cv::Matx33d m;
-  for (int i = 0; i < 9; ++i) m.val[i] = h[static_cast<size_t>(i)];
-  return m;
-}
 
 struct Placed {
   int id = 0;
@@ -47,16 +43,6 @@ struct Placed {
   cv::Rect2d bounds;      // in mosaic pixels
 };
 
-cv::Rect2d Bounds(const cv::Matx33d& H, cv::Size size) {
-  std::vector<cv::Point2d> c{{-0.5, -0.5}, {size.width - 0.5, -0.5},
-                             {size.width - 0.5, size.height - 0.5}, {-0.5, size.height - 0.5}}, w;
-  cv::perspectiveTransform(c, w, cv::Mat(H));
-  double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
-  for (const auto& p : w) {
-    x0 = std::min(x0, p.x), y0 = std::min(y0, p.y), x1 = std::max(x1, p.x), y1 = std::max(y1, p.y);
-  }
-  return cv::Rect2d(x0, y0, x1 - x0, y1 - y0);
-}
 
 // Weights that fall to zero at a patch's no-data border over `width` pixels (in the region read).
 cv::Mat FeatherFromAlpha(const cv::Mat& alpha, int width) {
@@ -89,11 +75,10 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
     }
     cv::Matx33d G;
     if (s.patch_to_global) {
-      G = ToMat(*s.patch_to_global);
+      G = ToMatx(*s.patch_to_global);
     } else if (s.extra.contains("link") && to_global.count(s.extra["link"].value("previous_patch", -1))) {
-      Homography h;
-      for (int i = 0; i < 9; ++i) h[static_cast<size_t>(i)] = s.extra["link"]["to_previous"][static_cast<size_t>(i)];
-      G = to_global[s.extra["link"]["previous_patch"].get<int>()] * ToMat(h);
+      G = to_global[s.extra["link"]["previous_patch"].get<int>()] *
+          ToMatx(s.extra["link"]["to_previous"].get<Homography>());
     } else if (to_global.empty()) {
       G = cv::Matx33d::eye();  // the first patch defines the global frame
     } else {
@@ -114,7 +99,7 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
   // 2. The global frame: offset to the union of the patches, scale to fit max_pixels.
   double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
   for (const auto& p : placed) {
-    const cv::Rect2d b = Bounds(p.to_global, p.size);
+    const cv::Rect2d b = WarpedBounds(p.to_global, p.size);
     x0 = std::min(x0, b.x), y0 = std::min(y0, b.y);
     x1 = std::max(x1, b.x + b.width), y1 = std::max(y1, b.y + b.height);
   }
@@ -129,7 +114,7 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
   const cv::Matx33d S(scale, 0, 0.5 * scale - 0.5, 0, scale, 0.5 * scale - 0.5, 0, 0, 1);
   for (auto& p : placed) {
     p.to_mosaic = S * O * p.to_global;
-    p.bounds = Bounds(p.to_mosaic, p.size);
+    p.bounds = WarpedBounds(p.to_mosaic, p.size);
   }
 
   // 3. Band by band: each patch that reaches the band is read (at the level its scale needs),
@@ -151,7 +136,7 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
       const TiledImage& image = *p.image;
       // The band's footprint in the patch, with room for the feather.
       const cv::Matx33d from_mosaic = p.to_mosaic.inv();
-      const cv::Rect2d need = Bounds(from_mosaic * cv::Matx33d(1, 0, 0, 0, 1, double(y), 0, 0, 1),
+      const cv::Rect2d need = WarpedBounds(from_mosaic * cv::Matx33d(1, 0, 0, 0, 1, double(y), 0, 0, 1),
                                      cv::Size(static_cast<int>(result.width), rows));
       const int level = image.LevelForScale(std::min(1.0, scale * 1.0001));
       const auto& L = image.info().levels[static_cast<size_t>(level)];
@@ -205,17 +190,14 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
   // 4. Record where the patches went and the global record of Table I.
   for (const auto& p : placed) {
     PatchSidecar s = store.ReadSidecar(p.id);
-    Homography g;
-    const cv::Matx33d G = O * p.to_global;  // full-resolution global pixels
-    for (int i = 0; i < 9; ++i) g[static_cast<size_t>(i)] = G.val[i] / G(2, 2);
-    s.patch_to_global = g;
+    s.patch_to_global = ToArray9(O * p.to_global);  // full-resolution global pixels
     store.UpdateSidecar(s);
   }
   GlobalRecord global = store.global();
   global.size = {result.width, result.height};
   global.scale = scale;
   const PatchSidecar first = store.ReadSidecar(placed.front().id);
-  const cv::Vec3d origin = placed.front().to_mosaic * ToMat(first.first_homography) * cv::Vec3d(0, 0, 1);
+  const cv::Vec3d origin = placed.front().to_mosaic * ToMatx(first.first_homography) * cv::Vec3d(0, 0, 1);
   global.offset = {origin[0] / origin[2], origin[1] / origin[2]};
   store.SetGlobal(global);
   result.patches_used = static_cast<int>(placed.size());

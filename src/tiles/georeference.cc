@@ -10,6 +10,7 @@
 
 #include "rolamos/error.hpp"
 #include "util/files.h"
+#include "util/homography.h"
 
 namespace fs = std::filesystem;
 
@@ -28,11 +29,6 @@ std::vector<std::string> SplitCsv(const std::string& line) {
   return out;
 }
 
-cv::Matx33d ToMat(const Homography& h) {
-  cv::Matx33d m;
-  for (int i = 0; i < 9; ++i) m.val[i] = h[static_cast<size_t>(i)];
-  return m;
-}
 
 }  // namespace
 
@@ -106,7 +102,7 @@ GeoreferenceResult GeoreferenceMosaic(Store store, const std::map<std::string, F
       if (crs.empty()) crs = it->second.crs;
       if (it->second.crs != crs)
         Fail(store.dir(), "frames are in different CRSs (" + crs + ", " + it->second.crs + ")");
-      const cv::Matx33d to_mosaic = ToMat(*s.patch_to_global) * ToMat(f.frame_to_patch);
+      const cv::Matx33d to_mosaic = ToMatx(*s.patch_to_global) * ToMatx(f.frame_to_patch);
       const auto& g = it->second.geotransform;
       // Points near the centre, where lens distortion matters least.
       for (const cv::Point2d p : {cv::Point2d(0.5, 0.5), cv::Point2d(0.35, 0.5), cv::Point2d(0.65, 0.5),

@@ -1,0 +1,31 @@
+#include "util/homography.h"
+
+#include <opencv2/core.hpp>
+
+namespace rolamos {
+
+cv::Matx33d ToMatx(const std::array<double, 9>& h) {
+  cv::Matx33d m;
+  for (int i = 0; i < 9; ++i) m.val[i] = h[static_cast<size_t>(i)];
+  return m;
+}
+
+std::array<double, 9> ToArray9(const cv::Matx33d& m) {
+  std::array<double, 9> h;
+  for (int i = 0; i < 9; ++i) h[static_cast<size_t>(i)] = m.val[i] / m(2, 2);
+  return h;
+}
+
+cv::Rect2d WarpedBounds(const cv::Matx33d& H, cv::Size size) {
+  const cv::Point2d corners[] = {{-0.5, -0.5}, {size.width - 0.5, -0.5},
+                                 {size.width - 0.5, size.height - 0.5}, {-0.5, size.height - 0.5}};
+  double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
+  for (const auto& c : corners) {
+    const cv::Vec3d p = H * cv::Vec3d(c.x, c.y, 1);
+    const double x = p[0] / p[2], y = p[1] / p[2];
+    x0 = std::min(x0, x), y0 = std::min(y0, y), x1 = std::max(x1, x), y1 = std::max(y1, y);
+  }
+  return cv::Rect2d(x0, y0, x1 - x0, y1 - y0);
+}
+
+}  // namespace rolamos

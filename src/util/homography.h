@@ -1,0 +1,17 @@
+// Homographies as the store keeps them (9 numbers, row-major) and as OpenCV computes with them,
+// and the bounding box of an image warped by one. Shared by the engine and the tiles side.
+#pragma once
+
+#include <array>
+
+#include <opencv2/core.hpp>
+
+namespace rolamos {
+
+cv::Matx33d ToMatx(const std::array<double, 9>& h);
+// Normalised so that the last element is 1.
+std::array<double, 9> ToArray9(const cv::Matx33d& m);
+// Bounding box of an image of `size` (pixel edges, -0.5 .. size - 0.5) mapped by H.
+cv::Rect2d WarpedBounds(const cv::Matx33d& H, cv::Size size);
+
+}  // namespace rolamos
