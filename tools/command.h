@@ -31,6 +31,7 @@ struct TiffSwitches {
   int tile = 256;
   int threads = 0;
   int zstd_level = 9;
+  int webp_method = 4;
 };
 void AddTiffSwitches(CLI::App* cmd, TiffSwitches* s);
 // Throws rolamos::Error for an unknown codec name.

@@ -15,6 +15,9 @@ void AddTiffSwitches(CLI::App* cmd, TiffSwitches* s) {
       ->capture_default_str();
   cmd->add_option("--zstd-level", s->zstd_level, "zstd level 1..22 (higher: smaller, slower)")
       ->capture_default_str();
+  cmd->add_option("--webp-method", s->webp_method,
+                  "WebP effort 0..6 (like cwebp -m; lower: faster, slightly lower fidelity)")
+      ->capture_default_str();
 }
 
 TiffWriteOptions ToWriteOptions(const TiffSwitches& s) {
@@ -28,6 +31,7 @@ TiffWriteOptions ToWriteOptions(const TiffSwitches& s) {
   o.tile_size = s.tile;
   o.threads = s.threads;
   o.zstd_level = s.zstd_level;
+  o.webp_method = s.webp_method;
   return o;
 }
 

@@ -11,7 +11,9 @@ namespace rolamos::cli {
 struct MosaicSwitches {
   std::string input, output;
   MosaickerOptions options;
-  TiffSwitches tiff{"webp", 90, 256, 0};
+  // Patches are intermediate (compose re-encodes them): the fast WebP effort keeps the writer
+  // from costing frames per second.
+  TiffSwitches tiff{"webp", 90, 256, 0, 9, 0};
   bool no_bilateral = false, no_temporal = false, no_clahe = false, no_fundamental = false,
        no_kalman = false, no_ecc = false, no_cross_check = false;
   bool quiet = false;

@@ -19,6 +19,7 @@
 namespace rolamos {
 
 struct PreparedFrame;  // a frame after pre-processing and feature extraction
+struct Features;       // a frame's keypoints and descriptors
 
 struct MosaickerOptions {
   // 1. Pre-processing
@@ -30,7 +31,7 @@ struct MosaickerOptions {
   bool clahe = true;            // detection image only
   // 2. Egomotion
   std::string features = "sift";  // sift | orb | akaze
-  int max_features = 1200;
+  int max_features = 1000;
   double detect_scale = 0.4;
   double ratio = 0.8;
   bool cross_check = true;
@@ -50,7 +51,15 @@ struct MosaickerOptions {
   double patch_megapixels = 5.0;
   double patch_memory_mb = 0;     // if > 0, also bounds the patch canvas (16 bytes a pixel)
   int max_lost_frames = 3;        // consecutive failures that close a patch
-  TiffWriteOptions tiff;          // patch images
+  TiffWriteOptions tiff = PatchWriteOptions();  // patch images
+
+  // WebP at libwebp effort 0: patches are intermediate, and the writer must keep up with the camera.
+  static TiffWriteOptions PatchWriteOptions() {
+    TiffWriteOptions t;
+    t.compression = Compression::kWebp;
+    t.webp_method = 0;
+    return t;
+  }
 
   bool IsValid(std::string* error) const;
   long long PixelBudget() const;
@@ -89,11 +98,14 @@ class Mosaicker {
 
   // One frame (BGR 8-bit; empty = unreadable, recorded with `error` as the reason).
   FrameReport Push(const cv::Mat& frame, const std::string& source, const std::string& error = "");
-  // Push in two halves, for pipelining: Prepare (pre-processing and features) may run on another
-  // thread, one frame ahead of Integrate (registration, checks, refinement, blending). Frames
-  // must be prepared and integrated in the same order, each half from one thread at a time.
+  // Push in parts, for pipelining. Prepare (pre-processing and features) is thread-safe: several
+  // frames may be prepared at once, on any threads. MatchAhead optionally matches a prepared frame
+  // against the features of the frame before it (which it will usually be registered to), also on
+  // any thread. Integrate (registration, checks, refinement, blending) takes the frames in order,
+  // from one thread at a time, and matches again itself whenever the frame was matched to another.
   std::shared_ptr<PreparedFrame> Prepare(const cv::Mat& frame, const std::string& source,
                                          const std::string& error = "");
+  void MatchAhead(PreparedFrame* frame, const std::shared_ptr<const Features>& previous);
   FrameReport Integrate(const std::shared_ptr<PreparedFrame>& frame);
   // Closes and writes the last patch, waits for the writer. Returns the totals.
   MosaicSummary Finish();

@@ -91,7 +91,7 @@ EccResult RefineWithEcc(const cv::Mat& frame_gray, const cv::Matx33d& frame_to_p
     try {
       correlation = cv::findTransformECC(
           templ_hp, input_hp, W, motion,
-          cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, o.iterations, 1e-6),
+          cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, o.iterations, o.epsilon),
           mask, 3);
     } catch (const cv::Exception&) {
       return r;  // did not converge: keep the feature estimate

@@ -15,6 +15,7 @@ struct EccOptions {
   int levels = 1;            // pyramid levels (each half the one before); features are
                              // already within a pixel or two, so one level suffices
   int iterations = 15;
+  double epsilon = 1e-4;  // stop when the correlation improves by less
   double min_correlation = 0.6;  // below this the refinement is not trusted
   double max_shift_px = 8.0;     // a correction larger than this (full-res pixels) is refused
   std::string motion = "homography";  // translation | euclidean | affine | homography

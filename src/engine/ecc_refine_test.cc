@@ -27,7 +27,7 @@ TEST(Ecc, RecoversAKnownPlacementToSubPixel) {
   cv::Mat ground = RenderSeafloor(0, 0, 900, 700);
   cv::Mat first = ground(cv::Rect(0, 0, 640, 480)).clone();
   PatchCanvas canvas(10'000'000);
-  canvas.Add(first, FeatherWeights(size, 0.2), cv::Matx33d::eye());
+  canvas.Add(first, FeatherCode(FeatherWeights(size, 0.2)), cv::Matx33d::eye());
   const cv::Matx33d truth(0.97, 0.05, 37.25, -0.04, 1.01, 21.5, 2e-5, -3e-5, 1);  // second frame -> patch
   cv::Mat second;
   cv::warpPerspective(ground, second, cv::Mat(truth), size, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP);

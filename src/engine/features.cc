@@ -1,5 +1,8 @@
 #include "engine/features.h"
 
+#include <cmath>
+#include <limits>
+
 #include <opencv2/imgproc.hpp>
 
 #include "rolamos/error.hpp"
@@ -29,14 +32,21 @@ bool FeatureOptions::IsValid(std::string* error) const {
 FeatureExtractor::FeatureExtractor(const FeatureOptions& options) : options_(options) {
   std::string error;
   if (!options.IsValid(&error)) Fail("features", error);
-  if (options.type == "sift") {
-    detector_ = cv::SIFT::create(options.max_features, 3, 0.02);
-  } else if (options.type == "orb") {
-    detector_ = cv::ORB::create(options.max_features, 1.2f, 8, 31, 0, 2, cv::ORB::HARRIS_SCORE, 31, 10);
-  } else {
-    detector_ = cv::AKAZE::create(cv::AKAZE::DESCRIPTOR_MLDB, 0, 3, 0.0008f);
-  }
 }
+
+namespace {
+
+// A detector per call: OpenCV does not promise that one detector may run on several threads at
+// once, and creating one costs microseconds.
+cv::Ptr<cv::Feature2D> CreateDetector(const FeatureOptions& options) {
+  // SIFT's float descriptors: OpenCV's brute-force L2 is vectorised for float, not for 8-bit.
+  if (options.type == "sift") return cv::SIFT::create(options.max_features, 3, 0.02);
+  if (options.type == "orb")
+    return cv::ORB::create(options.max_features, 1.2f, 8, 31, 0, 2, cv::ORB::HARRIS_SCORE, 31, 10);
+  return cv::AKAZE::create(cv::AKAZE::DESCRIPTOR_MLDB, 0, 3, 0.0008f);
+}
+
+}  // namespace
 
 Features FeatureExtractor::Extract(const cv::Mat& gray) const {
   CV_Assert(gray.type() == CV_8UC1);
@@ -45,7 +55,8 @@ Features FeatureExtractor::Extract(const cv::Mat& gray) const {
     cv::resize(gray, small, cv::Size(), options_.detect_scale, options_.detect_scale, cv::INTER_AREA);
   std::vector<cv::KeyPoint> keypoints;
   Features f;
-  detector_->detectAndCompute(small, cv::noArray(), keypoints, f.descriptors);
+  f.norm = options_.type == "sift" ? cv::NORM_L2 : cv::NORM_HAMMING;
+  CreateDetector(options_)->detectAndCompute(small, cv::noArray(), keypoints, f.descriptors);
   if (options_.type == "akaze" && static_cast<int>(keypoints.size()) > options_.max_features) {
     // AKAZE has no count limit: keep the strongest.
     std::vector<int> order(keypoints.size());
@@ -70,10 +81,50 @@ Features FeatureExtractor::Extract(const cv::Mat& gray) const {
   return f;
 }
 
-Matches MatchFeatures(const Features& a, const Features& b, const FeatureOptions& options) {
-  Matches m;
-  if (a.descriptors.rows < 2 || b.descriptors.rows < 2) return m;
-  cv::BFMatcher matcher(a.descriptors.type() == CV_8U ? cv::NORM_HAMMING : cv::NORM_L2);
+namespace {
+
+// Float descriptors (SIFT): one distance matrix serves the ratio test one way and the mutual-best
+// check the other, where kNN matching and a reverse pass would compute most distances twice.
+std::vector<cv::DMatch> MatchByDistanceMatrix(const Features& a, const Features& b,
+                                              const FeatureOptions& options) {
+  cv::Mat d;  // squared L2, a.rows x b.rows
+  cv::batchDistance(a.descriptors, b.descriptors, d, CV_32F, cv::noArray(), cv::NORM_L2SQR);
+  std::vector<int> best_a(static_cast<size_t>(d.cols), -1);  // for each b, its nearest a
+  if (options.cross_check) {
+    std::vector<float> best(static_cast<size_t>(d.cols), std::numeric_limits<float>::max());
+    for (int i = 0; i < d.rows; ++i) {
+      const float* row = d.ptr<float>(i);
+      for (int j = 0; j < d.cols; ++j)
+        if (row[j] < best[static_cast<size_t>(j)]) {
+          best[static_cast<size_t>(j)] = row[j];
+          best_a[static_cast<size_t>(j)] = i;
+        }
+    }
+  }
+  const float ratio2 = static_cast<float>(options.ratio * options.ratio);
+  std::vector<cv::DMatch> out;
+  for (int i = 0; i < d.rows; ++i) {
+    const float* row = d.ptr<float>(i);
+    float d1 = std::numeric_limits<float>::max(), d2 = d1;
+    int j1 = -1;
+    for (int j = 0; j < d.cols; ++j) {
+      if (row[j] < d1) {
+        d2 = d1;
+        d1 = row[j];
+        j1 = j;
+      } else if (row[j] < d2) {
+        d2 = row[j];
+      }
+    }
+    if (j1 < 0 || !(d1 < ratio2 * d2)) continue;
+    if (options.cross_check && best_a[static_cast<size_t>(j1)] != i) continue;
+    out.emplace_back(i, j1, std::sqrt(d1));
+  }
+  return out;
+}
+
+std::vector<cv::DMatch> MatchBinary(const Features& a, const Features& b, const FeatureOptions& options) {
+  cv::BFMatcher matcher(a.norm);
   std::vector<std::vector<cv::DMatch>> ab;
   matcher.knnMatch(a.descriptors, b.descriptors, ab, 2);
   std::vector<cv::DMatch> candidates;
@@ -82,8 +133,7 @@ Matches MatchFeatures(const Features& a, const Features& b, const FeatureOptions
     if (passes) candidates.push_back(k[0]);
   }
   if (options.cross_check && !candidates.empty()) {
-    // Mutual best: only the descriptors of b that some a chose need their best a (a fraction
-    // of a second full pass).
+    // Mutual best: only the descriptors of b that some a chose need their best a.
     cv::Mat chosen(static_cast<int>(candidates.size()), b.descriptors.cols, b.descriptors.type());
     for (size_t i = 0; i < candidates.size(); ++i)
       b.descriptors.row(candidates[i].trainIdx).copyTo(chosen.row(static_cast<int>(i)));
@@ -94,7 +144,19 @@ Matches MatchFeatures(const Features& a, const Features& b, const FeatureOptions
       if (back[i].trainIdx == candidates[i].queryIdx) mutual.push_back(candidates[i]);
     candidates.swap(mutual);
   }
-  for (const auto& c : candidates) {
+  return candidates;
+}
+
+}  // namespace
+
+Matches MatchFeatures(const Features& a, const Features& b, const FeatureOptions& options) {
+  Matches m;
+  if (a.descriptors.rows < 2 || b.descriptors.rows < 2) return m;
+  CV_Assert(a.norm == b.norm && a.descriptors.type() == b.descriptors.type());
+  const std::vector<cv::DMatch> matches = a.norm == cv::NORM_L2 && a.descriptors.type() == CV_32F
+                                              ? MatchByDistanceMatrix(a, b, options)
+                                              : MatchBinary(a, b, options);
+  for (const auto& c : matches) {
     m.from.push_back(a.points[static_cast<size_t>(c.queryIdx)]);
     m.to.push_back(b.points[static_cast<size_t>(c.trainIdx)]);
   }

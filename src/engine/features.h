@@ -24,6 +24,7 @@ struct FeatureOptions {
 struct Features {
   std::vector<cv::Point2f> points;  // in full-resolution frame pixels
   cv::Mat descriptors;
+  int norm = 4;  // cv::NORM_L2 (SIFT) or cv::NORM_HAMMING (ORB, AKAZE: binary)
   bool empty() const { return points.empty(); }
 };
 
@@ -36,7 +37,6 @@ class FeatureExtractor {
 
  private:
   FeatureOptions options_;
-  cv::Ptr<cv::Feature2D> detector_;
 };
 
 struct Matches {

@@ -2,7 +2,8 @@
 
 #include <chrono>
 #include <condition_variable>
-#include <deque>
+#include <atomic>
+#include <map>
 #include <mutex>
 #include <thread>
 #include <cmath>
@@ -133,10 +134,9 @@ struct Mosaicker::Impl {
   std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
 
   // The first frame fixes the size and the camera.
-  cv::Size reference_size;  // seen by Prepare (its own thread)
-  cv::Size frame_size;      // seen by Integrate
+  cv::Size frame_size;
   cv::Matx33d K = cv::Matx33d::eye();
-  cv::Mat weights;
+  std::unique_ptr<FeatherCode> weights;
   std::unique_ptr<MotionGate> gate;
 
   // The patch in progress.
@@ -149,21 +149,21 @@ struct Mosaicker::Impl {
   nlohmann::json link = nullptr;         // how this patch joins the one before
   // The last stitched frame: what the next one is registered to.
   std::shared_ptr<const Features> prev_features;      // of the last stitched frame
-  std::shared_ptr<const Features> last_prepared;      // of the last frame Prepare saw
+  std::shared_ptr<const Features> last_prepared;      // Push: of the last frame with features
   cv::Matx33d prev_to_patch = cv::Matx33d::eye();
   cv::Mat prev_filtered;
   int lost = 0;
   MosaicSummary summary;
   // Stage timers, in the order of the pipeline.
   enum Stage { kPreprocess, kDetectImage, kFeatures, kMatching, kEgomotion, kTemporal, kEcc, kBlend, kStages };
-  // Prepare (one thread) and Integrate (another) each write only their own stages.
-  double stage_seconds[kStages] = {};
+  // Prepare runs on several threads at once: nanoseconds, added atomically.
+  std::atomic<long long> stage_ns[kStages] = {};
   struct Laps {
     Impl* m;
     std::chrono::steady_clock::time_point t = std::chrono::steady_clock::now();
     void operator()(Stage s) {
       const auto now = std::chrono::steady_clock::now();
-      m->stage_seconds[s] += std::chrono::duration<double>(now - t).count();
+      m->stage_ns[s] += std::chrono::duration_cast<std::chrono::nanoseconds>(now - t).count();
       t = now;
     }
   };
@@ -210,7 +210,7 @@ void Mosaicker::Impl::StartPatch(const cv::Mat& filtered, const std::shared_ptr<
 
 void Mosaicker::Impl::Stitch(const cv::Mat& filtered, const cv::Matx33d& to_patch,
                              const std::shared_ptr<const Features>& f, const FrameReport& report) {
-  canvas->Add(filtered, weights, to_patch);
+  canvas->Add(filtered, *weights, to_patch);
   const cv::Rect2d b = PatchCanvas::FrameBounds(to_patch, frame_size);
   data_bounds = data_bounds.area() > 0 ? (data_bounds | b) : b;
   FrameRecord rec;
@@ -297,25 +297,29 @@ std::shared_ptr<PreparedFrame> Mosaicker::Prepare(const cv::Mat& input, const st
   if (frame.channels() == 1) cv::cvtColor(frame, frame, cv::COLOR_GRAY2BGR);
   if (frame.channels() == 4) cv::cvtColor(frame, frame, cv::COLOR_BGRA2BGR);
   p->size = frame.size();
-  if (m.reference_size.area() == 0) m.reference_size = frame.size();
-  if (frame.size() != m.reference_size) return p;  // Integrate says why
+  // A frame of another size than the survey's is rejected by Integrate, which knows the survey.
   p->spatial = m.pre.Spatial(frame);
   lap(Impl::kPreprocess);
   p->detect = m.pre.DetectionImage(p->spatial);
   lap(Impl::kDetectImage);
   p->own = std::make_shared<const Features>(m.extractor.Extract(p->detect));
   lap(Impl::kFeatures);
-  if (m.last_prepared && !p->own->empty()) {
-    p->matches = MatchFeatures(*p->own, *m.last_prepared, m.extractor.options());
-    p->matched_to = m.last_prepared;
-    lap(Impl::kMatching);
-  }
-  if (!p->own->empty()) m.last_prepared = p->own;
   return p;
 }
 
+void Mosaicker::MatchAhead(PreparedFrame* frame, const std::shared_ptr<const Features>& previous) {
+  if (!frame->own || frame->own->empty() || !previous || previous->empty()) return;
+  Impl::Laps lap{impl_.get()};
+  frame->matches = MatchFeatures(*frame->own, *previous, impl_->extractor.options());
+  frame->matched_to = previous;
+  lap(Impl::kMatching);
+}
+
 FrameReport Mosaicker::Push(const cv::Mat& frame, const std::string& source, const std::string& error) {
-  return Integrate(Prepare(frame, source, error));
+  auto prepared = Prepare(frame, source, error);
+  MatchAhead(prepared.get(), impl_->last_prepared);
+  if (prepared->own && !prepared->own->empty()) impl_->last_prepared = prepared->own;
+  return Integrate(prepared);
 }
 
 FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared) {
@@ -334,7 +338,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
   if (m.frame_size.area() == 0) {
     m.frame_size = p.size;
     m.K = m.pre.CameraMatrix(p.size);
-    m.weights = FeatherWeights(p.size, m.options.feather_sigma);
+    m.weights = std::make_unique<FeatherCode>(FeatherWeights(p.size, m.options.feather_sigma));
     MotionGateOptions g;
     g.enabled = m.options.kalman;
     m.gate = std::make_unique<MotionGate>(g, p.size);
@@ -434,7 +438,8 @@ MosaicSummary Mosaicker::Finish() {
   static const char* names[] = {"preprocess", "detection image", "features", "matching",
                                 "egomotion", "temporal", "ecc", "blend"};
   m.summary.stage_seconds.clear();
-  for (int i = 0; i < Impl::kStages; ++i) m.summary.stage_seconds.emplace_back(names[i], m.stage_seconds[i]);
+  for (int i = 0; i < Impl::kStages; ++i)
+    m.summary.stage_seconds.emplace_back(names[i], 1e-9 * static_cast<double>(m.stage_ns[i].load()));
   return m.summary;
 }
 
@@ -477,49 +482,87 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
       given.calibration == "auto" ? AutoCalibrate(input, store, given, &note) : given;
   auto source = FrameSource::Open(input);
   Mosaicker mosaicker(store, options);
-  // Two stages on two cores: decoding, pre-processing and features of the next frame run while
-  // this one is registered, refined and blended. The queue holds two frames at most.
-  std::mutex mutex;
+  // Frames are prepared (decoded, filtered, features found and matched to the frame before) by
+  // one worker per core, several frames at once, while this thread integrates them in order
+  // (registration, gate, ECC, blending); the writer compresses closed patches meanwhile. Only
+  // integration is sequential, so the cores share the per-frame work whatever its balance.
+  const int workers = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  const long ahead = workers + 2;  // frames prepared ahead of integration, at most
+  std::mutex source_mutex, mutex;
   std::condition_variable changed;
-  std::deque<std::shared_ptr<PreparedFrame>> queue;
-  bool finished = false;
+  std::map<long, std::shared_ptr<PreparedFrame>> ready;        // prepared, waiting in order
+  std::map<long, std::shared_ptr<const Features>> chain;       // last features up to frame i
+  long taken = 0, integrated = 0, total = -1;                  // total known at the end
+  bool stopping = false;
   std::exception_ptr failure;
-  std::thread producer([&] {
+  auto prepare_frames = [&] {
     try {
-      InputFrame f;
-      while (source->Next(&f)) {
+      for (;;) {
+        {
+          std::unique_lock<std::mutex> lock(mutex);
+          changed.wait(lock, [&] { return stopping || taken - integrated < ahead; });
+          if (stopping) return;
+        }
+        InputFrame f;
+        long index;
+        {
+          // Frames leave the source in order, numbered as they leave (video decodes in order).
+          std::lock_guard<std::mutex> source_lock(source_mutex);
+          const bool more = total < 0 && source->Next(&f);
+          std::lock_guard<std::mutex> lock(mutex);
+          if (!more) {
+            total = taken;
+            changed.notify_all();
+            return;
+          }
+          index = taken++;
+        }
         auto prepared = mosaicker.Prepare(f.image, f.source, f.error);
-        std::unique_lock<std::mutex> lock(mutex);
-        changed.wait(lock, [&] { return queue.size() < 2 || finished; });
-        if (finished) return;
-        queue.push_back(std::move(prepared));
+        const bool has_features = prepared->own && !prepared->own->empty();
+        std::shared_ptr<const Features> previous;
+        {
+          std::unique_lock<std::mutex> lock(mutex);
+          if (has_features) chain[index] = prepared->own;
+          changed.notify_all();
+          changed.wait(lock, [&] { return stopping || index == 0 || chain.count(index - 1); });
+          if (stopping) return;
+          if (index > 0) previous = chain[index - 1];
+          if (!has_features) chain[index] = previous;
+        }
+        mosaicker.MatchAhead(prepared.get(), previous);
+        std::lock_guard<std::mutex> lock(mutex);
+        ready[index] = std::move(prepared);
         changed.notify_all();
       }
     } catch (...) {
       std::lock_guard<std::mutex> lock(mutex);
-      failure = std::current_exception();
+      if (!failure) failure = std::current_exception();
+      stopping = true;
+      changed.notify_all();
     }
-    std::lock_guard<std::mutex> lock(mutex);
-    finished = true;
-    changed.notify_all();
-  });
+  };
+  std::vector<std::thread> preparers;
+  for (int i = 0; i < workers; ++i) preparers.emplace_back(prepare_frames);
   auto stop = [&] {
     {
       std::lock_guard<std::mutex> lock(mutex);
-      finished = true;
+      stopping = true;
     }
     changed.notify_all();
-    producer.join();
+    for (auto& t : preparers) t.join();
   };
   try {
     for (;;) {
       std::shared_ptr<PreparedFrame> next;
       {
         std::unique_lock<std::mutex> lock(mutex);
-        changed.wait(lock, [&] { return !queue.empty() || finished; });
-        if (queue.empty()) break;
-        next = std::move(queue.front());
-        queue.pop_front();
+        changed.wait(lock, [&] { return failure || ready.count(integrated) || integrated == total; });
+        if (failure || integrated == total) break;
+        next = std::move(ready[integrated]);
+        ready.erase(integrated);
+        // Frame i + 1's worker may still need chain[i - 1 + 1]; older links are done with.
+        chain.erase(chain.begin(), chain.lower_bound(integrated - 1));
+        ++integrated;
         changed.notify_all();
       }
       FrameReport r = mosaicker.Integrate(next);

@@ -122,7 +122,7 @@ TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {
       const cv::Matx33d first_to_last = gt[name(previous.frames.back())].inv() * gt[name(s.frames.front())];
       const cv::Matx33d ours = ToMatx(l) * ToMatx(s.first_homography);
       const cv::Matx33d truth = ToMatx(previous.last_homography) * first_to_last;
-      for (const cv::Vec3d p0 : {cv::Vec3d(0, 0, 1), cv::Vec3d(479, 359, 1), cv::Vec3d(240, 180, 1)}) {
+      for (const cv::Vec3d& p0 : {cv::Vec3d(0, 0, 1), cv::Vec3d(479, 359, 1), cv::Vec3d(240, 180, 1)}) {
         cv::Vec3d a = ours * p0, b = truth * p0;
         EXPECT_LT(std::hypot(a[0] / a[2] - b[0] / b[2], a[1] / a[2] - b[1] / b[2]), 3.0) << "patch " << p.id;
       }
@@ -131,6 +131,39 @@ TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {
   }
   EXPECT_EQ(images, 30);
   EXPECT_EQ(reopened.global().n_images, 30);
+}
+
+// MosaicInput prepares several frames at once on worker threads; pushing the same frames one by
+// one on this thread must give the same patches, frame for frame.
+TEST(Mosaicker, ParallelPreparationGivesWhatPushingInOrderGives) {
+  test::ScratchDir dir;
+  Survey survey = WriteSurvey(SmallSurvey(20), dir / "survey");
+  MosaickerOptions o = FastOptions();
+  o.patch_megapixels = 0.6;  // several patches, so closing and linking are covered too
+  Store parallel = Store::Create(dir / "parallel.rolamos");
+  MosaicSummary a = MosaicInput(dir / "survey/frames", parallel, o);
+  Store sequential = Store::Create(dir / "sequential.rolamos");
+  {
+    Mosaicker m(sequential, o);
+    for (const auto& f : survey.frames) {
+      const std::string path = dir / ("survey/" + f.file);
+      m.Push(cv::imread(path), path);
+    }
+    m.Finish();
+  }
+  Store p2 = Store::Open(dir / "parallel.rolamos"), s2 = Store::Open(dir / "sequential.rolamos");
+  ASSERT_GE(a.patches, 2);
+  ASSERT_EQ(p2.patches().size(), s2.patches().size());
+  for (size_t i = 0; i < p2.patches().size(); ++i) {
+    const PatchSidecar x = p2.ReadSidecar(p2.patches()[i].id), y = s2.ReadSidecar(s2.patches()[i].id);
+    ASSERT_EQ(x.frames.size(), y.frames.size()) << "patch " << i;
+    for (size_t k = 0; k < x.frames.size(); ++k) {
+      EXPECT_EQ(fs::path(x.frames[k].source).filename(), fs::path(y.frames[k].source).filename());
+      for (size_t e = 0; e < 9; ++e)
+        EXPECT_NEAR(x.frames[k].frame_to_patch[e], y.frames[k].frame_to_patch[e], 1e-9)
+            << "patch " << i << " frame " << k;
+    }
+  }
 }
 
 TEST(Mosaicker, BadFramesAreRejectedWithReasonsAndPatchesStayValid) {

@@ -32,16 +32,34 @@ bool PatchCanvas::Fits(const cv::Rect2d& bounds) const {
   return static_cast<long long>(need.width) * need.height <= budget_;
 }
 
-void PatchCanvas::Add(const cv::Mat& frame, const cv::Mat& weights, const cv::Matx33d& H) {
+namespace {
+
+// Whether any pixel of `part` (BGRW) carries weight: the ROI's empty corners need no blocks.
+bool AnyWeight(const cv::Mat& part) {
+  for (int y = 0; y < part.rows; ++y) {
+    const cv::Vec4b* p = part.ptr<cv::Vec4b>(y);
+    for (int x = 0; x < part.cols; ++x)
+      if (p[x][3]) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& H) {
+  CV_Assert(frame.type() == CV_8UC3 && weights.code.size() == frame.size());
   const cv::Rect roi = Enclosing(FrameBounds(H, frame.size()));
   data_ = data_.empty() ? roi : (data_ | roi);
-  // Warp into the ROI only: frame -> ROI pixel = T(-roi.tl) * H. Pixels repeat past the frame
-  // edge (never mixed with black); the weights fade there.
+  // Colour and weight code travel together in one 4-channel warp into the ROI only:
+  // frame -> ROI pixel = T(-roi.tl) * H. Edge pixels repeat past the frame (colours are never
+  // mixed with black) while the weight code, 0 on the frame's outer ring, fades to nothing.
+  cv::Mat bgrw(frame.size(), CV_8UC4);
+  const cv::Mat in[] = {frame, weights.code};
+  const int from_to[] = {0, 0, 1, 1, 2, 2, 3, 3};
+  cv::mixChannels(in, 2, &bgrw, 1, from_to, 4);
   const cv::Matx33d T(1, 0, -roi.x, 0, 1, -roi.y, 0, 0, 1);
-  const cv::Mat M(T * H);
-  cv::Mat warped, warped_w;
-  cv::warpPerspective(frame, warped, M, roi.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
-  cv::warpPerspective(weights, warped_w, M, roi.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+  cv::Mat warped;
+  cv::warpPerspective(bgrw, warped, cv::Mat(T * H), roi.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
   // The blocks this frame touches (created here, on one thread), then filled in parallel.
   const int bx0 = FloorDiv(roi.x, kBlock), by0 = FloorDiv(roi.y, kBlock);
   const int bx1 = FloorDiv(roi.x + roi.width - 1, kBlock), by1 = FloorDiv(roi.y + roi.height - 1, kBlock);
@@ -50,34 +68,41 @@ void PatchCanvas::Add(const cv::Mat& frame, const cv::Mat& weights, const cv::Ma
     for (int bx = bx0; bx <= bx1; ++bx) {
       const cv::Rect block_rect(bx * kBlock, by * kBlock, kBlock, kBlock);
       const cv::Rect overlap = block_rect & roi;
-      if (overlap.empty()) continue;
-      cv::Mat wpart = warped_w(overlap - roi.tl());
-      if (cv::countNonZero(wpart) == 0) continue;  // the ROI's empty corners
+      if (overlap.empty() || !AnyWeight(warped(overlap - roi.tl()))) continue;
       Block& b = blocks_[Key(bx, by)];
       if (b.sum.empty()) {
         b.sum = cv::Mat::zeros(kBlock, kBlock, CV_32FC3);
         b.weight = cv::Mat::zeros(kBlock, kBlock, CV_32F);
+        b.small_sum = cv::Mat::zeros(kBlock / kMirror, kBlock / kMirror, CV_32FC3);
+        b.small_weight = cv::Mat::zeros(kBlock / kMirror, kBlock / kMirror, CV_32F);
       }
       parts.emplace_back(block_rect, &b);
     }
   }
+  const float* table = weights.weight.data();
+  constexpr float kCell = 1.0f / (kMirror * kMirror);
   cv::parallel_for_(cv::Range(0, static_cast<int>(parts.size())), [&](const cv::Range& range) {
     for (int i = range.start; i < range.end; ++i) {
       const cv::Rect& block_rect = parts[static_cast<size_t>(i)].first;
       Block& b = *parts[static_cast<size_t>(i)].second;
       const cv::Rect overlap = block_rect & roi;
+      const int bx = overlap.x - block_rect.x;
       for (int y = overlap.y; y < overlap.y + overlap.height; ++y) {
-        const cv::Vec3b* px = warped.ptr<cv::Vec3b>(y - roi.y) + (overlap.x - roi.x);
-        const float* wt = warped_w.ptr<float>(y - roi.y) + (overlap.x - roi.x);
-        cv::Vec3f* acc = b.sum.ptr<cv::Vec3f>(y - block_rect.y) + (overlap.x - block_rect.x);
-        float* wsum = b.weight.ptr<float>(y - block_rect.y) + (overlap.x - block_rect.x);
+        const int by = y - block_rect.y;
+        const cv::Vec4b* px = warped.ptr<cv::Vec4b>(y - roi.y) + (overlap.x - roi.x);
+        cv::Vec3f* acc = b.sum.ptr<cv::Vec3f>(by) + bx;
+        float* wsum = b.weight.ptr<float>(by) + bx;
+        cv::Vec3f* small = b.small_sum.ptr<cv::Vec3f>(by / kMirror);
+        float* small_w = b.small_weight.ptr<float>(by / kMirror);
         for (int x = 0; x < overlap.width; ++x) {
-          const float a = wt[x];
-          if (a <= 0.f) continue;
-          acc[x][0] += a * px[x][0];
-          acc[x][1] += a * px[x][1];
-          acc[x][2] += a * px[x][2];
+          if (!px[x][3]) continue;
+          const float a = table[px[x][3]];
+          const cv::Vec3f c(a * px[x][0], a * px[x][1], a * px[x][2]);
+          acc[x] += c;
           wsum[x] += a;
+          const int cell = (bx + x) / kMirror;
+          small[cell] += c * kCell;
+          small_w[cell] += a * kCell;
         }
       }
     }
@@ -104,6 +129,15 @@ void PatchCanvas::Dense(const cv::Rect& rect, cv::Mat* sum, cv::Mat* weight, int
       if (factor == 1) {
         it->second.sum(src).copyTo((*sum)(dst));
         it->second.weight(src).copyTo((*weight)(dst));
+      } else if (factor % kMirror == 0) {
+        const cv::Rect small_src(src.x / kMirror, src.y / kMirror, src.width / kMirror, src.height / kMirror);
+        if (factor == kMirror) {
+          it->second.small_sum(small_src).copyTo((*sum)(dst));
+          it->second.small_weight(small_src).copyTo((*weight)(dst));
+        } else {
+          cv::resize(it->second.small_sum(small_src), (*sum)(dst), dst.size(), 0, 0, cv::INTER_AREA);
+          cv::resize(it->second.small_weight(small_src), (*weight)(dst), dst.size(), 0, 0, cv::INTER_AREA);
+        }
       } else {
         cv::resize(it->second.sum(src), (*sum)(dst), dst.size(), 0, 0, cv::INTER_AREA);
         cv::resize(it->second.weight(src), (*weight)(dst), dst.size(), 0, 0, cv::INTER_AREA);

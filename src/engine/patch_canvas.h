@@ -12,6 +12,8 @@
 
 #include "engine/feather.h"
 
+#include "engine/feather.h"
+
 namespace rolamos {
 
 class PatchCanvas {
@@ -24,7 +26,7 @@ class PatchCanvas {
   bool Fits(const cv::Rect2d& bounds) const;
   bool empty() const { return blocks_.empty(); }
   // Warps and accumulates a frame (BGR 8-bit) with its feather weights.
-  void Add(const cv::Mat& frame, const cv::Mat& weights, const cv::Matx33d& frame_to_patch);
+  void Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& frame_to_patch);
   // The blended mosaic (BGRA 8-bit, alpha 0 where nothing was added) of a patch rectangle.
   cv::Mat Render(const cv::Rect& patch_rect) const;
   // The mosaic seen from a frame: gray pixels and a validity mask in that frame's coordinates,
@@ -35,9 +37,15 @@ class PatchCanvas {
 
  private:
   static constexpr int kBlock = 256;
+  // Each block also keeps its sums averaged over 4 x 4 cells, accumulated as frames are added:
+  // ECC looks at the mosaic at a quarter of the resolution for every frame, and reducing the
+  // full-resolution sums each time cost more than the registration itself.
+  static constexpr int kMirror = 4;
   struct Block {
-    cv::Mat sum;     // CV_32FC3: sum of weight * colour
-    cv::Mat weight;  // CV_32F: sum of weights
+    cv::Mat sum;           // CV_32FC3: sum of weight * colour
+    cv::Mat weight;        // CV_32F: sum of weights
+    cv::Mat small_sum;     // CV_32FC3, kBlock / kMirror square: 4 x 4 means of `sum`
+    cv::Mat small_weight;  // CV_32F: 4 x 4 means of `weight`
   };
   static int64_t Key(int bx, int by) { return (int64_t(bx) << 32) ^ uint32_t(by); }
   // Dense copies of the sums over `rect` (zeros where no block exists), reduced by `factor`

@@ -80,18 +80,24 @@ cv::Mat Preprocessor::Spatial(const cv::Mat& frame) {
                                      std::to_string(calibration_->image_size.height) +
                                      " frames, this frame is " + std::to_string(frame.cols) + "x" +
                                      std::to_string(frame.rows));
-    if (map_x_.empty() || map_x_.size() != frame.size()) {
-      // alpha 0: the undistorted frame holds only valid pixels (no black corners to blend).
-      rectified_K_ = calibration_->distortion.empty()
-                         ? calibration_->camera_matrix
-                         : cv::Matx33d(cv::getOptimalNewCameraMatrix(
-                               cv::Mat(calibration_->camera_matrix), calibration_->distortion,
-                               frame.size(), 0.0));
-      cv::initUndistortRectifyMap(cv::Mat(calibration_->camera_matrix), calibration_->distortion,
-                                  cv::Mat(), cv::Mat(rectified_K_), frame.size(), CV_16SC2,
-                                  map_x_, map_y_);
+    cv::Mat map_x, map_y;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (map_x_.empty() || map_x_.size() != frame.size()) {
+        // alpha 0: the undistorted frame holds only valid pixels (no black corners to blend).
+        rectified_K_ = calibration_->distortion.empty()
+                           ? calibration_->camera_matrix
+                           : cv::Matx33d(cv::getOptimalNewCameraMatrix(
+                                 cv::Mat(calibration_->camera_matrix), calibration_->distortion,
+                                 frame.size(), 0.0));
+        cv::initUndistortRectifyMap(cv::Mat(calibration_->camera_matrix), calibration_->distortion,
+                                    cv::Mat(), cv::Mat(rectified_K_), frame.size(), CV_16SC2,
+                                    map_x_, map_y_);
+      }
+      map_x = map_x_;
+      map_y = map_y_;
     }
-    if (!calibration_->distortion.empty()) cv::remap(frame, out, map_x_, map_y_, cv::INTER_LINEAR);
+    if (!calibration_->distortion.empty()) cv::remap(frame, out, map_x, map_y, cv::INTER_LINEAR);
   }
   if (options_.bilateral) {
     cv::Mat smoothed;
@@ -146,7 +152,10 @@ cv::Mat Preprocessor::Temporal(const cv::Mat& current, const cv::Mat& previous,
 }
 
 cv::Matx33d Preprocessor::CameraMatrix(cv::Size size) const {
-  if (calibration_) return map_x_.empty() ? calibration_->camera_matrix : rectified_K_;
+  if (calibration_) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return map_x_.empty() ? calibration_->camera_matrix : rectified_K_;
+  }
   // Without calibration: a 70-degree horizontal field of view, centred.
   const double f = 0.5 * size.width / std::tan(35.0 * CV_PI / 180);
   return cv::Matx33d(f, 0, (size.width - 1) / 2.0, 0, f, (size.height - 1) / 2.0, 0, 0, 1);

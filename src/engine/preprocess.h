@@ -5,6 +5,7 @@
 // luminance) for the detection image only, never for blended pixels.
 #pragma once
 
+#include <mutex>
 #include <optional>
 #include <string>
 
@@ -42,6 +43,7 @@ class Preprocessor {
  public:
   explicit Preprocessor(const PreprocessOptions& options);
   // Undistortion and bilateral smoothing. Checks the frame size against the calibration.
+  // Thread-safe: several frames may be filtered at once.
   cv::Mat Spatial(const cv::Mat& frame);
   // The detection image: gray, contrast-normalised.
   cv::Mat DetectionImage(const cv::Mat& frame) const;
@@ -55,6 +57,7 @@ class Preprocessor {
  private:
   PreprocessOptions options_;
   std::optional<Calibration> calibration_;
+  mutable std::mutex mutex_;  // guards the undistortion maps, made for the first frame's size
   cv::Matx33d rectified_K_ = cv::Matx33d::eye();  // camera of the undistorted frames
   cv::Mat map_x_, map_y_;
 };

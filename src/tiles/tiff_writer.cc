@@ -38,6 +38,10 @@ bool TiffWriteOptions::IsValid(const PixelLayout& layout, std::string* error) co
     *error = "deflate level " + std::to_string(deflate_level) + " is outside 1..9";
     return false;
   }
+  if (webp_method < 0 || webp_method > 6) {
+    *error = "webp method " + std::to_string(webp_method) + " is outside 0..6";
+    return false;
+  }
   if (threads < 0) {
     *error = "thread count cannot be negative";
     return false;

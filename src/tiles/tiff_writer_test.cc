@@ -93,6 +93,40 @@ INSTANTIATE_TEST_SUITE_P(
                     Case{Compression::kWebp, 3, 8, 256}, Case{Compression::kWebp, 4, 8, 256}),
     Name);
 
+// WebP tiles come from libwebp directly (libtiff cannot set its effort): at the engine's fast
+// effort they must still read back through libtiff/OpenImageIO and GDAL alike, alpha exactly.
+TEST(PyramidTiffWriter, FastWebpTilesReadBackEverywhereWithExactAlpha) {
+  ScratchDir dir;
+  cv::Mat image = MakeImage(700, 500, 4, 8);
+  cv::Mat alpha(image.size(), CV_8U, cv::Scalar(255));
+  cv::circle(alpha, {350, 250}, 200, cv::Scalar(0), cv::FILLED);
+  cv::insertChannel(alpha, image, 3);
+  for (int method : {0, 4}) {
+    TiffWriteOptions o;
+    o.compression = Compression::kWebp;
+    o.webp_method = method;
+    const std::string path = dir / ("m" + std::to_string(method) + ".tif");
+    WritePyramidTiff(path, image, o);
+    auto cache = std::make_shared<TileCache>();
+    cv::Mat back = TiledImage::Open(path, cache).ReadRegion(0, cv::Rect(0, 0, 700, 500));
+    cv::Mat back_alpha;
+    cv::extractChannel(back, back_alpha, 3);
+    EXPECT_EQ(cv::norm(back_alpha, alpha, cv::NORM_INF), 0.0) << "method " << method;
+    EXPECT_GE(test::MaskedPsnr(back, image), 33.0) << "method " << method;
+    const auto gdal = test::RunShell("gdalinfo -checksum " + path);
+    EXPECT_EQ(gdal.exit_code, 0) << gdal.output;
+    EXPECT_EQ(gdal.output.find("ERROR"), std::string::npos) << gdal.output;
+  }
+  TiffWriteOptions bad;
+  bad.webp_method = 7;
+  std::string error;
+  PixelLayout rgba;
+  rgba.width = rgba.height = 64;
+  rgba.channels = 4;
+  EXPECT_FALSE(bad.IsValid(rgba, &error));
+  EXPECT_NE(error.find("webp method"), std::string::npos);
+}
+
 TEST(PyramidTiffWriter, ReducedLevelsAreAreaAveragesAndNeverDarkenAtDataBorders) {
   ScratchDir dir;
   cv::Mat image = MakeImage(1024, 1024, 4, 8);

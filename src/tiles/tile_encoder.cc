@@ -1,6 +1,7 @@
 #include "tiles/tile_encoder.h"
 
 #include <opencv2/imgproc.hpp>
+#include <webp/encode.h>
 
 #include "rolamos/error.hpp"
 #include "tiles/tiff_file.h"
@@ -28,10 +29,45 @@ void TileEncoder::Reset() {
   next_tile_ = 0;
 }
 
+namespace {
+
+std::vector<uint8_t> EncodeWebp(const cv::Mat& tile, const TiffWriteOptions& options) {
+  WebPConfig config;
+  if (!WebPConfigPreset(&config, WEBP_PRESET_DEFAULT, static_cast<float>(options.quality)))
+    Fail("tile encoder (webp)", "libwebp version mismatch");
+  config.method = options.webp_method;
+  WebPPicture picture;
+  if (!WebPPictureInit(&picture)) Fail("tile encoder (webp)", "libwebp version mismatch");
+  picture.width = tile.cols;
+  picture.height = tile.rows;
+  picture.use_argb = 0;
+  const int stride = static_cast<int>(tile.step[0]);
+  const bool ok = tile.channels() == 4 ? WebPPictureImportRGBA(&picture, tile.data, stride)
+                                       : WebPPictureImportRGB(&picture, tile.data, stride);
+  if (!ok) {
+    WebPPictureFree(&picture);
+    Fail("tile encoder (webp)", "out of memory importing a tile");
+  }
+  WebPMemoryWriter writer;
+  WebPMemoryWriterInit(&writer);
+  picture.writer = WebPMemoryWrite;
+  picture.custom_ptr = &writer;
+  const bool encoded = WebPEncode(&config, &picture);
+  const int code = picture.error_code;
+  WebPPictureFree(&picture);
+  std::vector<uint8_t> out(writer.mem, writer.mem + writer.size);
+  WebPMemoryWriterClear(&writer);
+  if (!encoded) Fail("tile encoder (webp)", "libwebp error " + std::to_string(code));
+  return out;
+}
+
+}  // namespace
+
 std::vector<uint8_t> TileEncoder::Encode(const cv::Mat& tile) {
-  if (next_tile_ >= capacity_) Reset();
   CV_Assert(tile.isContinuous() && tile.rows == options_.tile_size &&
             tile.cols == options_.tile_size);
+  if (options_.compression == Compression::kWebp) return EncodeWebp(tile, options_);
+  if (next_tile_ >= capacity_) Reset();
   TIFF* tif = file_->get();
   const uint32_t index = next_tile_++;
   const tmsize_t bytes = static_cast<tmsize_t>(tile.total() * tile.elemSize());

@@ -1,6 +1,8 @@
 // Compresses single tiles with libtiff's own codecs, so a tile's bytes are exactly what libtiff
 // would have written, but on any thread: each encoder drives a private in-memory TIFF whose
 // tiles are emptied after every call (the GDAL approach to multi-threaded TIFF compression).
+// WebP tiles are encoded by libwebp directly, the way libtiff's codec does (same preset, quality
+// and lossless alpha), because libtiff offers no control over libwebp's effort.
 #pragma once
 
 #include <memory>

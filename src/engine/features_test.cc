@@ -1,0 +1,77 @@
+#include "engine/features.h"
+
+#include <set>
+
+#include <gtest/gtest.h>
+#include <opencv2/features2d.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "synth/seafloor_texture.h"
+
+namespace rolamos {
+namespace {
+
+// SIFT matching uses one distance matrix for both directions; it must keep exactly the matches
+// OpenCV's brute-force kNN + ratio test + mutual-best check keeps.
+TEST(Features, DistanceMatrixMatchingEqualsBruteForceWithCrossCheck) {
+  const cv::Mat ground = RenderSeafloor(0, 0, 800, 600);
+  cv::Mat a, b;
+  cv::cvtColor(ground(cv::Rect(0, 0, 640, 480)), a, cv::COLOR_BGR2GRAY);
+  cv::Mat M = cv::getRotationMatrix2D({320, 240}, 7, 1.04);
+  M.at<double>(0, 2) += 40;
+  M.at<double>(1, 2) += 25;
+  cv::Mat warped;
+  cv::warpAffine(ground, warped, M, {640, 480});
+  cv::cvtColor(warped, b, cv::COLOR_BGR2GRAY);
+  FeatureOptions o;
+  o.max_features = 600;
+  FeatureExtractor extractor(o);
+  const Features fa = extractor.Extract(a), fb = extractor.Extract(b);
+  ASSERT_GT(fa.points.size(), 300u);
+  for (bool cross : {true, false}) {
+    o.cross_check = cross;
+    const Matches ours = MatchFeatures(fa, fb, o);
+    cv::BFMatcher bf(cv::NORM_L2);
+    std::vector<std::vector<cv::DMatch>> knn;
+    bf.knnMatch(fa.descriptors, fb.descriptors, knn, 2);
+    std::vector<cv::DMatch> back;
+    bf.match(fb.descriptors, fa.descriptors, back);
+    std::set<std::pair<int, int>> reference;
+    for (const auto& k : knn)
+      if (k.size() == 2 && k[0].distance < o.ratio * k[1].distance &&
+          (!cross || back[static_cast<size_t>(k[0].trainIdx)].trainIdx == k[0].queryIdx))
+        reference.insert({k[0].queryIdx, k[0].trainIdx});
+    ASSERT_GT(reference.size(), 100u);
+    // Compare as point pairs (the matcher reports points, not indices).
+    std::set<std::pair<std::pair<float, float>, std::pair<float, float>>> got, want;
+    for (size_t i = 0; i < ours.from.size(); ++i)
+      got.insert({{ours.from[i].x, ours.from[i].y}, {ours.to[i].x, ours.to[i].y}});
+    for (const auto& [i, j] : reference)
+      want.insert({{fa.points[static_cast<size_t>(i)].x, fa.points[static_cast<size_t>(i)].y},
+                   {fb.points[static_cast<size_t>(j)].x, fb.points[static_cast<size_t>(j)].y}});
+    // Ties between equal distances may resolve differently: allow a handful.
+    size_t common = 0;
+    for (const auto& m : got) common += want.count(m);
+    EXPECT_GE(common + 3, want.size()) << "cross-check " << cross;
+    EXPECT_GE(common + 3, got.size()) << "cross-check " << cross;
+  }
+}
+
+// A detector per call: extraction from two threads at once gives what one thread gives.
+TEST(Features, ExtractionIsTheSameFromConcurrentThreads) {
+  cv::Mat gray;
+  cv::cvtColor(RenderSeafloor(0, 0, 640, 480), gray, cv::COLOR_BGR2GRAY);
+  FeatureExtractor extractor(FeatureOptions{});
+  const Features alone = extractor.Extract(gray);
+  Features one, two;
+  cv::parallel_for_(cv::Range(0, 2), [&](const cv::Range& r) {
+    for (int i = r.start; i < r.end; ++i) (i == 0 ? one : two) = extractor.Extract(gray);
+  });
+  for (const Features* f : {&one, &two}) {
+    ASSERT_EQ(f->points.size(), alone.points.size());
+    EXPECT_EQ(cv::norm(f->descriptors, alone.descriptors, cv::NORM_INF), 0.0);
+  }
+}
+
+}  // namespace
+}  // namespace rolamos

@@ -1,0 +1,61 @@
+#include "engine/patch_canvas.h"
+
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+#include "synth/seafloor_texture.h"
+
+namespace rolamos {
+namespace {
+
+// One frame at identity: the rendered patch is that frame (the colour is the weighted mean of one
+// sample), with alpha 255 wherever it carries weight and 0 outside.
+TEST(PatchCanvas, RendersASingleFrameExactly) {
+  const cv::Mat frame = RenderSeafloor(100, 200, 300, 200);
+  PatchCanvas canvas(10'000'000);
+  canvas.Add(frame, FeatherCode(FeatherWeights(frame.size(), 0.2)), cv::Matx33d::eye());
+  const cv::Mat out = canvas.Render(cv::Rect(-10, -10, 320, 220));
+  for (int y = 0; y < out.rows; ++y) {
+    for (int x = 0; x < out.cols; ++x) {
+      const int fx = x - 10, fy = y - 10;
+      const bool inner = fx >= 1 && fy >= 1 && fx < frame.cols - 1 && fy < frame.rows - 1;
+      const cv::Vec4b p = out.at<cv::Vec4b>(y, x);
+      if (inner) {
+        const cv::Vec3b f = frame.at<cv::Vec3b>(fy, fx);
+        ASSERT_EQ(p[3], 255) << fx << "," << fy;
+        for (int k = 0; k < 3; ++k) ASSERT_NEAR(p[k], f[k], 1) << fx << "," << fy;
+      } else if (fx < 0 || fy < 0 || fx >= frame.cols || fy >= frame.rows) {
+        ASSERT_EQ(p[3], 0) << fx << "," << fy;
+      }
+    }
+  }
+}
+
+// ECC's quarter-resolution view of the mosaic comes from sums reduced as frames are added; it
+// must be what reducing the full-resolution mosaic gives.
+TEST(PatchCanvas, QuarterResolutionViewMatchesTheReducedMosaic) {
+  const cv::Mat ground = RenderSeafloor(0, 0, 900, 700);
+  PatchCanvas canvas(10'000'000);
+  const FeatherCode weights(FeatherWeights({640, 480}, 0.2));
+  canvas.Add(ground(cv::Rect(0, 0, 640, 480)).clone(), weights, cv::Matx33d::eye());
+  const cv::Matx33d second(1, 0, 131, 0, 1, 97, 0, 0, 1);
+  canvas.Add(ground(cv::Rect(131, 97, 640, 480)).clone(), weights, second);
+  // Seen from a frame placed over the overlap, at 1/4 and at full resolution reduced to 1/4.
+  const cv::Matx33d view(1, 0, 64, 0, 1, 48, 0, 0, 1);
+  cv::Mat quarter, quarter_mask, full, full_mask;
+  canvas.ViewFromFrame(view, {640, 480}, 0.25, &quarter, &quarter_mask);
+  canvas.ViewFromFrame(view, {640, 480}, 1.0, &full, &full_mask);
+  cv::Mat reduced;
+  cv::resize(full, reduced, quarter.size(), 0, 0, cv::INTER_AREA);
+  cv::Mat inner = quarter_mask.clone();
+  cv::erode(inner, inner, cv::Mat(), cv::Point(-1, -1), 2);
+  ASSERT_GT(cv::countNonZero(inner), static_cast<int>(inner.total() / 2));
+  cv::Mat diff;
+  cv::absdiff(quarter, reduced, diff);
+  // Rounding of the gray conversion moves a few high-contrast pixels by more than a level.
+  EXPECT_LT(cv::mean(diff, inner)[0], 0.3);
+  EXPECT_LT(cv::countNonZero((diff > 2) & inner), static_cast<int>(inner.total() / 1000));
+}
+
+}  // namespace
+}  // namespace rolamos
