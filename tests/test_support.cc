@@ -10,6 +10,7 @@
 #include <cmath>
 #include <filesystem>
 
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "rolamos/error.hpp"
@@ -116,5 +117,38 @@ double MaskedPsnr(const cv::Mat& a, const cv::Mat& b) {
 }
 
 double Psnr(const cv::Mat& a, const cv::Mat& b) { return cv::PSNR(a, b, a.depth() == CV_16U ? 65535 : 255); }
+
+cv::Mat ShapeSample(const std::string& cls, uint32_t seed) {
+  cv::RNG rng(seed);
+  cv::Mat img = RenderSeafloor(rng.uniform(0, 50000), rng.uniform(0, 50000), 160, 160);
+  const cv::Point2f c(80 + rng.uniform(-12.f, 12.f), 80 + rng.uniform(-12.f, 12.f));
+  const float s = rng.uniform(0.8f, 1.25f), a = rng.uniform(0.f, static_cast<float>(CV_PI));
+  const cv::Point2f u(std::cos(a), std::sin(a)), v(-std::sin(a), std::cos(a));
+  if (cls == "disc") {
+    cv::ellipse(img, cv::RotatedRect(c, cv::Size2f(44 * s, 34 * s), a * 57.3f), cv::Scalar(150, 60, 120), cv::FILLED, cv::LINE_AA);
+  } else if (cls == "star") {
+    for (int k = 0; k < 9; ++k) {
+      const float t = a + k * static_cast<float>(CV_PI) / 4.5f;
+      cv::line(img, c, c + 30 * s * cv::Point2f(std::cos(t), std::sin(t)), cv::Scalar(225, 230, 235), 2, cv::LINE_AA);
+    }
+  } else if (cls == "bar") {
+    cv::line(img, c - 40 * s * u, c + 40 * s * u, cv::Scalar(30, 40, 35), static_cast<int>(7 * s), cv::LINE_AA);
+    cv::circle(img, c + 40 * s * u + 3 * s * v, static_cast<int>(5 * s), cv::Scalar(30, 40, 35), cv::FILLED, cv::LINE_AA);
+  }
+  return img;
+}
+
+void WriteShapesDataset(const std::string& dir, int per_class, uint32_t seed, bool background) {
+  std::vector<std::string> classes = kShapeClasses;
+  if (background) classes.push_back("background");
+  for (size_t c = 0; c < classes.size(); ++c) {
+    std::filesystem::create_directories(dir + "/" + classes[c]);
+    for (int i = 0; i < per_class; ++i) {
+      char name[32];
+      std::snprintf(name, sizeof name, "/%03d.png", i);
+      cv::imwrite(dir + "/" + classes[c] + name, ShapeSample(classes[c], seed * 7919u + static_cast<uint32_t>(c * 1000 + i)));
+    }
+  }
+}
 
 }  // namespace rolamos::test

@@ -43,4 +43,12 @@ std::string ErrorOf(const std::function<void()>& f);
 // PSNR of the colour channels where `b`'s alpha (last channel) is non-zero.
 double MaskedPsnr(const cv::Mat& a, const cv::Mat& b);
 
+// Object identification data: 160 x 160 crops of generated seafloor with one object in the
+// middle (a purple "disc", a pale "star" of spines, a dark "bar"), rotated, scaled and shifted
+// at random; "background" crops hold none.
+inline const std::vector<std::string> kShapeClasses = {"bar", "disc", "star"};
+cv::Mat ShapeSample(const std::string& cls, uint32_t seed);
+// DIR/<class>/NNN.png for each class (and background when asked), `per_class` each.
+void WriteShapesDataset(const std::string& dir, int per_class, uint32_t seed, bool background = false);
+
 }  // namespace rolamos::test

@@ -23,6 +23,7 @@ int main(int argc, char** argv) {
   rolamos::cli::AddComposeCommand(app, &run);
   rolamos::cli::AddServeCommand(app, &run);
   rolamos::cli::AddTilesCommand(app, &run);
+  rolamos::cli::AddObjectsCommand(app, &run);
   rolamos::cli::AddConvertCommand(app, &run);
   rolamos::cli::AddInfoCommand(app, &run);
   rolamos::cli::AddExportCommand(app, &run);

@@ -23,6 +23,10 @@ struct Georef {
 // Normalises a user CRS string to WKT; throws Error naming the string when GDAL cannot parse it.
 std::string CrsToWkt(const std::string& user_crs);
 
+// "EPSG::32755" style authority and code of a CRS (for GeoJSON's "crs" member), or "" when
+// GDAL knows none.
+std::string CrsAuthorityCode(const std::string& crs);
+
 // Writes GeoTIFF tags into an existing TIFF (through GDAL, in place).
 void WriteGeoref(const std::string& tiff_path, const Georef& georef);
 

@@ -60,6 +60,21 @@ std::string CrsToWkt(const std::string& user_crs) {
   return out;
 }
 
+std::string CrsAuthorityCode(const std::string& crs) {
+  EnsureGdal();
+  TakeGdalError();
+  OGRSpatialReference srs;
+  if (crs.empty() || srs.SetFromUserInput(crs.c_str()) != OGRERR_NONE) {
+    TakeGdalError();
+    return "";
+  }
+  srs.AutoIdentifyEPSG();
+  const char* name = srs.GetAuthorityName(nullptr);
+  const char* code = srs.GetAuthorityCode(nullptr);
+  TakeGdalError();
+  return name && code ? std::string(name) + "::" + code : "";
+}
+
 void WriteGeoref(const std::string& tiff_path, const Georef& georef) {
   std::string error;
   if (!georef.IsValid(&error)) Fail(tiff_path, "georeference: " + error);

@@ -1,0 +1,117 @@
+// Object identification figures (issue 6): our bag-of-words + one-vs-all SVM model against a
+// HOG + linear SVM baseline, trained on the train split and judged on the validation split of
+// a folder-per-class dataset (../shared/data/objects_deepdive_biota), in the same run.
+//   objects_bench TRAIN_DIR VALIDATION_DIR [--vocabulary K] [--kernel chi2|rbf|linear] ...
+// Prints one JSON object per model: accuracy, per-class recall, train and test seconds.
+#include <chrono>
+#include <cstdio>
+
+#include <CLI/CLI.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/ml.hpp>
+#include <opencv2/objdetect.hpp>
+
+#include "rolamos/objects.hpp"
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double Since(Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); }
+
+// The baseline: HOG of the sample resized to 128 x 128, one multi-class linear SVM (C by
+// cross-validation), as a detector of shapes alone would do.
+cv::Mat Hog(const std::string& file) {
+  cv::Mat g = cv::imread(file, cv::IMREAD_GRAYSCALE);
+  if (g.empty()) throw std::runtime_error(file + ": unreadable");
+  cv::resize(g, g, {128, 128}, 0, 0, cv::INTER_AREA);
+  cv::HOGDescriptor hog({128, 128}, {16, 16}, {8, 8}, {8, 8}, 9);
+  std::vector<float> d;
+  hog.compute(g, d);
+  return cv::Mat(d, true).reshape(1, 1);
+}
+
+nlohmann::json HogBaseline(const std::string& train_dir, const std::string& val_dir) {
+  const auto t0 = Clock::now();
+  const rolamos::LabelledImages train = rolamos::ReadLabelledFolder(train_dir);
+  cv::Mat x(static_cast<int>(train.files.size()), 0, CV_32F);
+  std::vector<cv::Mat> rows(train.files.size());
+  cv::parallel_for_(cv::Range(0, static_cast<int>(rows.size())), [&](const cv::Range& r) {
+    for (int i = r.start; i < r.end; ++i) rows[static_cast<size_t>(i)] = Hog(train.files[static_cast<size_t>(i)]);
+  });
+  cv::vconcat(rows, x);
+  auto svm = cv::ml::SVM::create();
+  svm->setType(cv::ml::SVM::C_SVC);
+  svm->setKernel(cv::ml::SVM::LINEAR);
+  svm->trainAuto(cv::ml::TrainData::create(x, cv::ml::ROW_SAMPLE, cv::Mat(train.labels, true)), 5,
+                 cv::ml::ParamGrid(0.01, 10.1, 4), cv::ml::ParamGrid(1, 1, 0), cv::ml::ParamGrid(1, 1, 0),
+                 cv::ml::ParamGrid(1, 1, 0), cv::ml::ParamGrid(1, 1, 0), cv::ml::ParamGrid(1, 1, 0), true);
+  const double train_s = Since(t0);
+  const auto t1 = Clock::now();
+  const rolamos::LabelledImages val = rolamos::ReadLabelledFolder(val_dir);
+  int correct = 0;
+  std::vector<int> hits(train.classes.size(), 0), total(train.classes.size(), 0);
+  for (size_t i = 0; i < val.files.size(); ++i) {
+    const int truth = static_cast<int>(std::find(train.classes.begin(), train.classes.end(),
+                                                 val.classes[static_cast<size_t>(val.labels[i])]) - train.classes.begin());
+    const int p = static_cast<int>(svm->predict(Hog(val.files[i])));
+    correct += p == truth;
+    hits[static_cast<size_t>(truth)] += p == truth;
+    ++total[static_cast<size_t>(truth)];
+  }
+  nlohmann::json recall = nlohmann::json::object();
+  for (size_t c = 0; c < train.classes.size(); ++c) recall[train.classes[c]] = total[c] ? double(hits[c]) / total[c] : 0;
+  return {{"model", "HOG + linear SVM"}, {"accuracy", double(correct) / val.files.size()},
+          {"recall", recall}, {"train_seconds", train_s}, {"test_seconds", Since(t1)},
+          {"C", svm->getC()}};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app("objects_bench");
+  std::string train_dir, val_dir;
+  rolamos::ObjectTrainOptions o;
+  bool baseline = true;
+  app.add_option("train", train_dir)->required();
+  app.add_option("validation", val_dir)->required();
+  app.add_option("--vocabulary", o.vocabulary);
+  app.add_option("--kernel", o.kernel);
+  app.add_option("--encoding", o.features.encoding);
+  app.add_option("--folds", o.folds);
+  app.add_option("--image-size", o.features.image_size);
+  app.add_option("--grid-step", o.features.grid_step);
+  app.add_option("--patch-sizes", o.features.patch_sizes)->delimiter(',');
+  app.add_option("--pyramid-levels", o.features.pyramid_levels);
+  app.add_option("--hue-bins", o.features.hue_bins);
+  bool no_centre = false;
+  app.add_flag("--no-centre", no_centre);
+  app.add_option("--saturation-bins", o.features.saturation_bins);
+  app.add_option("--colour-weight", o.features.colour_weight);
+  app.add_flag("!--no-baseline", baseline);
+  CLI11_PARSE(app, argc, argv);
+  o.features.centre_cell = !no_centre;
+  const auto t0 = Clock::now();
+  std::string last;
+  const rolamos::ObjectModel model = rolamos::ObjectModel::Train(train_dir, o, [&](const std::string& stage, int done, int total) {
+    if (stage != last || (stage == "svm" && done < total)) {
+      std::fprintf(stderr, "%.1f s: %s %d/%d\n", Since(t0), stage.c_str(), done, total);
+      last = stage;
+    }
+  });
+  const double train_s = Since(t0);
+  const rolamos::ObjectEvaluation e = rolamos::EvaluateObjects(model, val_dir);
+  nlohmann::json recall = nlohmann::json::object(), precision = nlohmann::json::object();
+  for (size_t c = 0; c < e.classes.size(); ++c) {
+    recall[e.classes[c]] = e.recall[c];
+    precision[e.classes[c]] = e.precision[c];
+  }
+  nlohmann::json ours = {{"model", "rolamos BoW + one-vs-all SVM"}, {"accuracy", e.accuracy},
+                         {"recall", recall}, {"precision", precision}, {"train_seconds", train_s},
+                         {"test_seconds", e.seconds}, {"images_per_second", e.images / e.seconds},
+                         {"settings", model.Describe()}};
+  std::printf("%s\n", ours.dump().c_str());
+  std::fflush(stdout);
+  if (baseline) std::printf("%s\n", HogBaseline(train_dir, val_dir).dump().c_str());
+  return 0;
+}

@@ -1,0 +1,130 @@
+// Object identification on the map (the paper's section 4.5): a bag of visual words over dense
+// SIFT with colour, and one SVM per class against all others, trained from a folder per class.
+// Detection runs the classifier over a store's mosaic or patches with sliding windows read
+// through the tile cache, suppresses overlapping windows, and writes GeoJSON into the store.
+#pragma once
+
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "rolamos/store.hpp"
+
+namespace rolamos {
+
+inline constexpr const char* kObjectModelFormat = "rolamos-object-model";
+inline constexpr int kObjectModelVersion = 1;
+// A class folder with this name holds negatives only: it teaches every SVM what is not an
+// object (bare seafloor) and is never reported.
+inline constexpr const char* kBackgroundClass = "background";
+
+struct ObjectFeatureOptions {
+  int image_size = 128;                   // samples are resized to this square first
+  int grid_step = 6;                      // dense SIFT grid step, pixels at image_size
+  std::vector<int> patch_sizes = {12, 24};  // SIFT support diameters, pixels at image_size
+  int pyramid_levels = 2;                 // spatial pyramid: 1 = whole image, 2 = + 2 x 2 cells
+  bool centre_cell = true;                // one more cell: the central half, where the object is
+  // bow: word counts (histograms, for the chi-square kernel); vlad: residuals to the words,
+  // power- and L2-normalised (for the linear kernel).
+  std::string encoding = "bow";
+  int hue_bins = 12, saturation_bins = 4;  // colour histogram per pyramid cell; 0 = none
+  double colour_weight = 1.0;             // of the colour part against the words
+
+  bool IsValid(std::string* error) const;
+};
+
+struct ObjectTrainOptions {
+  ObjectFeatureOptions features;
+  int vocabulary = 400;          // visual words (k-means)
+  int kmeans_samples = 120000;   // descriptors sampled for k-means
+  std::string kernel = "chi2";   // chi2, rbf or linear
+  int folds = 5;                 // cross-validation folds for C (and gamma)
+  unsigned seed = 1;
+
+  bool IsValid(std::string* error) const;
+};
+
+struct ClassScore {
+  std::string label;
+  double score = 0;  // the class's SVM decision value: > 0 means "this class, not the others"
+};
+
+// Images in a folder per class, in a stable order.
+struct LabelledImages {
+  std::vector<std::string> classes;  // folder names, sorted; background (if any) included
+  std::vector<std::string> files;
+  std::vector<int> labels;           // index into classes
+};
+// Throws Error for a missing folder, no class folders, or an empty class folder.
+LabelledImages ReadLabelledFolder(const std::string& dir);
+
+class ObjectModel {
+ public:
+  using Progress = std::function<void(const std::string& stage, int done, int total)>;
+  // Trains on `data_dir` (a folder per class). Unreadable images stop training with their name.
+  static ObjectModel Train(const std::string& data_dir, const ObjectTrainOptions& options,
+                           const Progress& progress = {});
+  // Throws Error for a missing, truncated or foreign file, or another format version.
+  static ObjectModel Load(const std::string& path);
+  void Save(const std::string& path) const;  // .yml.gz (compressed) or .yml
+
+  // The classes it reports (the background class is not one of them).
+  const std::vector<std::string>& classes() const;
+  // Every reported class's score for one image (BGR or BGRA, any size), best first.
+  std::vector<ClassScore> Classify(const cv::Mat& image) const;
+  // The same for many images, on every core.
+  std::vector<std::vector<ClassScore>> ClassifyAll(const std::vector<cv::Mat>& images) const;
+  // Settings, classes, training counts and the cross-validated SVM parameters.
+  nlohmann::json Describe() const;
+
+ private:
+  struct Impl;
+  std::shared_ptr<const Impl> impl_;
+};
+
+struct ObjectEvaluation {
+  std::vector<std::string> classes;
+  std::vector<std::vector<int>> confusion;  // [true][predicted]
+  std::vector<double> precision, recall;
+  std::vector<int> support;
+  double accuracy = 0;
+  int images = 0;
+  double seconds = 0;
+};
+// Classifies every image of `data_dir` (a folder per class; classes the model does not know
+// are an error) and compares with the folder labels.
+ObjectEvaluation EvaluateObjects(const ObjectModel& model, const std::string& data_dir,
+                                 const ObjectModel::Progress& progress = {});
+// "accuracy: NN.N %", then per-class precision/recall and the confusion matrix.
+std::string FormatEvaluation(const ObjectEvaluation& e);
+
+struct DetectOptions {
+  int patch = 0;             // 0: the global mosaic; otherwise that patch
+  int level = 0;             // pyramid level the windows are cut from
+  int window = 256;          // window side, pixels at that level
+  double stride = 0.5;       // window step, as a fraction of the window
+  double min_score = 0.0;    // decision value a window needs to count as an object
+  double nms_iou = 0.3;      // overlapping detections of a class above this keep the best
+  double max_empty = 0.5;    // windows with more "no data" than this are skipped
+  double cache_mb = 256;     // tile cache bound
+  std::string output;        // default: <store>/objects/detections.geojson
+
+  bool IsValid(std::string* error) const;
+};
+
+struct DetectSummary {
+  long long windows = 0, skipped = 0;
+  int detections = 0;
+  double seconds = 0;
+  std::string output;
+  bool georeferenced = false;
+};
+using DetectProgress = std::function<void(long long done, long long total)>;
+DetectSummary DetectObjects(const Store& store, const ObjectModel& model, const DetectOptions& options,
+                            const DetectProgress& progress = {});
+
+}  // namespace rolamos

@@ -1,0 +1,215 @@
+#include <algorithm>
+#include <chrono>
+#include <filesystem>
+
+#include <opencv2/core.hpp>
+
+#include "rolamos/error.hpp"
+#include "rolamos/georef.hpp"
+#include "rolamos/objects.hpp"
+#include "rolamos/tile_cache.hpp"
+#include "rolamos/tiled_image.hpp"
+#include "util/files.h"
+
+namespace rolamos {
+
+bool DetectOptions::IsValid(std::string* error) const {
+  if (patch < 0) {
+    *error = "patch id cannot be negative (0 = the global mosaic)";
+    return false;
+  }
+  if (level < 0 || level > 30) {
+    *error = "level must be in 0..30";
+    return false;
+  }
+  if (window < 32 || window > 8192) {
+    *error = "window must be in 32..8192 pixels";
+    return false;
+  }
+  if (!(stride > 0.05 && stride <= 1.0)) {
+    *error = "stride must be in (0.05, 1] of the window";
+    return false;
+  }
+  if (!(nms_iou > 0 && nms_iou <= 1)) {
+    *error = "non-maximum suppression overlap must be in (0, 1]";
+    return false;
+  }
+  if (!(max_empty >= 0 && max_empty <= 1)) {
+    *error = "max empty share must be in [0, 1]";
+    return false;
+  }
+  if (!(cache_mb >= 16)) {
+    *error = "tile cache must be at least 16 MB";
+    return false;
+  }
+  if (!std::isfinite(min_score)) {
+    *error = "minimum score must be a number";
+    return false;
+  }
+  return true;
+}
+
+namespace {
+
+struct Detection {
+  int cls = 0;
+  std::string label;
+  double score = 0;
+  cv::Rect2d box0;  // level-0 pixels
+  std::vector<ClassScore> scores;
+};
+
+double Iou(const cv::Rect2d& a, const cv::Rect2d& b) {
+  const double inter = (a & b).area();
+  return inter > 0 ? inter / (a.area() + b.area() - inter) : 0;
+}
+
+// Greedy per class: the best window wins, windows overlapping it by more than `iou` go.
+std::vector<Detection> Suppress(std::vector<Detection> d, double iou) {
+  std::sort(d.begin(), d.end(), [](const Detection& a, const Detection& b) { return a.score > b.score; });
+  std::vector<Detection> kept;
+  for (auto& c : d) {
+    bool overlapped = false;
+    for (const auto& k : kept)
+      if (k.cls == c.cls && Iou(k.box0, c.box0) > iou) {
+        overlapped = true;
+        break;
+      }
+    if (!overlapped) kept.push_back(std::move(c));
+  }
+  return kept;
+}
+
+// Share of a window's pixels that hold no data (alpha 0).
+double EmptyShare(const cv::Mat& window) {
+  if (window.channels() != 2 && window.channels() != 4) return 0;
+  cv::Mat alpha;
+  cv::extractChannel(window, alpha, window.channels() - 1);
+  return 1.0 - double(cv::countNonZero(alpha)) / double(alpha.total());
+}
+
+}  // namespace
+
+DetectSummary DetectObjects(const Store& store, const ObjectModel& model, const DetectOptions& options,
+                            const DetectProgress& progress) {
+  std::string error;
+  if (!options.IsValid(&error)) Fail("detect options", error);
+  const auto start = std::chrono::steady_clock::now();
+  std::string path, image_name;
+  if (options.patch == 0) {
+    if (!store.HasMosaic())
+      Fail(store.dir(), "has no global mosaic: run `rolamos compose` first, or choose a patch with --patch N");
+    path = store.MosaicPath();
+    image_name = "mosaic";
+  } else {
+    bool found = false;
+    for (const auto& p : store.patches()) found |= p.id == options.patch;
+    if (!found) Fail(store.dir(), "has no patch " + std::to_string(options.patch));
+    path = store.PatchImagePath(options.patch);
+    image_name = "patch " + std::to_string(options.patch);
+  }
+  TileCacheOptions cache_options;
+  cache_options.max_memory_mb = options.cache_mb;
+  const TiledImage image = TiledImage::Open(path, std::make_shared<TileCache>(cache_options));
+  if (options.level >= image.num_levels())
+    Fail(path, "has levels 0.." + std::to_string(image.num_levels() - 1) + ", not " + std::to_string(options.level));
+  const auto& level = image.info().levels[static_cast<size_t>(options.level)];
+  const double to0x = double(image.width()) / double(level.width);
+  const double to0y = double(image.height()) / double(level.height);
+  const int win_w = static_cast<int>(std::min<long long>(options.window, level.width));
+  const int win_h = static_cast<int>(std::min<long long>(options.window, level.height));
+  const int step = std::max(1, static_cast<int>(std::lround(options.window * options.stride)));
+  std::vector<int> xs, ys;
+  for (long long x = 0; x + win_w <= level.width; x += step) xs.push_back(static_cast<int>(x));
+  for (long long y = 0; y + win_h <= level.height; y += step) ys.push_back(static_cast<int>(y));
+  // The last row and column reach the edge.
+  if (xs.back() + win_w < level.width) xs.push_back(static_cast<int>(level.width - win_w));
+  if (ys.back() + win_h < level.height) ys.push_back(static_cast<int>(level.height - win_h));
+
+  DetectSummary summary;
+  const long long total = static_cast<long long>(xs.size()) * static_cast<long long>(ys.size());
+  std::vector<Detection> found;
+  // A row of windows at a time: memory holds one row, the tile cache the rest.
+  for (int y : ys) {
+    std::vector<cv::Mat> windows;
+    std::vector<cv::Rect> rects;
+    for (int x : xs) {
+      const cv::Rect r(x, y, win_w, win_h);
+      cv::Mat w = image.ReadRegion(options.level, r);
+      ++summary.windows;
+      if (EmptyShare(w) > options.max_empty) {
+        ++summary.skipped;
+        continue;
+      }
+      windows.push_back(std::move(w));
+      rects.push_back(r);
+    }
+    const auto scores = model.ClassifyAll(windows);
+    for (size_t i = 0; i < scores.size(); ++i) {
+      const ClassScore& best = scores[i].front();
+      if (!(best.score > options.min_score)) continue;
+      Detection d;
+      d.label = best.label;
+      d.cls = static_cast<int>(std::find(model.classes().begin(), model.classes().end(), best.label) - model.classes().begin());
+      d.score = best.score;
+      d.box0 = cv::Rect2d(rects[i].x * to0x, rects[i].y * to0y, rects[i].width * to0x, rects[i].height * to0y);
+      d.scores = scores[i];
+      found.push_back(std::move(d));
+    }
+    if (progress) progress(summary.windows, total);
+  }
+  const std::vector<Detection> kept = Suppress(std::move(found), options.nms_iou);
+
+  const std::optional<Georef> georef = ReadGeoref(path);
+  summary.georeferenced = georef.has_value();
+  nlohmann::json features = nlohmann::json::array();
+  for (size_t i = 0; i < kept.size(); ++i) {
+    const Detection& d = kept[i];
+    const cv::Rect2d& b = d.box0;
+    nlohmann::json ring = nlohmann::json::array();
+    for (const cv::Point2d p : {b.tl(), cv::Point2d(b.x + b.width, b.y), b.br(), cv::Point2d(b.x, b.y + b.height), b.tl()}) {
+      if (georef) {
+        const auto m = georef->PixelToMap(p.x, p.y);
+        ring.push_back({m[0], m[1]});
+      } else {
+        ring.push_back({p.x, p.y});
+      }
+    }
+    nlohmann::json all = nlohmann::json::object();
+    for (const auto& s : d.scores) all[s.label] = s.score;
+    features.push_back({{"type", "Feature"},
+                        {"id", static_cast<int>(i + 1)},
+                        {"geometry", {{"type", "Polygon"}, {"coordinates", {ring}}}},
+                        {"properties",
+                         {{"class", d.label},
+                          {"score", d.score},
+                          {"image", image_name},
+                          {"pixel_bbox", {b.x, b.y, b.width, b.height}},
+                          {"scores", all}}}});
+  }
+  nlohmann::json doc = {{"type", "FeatureCollection"},
+                        {"name", "rolamos_detections"},
+                        {"rolamos",
+                         {{"image", std::filesystem::relative(path, store.dir()).string()},
+                          {"level", options.level},
+                          {"window", options.window},
+                          {"stride", options.stride},
+                          {"min_score", options.min_score},
+                          {"classes", model.classes()},
+                          {"coordinates", georef ? "map" : "pixel"},
+                          {"crs_wkt", georef ? georef->crs : ""}}},
+                        {"features", features}};
+  if (georef) {
+    const std::string authority = CrsAuthorityCode(georef->crs);
+    if (!authority.empty())
+      doc["crs"] = {{"type", "name"}, {"properties", {{"name", "urn:ogc:def:crs:" + authority}}}};
+  }
+  summary.output = options.output.empty() ? store.dir() + "/objects/detections.geojson" : options.output;
+  std::filesystem::create_directories(std::filesystem::path(summary.output).parent_path());
+  WriteFileAtomic(summary.output, doc.dump(1) + "\n");
+  summary.detections = static_cast<int>(kept.size());
+  summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return summary;
+}
+
+}  // namespace rolamos

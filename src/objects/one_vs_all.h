@@ -1,0 +1,52 @@
+// One SVM per class against all the others (the paper's one-vs-all). The kernel (chi-square,
+// RBF or linear) is computed once for every pair of training samples; OpenCV's SMO solver then
+// trains on it through a lookup kernel, so the cross-validation of C and gamma (stratified
+// k-fold, scored by the one-vs-all decision over every class) costs table lookups, not kernel
+// evaluations. The model keeps the support vectors once, shared by the classes, with each
+// class's coefficients: a score is one kernel row and a dot product per class.
+#pragma once
+
+#include <functional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+namespace rolamos {
+
+struct OneVsAllOptions {
+  std::string kernel = "chi2";  // chi2, rbf or linear
+  int folds = 5;
+  std::vector<double> c_grid = {0.125, 0.5, 2, 8, 32, 128};
+  std::vector<double> gamma_factors = {0.5, 1, 2};  // times 1 / mean pairwise distance
+  unsigned seed = 1;
+};
+
+class OneVsAll {
+ public:
+  // `features`: one row per sample (CV_32F, non-negative for chi2); `labels`: class per row.
+  // Classes flagged in `negatives_only` get no SVM (they are every SVM's "others").
+  void Train(const cv::Mat& features, const std::vector<int>& labels, int classes,
+             const std::vector<bool>& negatives_only, const OneVsAllOptions& options,
+             const std::function<void(int, int)>& progress = {});
+  // Each class's decision value for one row (> 0: that class); -infinity without an SVM.
+  std::vector<double> Scores(const cv::Mat& row) const;
+  // Kernel, C, gamma, cross-validated accuracy, support vectors.
+  nlohmann::json Describe() const;
+
+  void Write(cv::FileStorage& fs) const;
+  void Read(const cv::FileNode& node, const std::string& where);
+
+ private:
+  int kernel_ = 0;               // cv::ml::SVM kernel type
+  double c_ = 1, gamma_ = 1;
+  double cv_accuracy_ = 0;
+  std::vector<std::pair<double, double>> grid_scores_;  // not stored
+  cv::Mat support_;              // support vectors, one per row (CV_32F)
+  cv::Mat coefficients_;         // classes x support (CV_64F); zero rows for negatives-only
+  std::vector<double> rho_;      // per class
+  std::vector<bool> trained_;
+};
+
+}  // namespace rolamos

@@ -1,0 +1,67 @@
+// `rolamos objects` as a user runs it: train, eval (the accuracy line), detect into a store, and
+// the bad-input errors (exit 1, the file named).
+#include <filesystem>
+#include <fstream>
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "test_support.h"
+
+namespace rolamos {
+namespace {
+
+using test::RunCli;
+namespace fs = std::filesystem;
+
+TEST(CliObjects, TrainEvalDetect) {
+  test::ScratchDir dir;
+  test::WriteShapesDataset(dir / "train", 20, 5, /*background=*/true);
+  test::WriteShapesDataset(dir / "validation", 8, 6);
+  const std::string model = dir / "model.yml.gz";
+  auto r = RunCli("objects train -q --data " + (dir / "train") + " -o " + model +
+                  " --image-size 96 --vocabulary 40 --kmeans-samples 20000 --folds 3");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("3 classes (bar, disc, star)"), std::string::npos) << r.output;
+  ASSERT_TRUE(fs::exists(model));
+  r = RunCli("objects eval -q --data " + (dir / "validation") + " --model " + model);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("accuracy: "), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("confusion"), std::string::npos) << r.output;
+  r = RunCli("objects eval -q --json --data " + (dir / "validation") + " --model " + model);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_GE(nlohmann::json::parse(r.output)["accuracy"].get<double>(), 0.85) << r.output;
+
+  const std::string store = dir / "d.rolamos";
+  r = RunCli("demo -q --size 1200 -o " + store);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  // The demo store has one patch and no global mosaic yet.
+  r = RunCli("objects detect -q " + store + " --model " + model);
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("rolamos compose"), std::string::npos) << r.output;
+  r = RunCli("objects detect -q " + store + " --model " + model + " --patch 1 --window 160");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("detections from"), std::string::npos) << r.output;
+  std::ifstream in(store + "/objects/detections.geojson");
+  EXPECT_EQ(nlohmann::json::parse(in)["type"], "FeatureCollection");
+}
+
+TEST(CliObjects, BadInputIsAClearError) {
+  test::ScratchDir dir;
+  fs::create_directories(dir / "data/empty_class");
+  test::WriteShapesDataset(dir / "data", 3, 7);
+  auto r = RunCli("objects train -q --data " + (dir / "data") + " -o " + (dir / "m.yml.gz"));
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("empty_class: class folder holds no images"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "m.yml.gz"));
+  std::ofstream(dir / "junk.yml.gz") << "\x1f\x8b garbage";
+  r = RunCli("objects eval -q --data " + (dir / "data") + " --model " + (dir / "junk.yml.gz"));
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("junk.yml.gz"), std::string::npos) << r.output;
+  r = RunCli("objects train -q --data " + (dir / "data") + " -o " + (dir / "m.yml.gz") + " --kernel sigmoid");
+  EXPECT_NE(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("sigmoid"), std::string::npos) << r.output;
+}
+
+}  // namespace
+}  // namespace rolamos
