@@ -78,6 +78,7 @@ int main(int argc, char** argv) {
   app.add_option("--vocabulary", o.vocabulary);
   app.add_option("--kernel", o.kernel);
   app.add_option("--encoding", o.features.encoding);
+  app.add_option("--descriptor", o.features.descriptor);
   app.add_option("--folds", o.folds);
   app.add_option("--image-size", o.features.image_size);
   app.add_option("--grid-step", o.features.grid_step);

@@ -10,18 +10,28 @@ PACKAGES=(
   libopenimageio-dev openimageio-tools libvips-tools
   libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev nlohmann-json3-dev libcpp-httplib-dev
   libzstd-dev libwebp-dev libjpeg-dev time wrk curl
+  chromium
 )
 
 missing=()
 for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
+# Node.js and npm from Debian unless some other install already provides them.
+command -v npm >/dev/null 2>&1 || missing+=(nodejs npm)
 if [ ${#missing[@]} -gt 0 ]; then
   echo "setup: installing ${missing[*]}" >&2
   SUDO=""
   [ "$(id -u)" -ne 0 ] && SUDO="sudo"
   $SUDO apt-get update -qq
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
+
+# The viewer's front-end packages, pinned by viewer/package-lock.json (OpenSeadragon is built into
+# the binary; playwright-core drives Debian's Chromium in the browser tests).
+if [ ! -d viewer/node_modules/openseadragon ] || [ ! -d viewer/node_modules/playwright-core ] ||
+   [ viewer/package-lock.json -nt viewer/node_modules/.package-lock.json ]; then
+  (cd viewer && npm ci --no-audit --no-fund --loglevel=error >/dev/null)
 fi
 
 # clang builds everything so that the libFuzzer targets can be part of the test suite.

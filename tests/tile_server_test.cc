@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "rolamos/tiled_image.hpp"
 #include "test_support.h"
@@ -104,6 +105,41 @@ TEST_F(TileServerTest, MalformedAndHostileRequestsGet4xx) {
   }
   // Still serving after all that.
   EXPECT_FALSE(Get("/tiles/patch-1/0/0/0.jpg").empty());
+}
+
+// The page and its API: the viewer from the binary, overlays from the sidecar, and exports that
+// are the stored pixels, with bounds on what a request may ask for.
+TEST_F(TileServerTest, ViewerPageOverlaysAndExport) {
+  auto page = client_->Get("/");
+  ASSERT_TRUE(page);
+  EXPECT_EQ(page->status, 200);
+  EXPECT_NE(page->body.find("openseadragon.min.js"), std::string::npos);
+  EXPECT_EQ(client_->Get("/openseadragon.min.js")->status, 200);
+  EXPECT_EQ(client_->Get("/viewer.js")->status, 200);
+  auto o = client_->Get("/api/overlays/patch-1");
+  ASSERT_TRUE(o);
+  ASSERT_EQ(o->status, 200) << o->body;
+  const auto j = nlohmann::json::parse(o->body);
+  ASSERT_EQ(j["outlines"].size(), 1u);
+  EXPECT_EQ(j["outlines"][0]["points"][2][0].get<double>(), 1500.0);
+  EXPECT_EQ(client_->Get("/api/overlays/patch-7")->status, 404);
+
+  const cv::Mat png = Get("/api/export/patch-1?region=100,200,300,150&format=png");
+  ASSERT_EQ(png.size(), cv::Size(300, 150));
+  cv::Mat stored = image_->ReadRegion(0, cv::Rect(100, 200, 300, 150));
+  if (stored.channels() == 4 && png.channels() == 3) cv::cvtColor(stored, stored, cv::COLOR_BGRA2BGR);
+  EXPECT_EQ(cv::norm(png, stored, cv::NORM_INF), 0.0);
+  const cv::Mat half = Get("/api/export/patch-1?region=0,0,1500,1500&scale=0.5&format=jpg");
+  EXPECT_EQ(half.size(), cv::Size(750, 750));
+  for (const std::string bad : {"region=1,2,3", "region=-5,0,10,10", "region=0,0,0,10", "region=0,0,10,10&format=gif",
+                                "region=0,0,10,10&scale=2", "region=0,0,100000000,100000000"}) {
+    auto r = client_->Get(("/api/export/patch-1?" + bad).c_str());
+    ASSERT_TRUE(r) << bad;
+    EXPECT_EQ(r->status, 400) << bad << ": " << r->body;
+  }
+  auto outside = client_->Get("/api/export/patch-1?region=1400,1400,500,500");
+  ASSERT_TRUE(outside);
+  EXPECT_EQ(outside->status, 400) << outside->body;  // leaves the image: the export code says so
 }
 
 }  // namespace

@@ -96,6 +96,8 @@ void AddObjectsCommand(CLI::App& app, Runner* run) {
   train->add_option("--data", t->data, "folder with a folder of images per class ('background' = negatives only)")->required();
   train->add_option("-o,--output", t->output, "model file (.yml.gz)")->required();
   train->add_option("--vocabulary", t->options.vocabulary, "visual words (k-means)")->capture_default_str();
+  train->add_option("--descriptor", t->options.features.descriptor, "sift (gray) or opponent-sift (colour)")
+      ->capture_default_str();
   train->add_option("--encoding", t->options.features.encoding, "bow (word histograms) or vlad (residuals to the words)")
       ->capture_default_str();
   train->add_option("--kernel", t->options.kernel, "SVM kernel: chi2, rbf or linear")->capture_default_str();

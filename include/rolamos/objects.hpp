@@ -24,6 +24,7 @@ inline constexpr const char* kBackgroundClass = "background";
 
 struct ObjectFeatureOptions {
   int image_size = 128;                   // samples are resized to this square first
+  std::string descriptor = "sift";        // sift (gray) or opponent-sift (colour, 3 x 128)
   int grid_step = 6;                      // dense SIFT grid step, pixels at image_size
   std::vector<int> patch_sizes = {12, 24};  // SIFT support diameters, pixels at image_size
   int pyramid_levels = 2;                 // spatial pyramid: 1 = whole image, 2 = + 2 x 2 cells

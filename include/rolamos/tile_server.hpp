@@ -18,6 +18,7 @@ struct TileServerOptions {
   int threads = 0;                 // 0: two per core
   double cache_mb = 256;
   int jpeg_quality = 85;
+  double max_export_megapixels = 256;  // largest export the page may ask for
 
   bool IsValid(std::string* error) const;
 };

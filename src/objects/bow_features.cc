@@ -36,6 +36,10 @@ bool ObjectFeatureOptions::IsValid(std::string* error) const {
     *error = "colour bins must both be 0 (no colour) or hue 1..64 and saturation 1..16";
     return false;
   }
+  if (descriptor != "sift" && descriptor != "opponent-sift") {
+    *error = "descriptor \"" + descriptor + "\" is not sift or opponent-sift";
+    return false;
+  }
   if (encoding != "bow" && encoding != "vlad") {
     *error = "encoding \"" + encoding + "\" is not bow or vlad";
     return false;
@@ -58,30 +62,64 @@ cv::Mat NormaliseSample(const cv::Mat& image, int image_size) {
   return out;
 }
 
+int DescriptorSize(const ObjectFeatureOptions& o) { return o.descriptor == "opponent-sift" ? 384 : 128; }
+
 cv::Mat DenseDescriptors(const cv::Mat& sample, const ObjectFeatureOptions& o,
                          std::vector<cv::Point2f>* positions) {
-  cv::Mat gray;
-  cv::cvtColor(sample, gray, cv::COLOR_BGR2GRAY);
+  // The channels described: gray, or the three opponent colour channels (van de Sande et al.):
+  // deep-sea biota differ by colour as much as by shape.
+  std::vector<cv::Mat> channels;
+  if (o.descriptor == "opponent-sift") {
+    cv::Mat f;
+    sample.convertTo(f, CV_32F);
+    std::vector<cv::Mat> bgr;
+    cv::split(f, bgr);
+    const cv::Mat& b = bgr[0];
+    const cv::Mat& g = bgr[1];
+    const cv::Mat& r = bgr[2];
+    cv::Mat o1 = (r - g) / std::sqrt(2.0) + 128, o2 = (r + g - 2 * b) / std::sqrt(6.0) + 128,
+            o3 = (r + g + b) / std::sqrt(3.0);
+    for (cv::Mat* m : {&o1, &o2, &o3}) {
+      cv::Mat u8;
+      m->convertTo(u8, CV_8U, m == &o3 ? 255.0 / 441.7 : 1.0);
+      channels.push_back(u8);
+    }
+  } else {
+    cv::Mat gray;
+    cv::cvtColor(sample, gray, cv::COLOR_BGR2GRAY);
+    channels.push_back(gray);
+  }
   // Dim, low-contrast ROV footage: normalise local contrast so the gradients carry the shape.
-  cv::createCLAHE(2.0, cv::Size(4, 4))->apply(gray, gray);
+  for (auto& c : channels) cv::createCLAHE(2.0, cv::Size(4, 4))->apply(c, c);
   std::vector<cv::KeyPoint> keypoints;
   for (int size : o.patch_sizes) {
     // OpenCV's SIFT spans 4 x 4 bins of 3 sigma each, sigma = keypoint size / 2: a patch of
     // `size` pixels is a keypoint of size / 6.
     const int margin = size / 2;
-    for (int y = margin; y <= gray.rows - margin; y += o.grid_step)
-      for (int x = margin; x <= gray.cols - margin; x += o.grid_step)
+    for (int y = margin; y <= sample.rows - margin; y += o.grid_step)
+      for (int x = margin; x <= sample.cols - margin; x += o.grid_step)
         keypoints.emplace_back(static_cast<float>(x), static_cast<float>(y), size / 6.0f, 0.f);
   }
+  std::vector<cv::Mat> parts;
+  const auto sift = cv::SIFT::create();
+  for (const auto& c : channels) {
+    std::vector<cv::KeyPoint> k = keypoints;  // compute() may drop none at these sizes; keep order
+    cv::Mat d;
+    sift->compute(c, k, d);
+    CV_Assert(k.size() == keypoints.size());
+    parts.push_back(d);
+  }
   cv::Mat desc;
-  cv::SIFT::create()->compute(gray, keypoints, desc);
-  // RootSIFT: Hellinger distance between descriptors as Euclidean distance.
+  cv::hconcat(parts, desc);
+  // RootSIFT per channel: Hellinger distance between descriptors as Euclidean distance.
   for (int i = 0; i < desc.rows; ++i) {
-    float* d = desc.ptr<float>(i);
-    double sum = 0;
-    for (int k = 0; k < desc.cols; ++k) sum += d[k];
-    const float inv = sum > 0 ? static_cast<float>(1.0 / sum) : 0.f;
-    for (int k = 0; k < desc.cols; ++k) d[k] = std::sqrt(d[k] * inv);
+    for (int part = 0; part < desc.cols / 128; ++part) {
+      float* d = desc.ptr<float>(i) + part * 128;
+      double sum = 0;
+      for (int k = 0; k < 128; ++k) sum += d[k];
+      const float inv = sum > 0 ? static_cast<float>(1.0 / sum) : 0.f;
+      for (int k = 0; k < 128; ++k) d[k] = std::sqrt(d[k] * inv);
+    }
   }
   if (positions) {
     positions->clear();
@@ -106,7 +144,7 @@ BowEncoder::BowEncoder(const ObjectFeatureOptions& options, cv::Mat vocabulary)
     : options_(options), vocabulary_(std::move(vocabulary)), cells_(Cells(options)) {
   std::string error;
   if (!options.IsValid(&error)) Fail("object features", error);
-  CV_Assert(vocabulary_.type() == CV_32F && vocabulary_.cols == 128 && vocabulary_.rows > 0);
+  CV_Assert(vocabulary_.type() == CV_32F && vocabulary_.cols == DescriptorSize(options) && vocabulary_.rows > 0);
 }
 
 namespace {

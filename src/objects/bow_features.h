@@ -16,6 +16,9 @@ namespace rolamos {
 // The sample as the descriptors see it: resized to image_size square, BGR 8-bit.
 cv::Mat NormaliseSample(const cv::Mat& image, int image_size);
 
+// 128 (gray SIFT) or 384 (opponent colour SIFT).
+int DescriptorSize(const ObjectFeatureOptions& o);
+
 // Dense RootSIFT descriptors (rows, CV_32F) of a normalised sample, with each descriptor's
 // position (pixels) in `positions` when given.
 cv::Mat DenseDescriptors(const cv::Mat& sample, const ObjectFeatureOptions& o,
@@ -40,7 +43,7 @@ class BowEncoder {
   static std::vector<Cell> Cells(const ObjectFeatureOptions& o);
 
   ObjectFeatureOptions options_;
-  cv::Mat vocabulary_;  // words x 128, CV_32F
+  cv::Mat vocabulary_;  // words x DescriptorSize, CV_32F
   std::vector<Cell> cells_;
 };
 

@@ -85,7 +85,7 @@ void ForEach(int n, const std::function<void(int)>& work) {
 
 void WriteFeatureOptions(cv::FileStorage& fs, const ObjectFeatureOptions& o) {
   fs << "features" << "{" << "image_size" << o.image_size << "grid_step" << o.grid_step
-     << "patch_sizes" << o.patch_sizes << "pyramid_levels" << o.pyramid_levels << "centre_cell" << (o.centre_cell ? 1 : 0) << "encoding" << o.encoding << "hue_bins" << o.hue_bins
+     << "patch_sizes" << o.patch_sizes << "pyramid_levels" << o.pyramid_levels << "centre_cell" << (o.centre_cell ? 1 : 0) << "encoding" << o.encoding << "descriptor" << o.descriptor << "hue_bins" << o.hue_bins
      << "saturation_bins" << o.saturation_bins << "colour_weight" << o.colour_weight << "}";
 }
 
@@ -98,6 +98,7 @@ ObjectFeatureOptions ReadFeatureOptions(const cv::FileNode& n) {
   o.pyramid_levels = static_cast<int>(n["pyramid_levels"]);
   o.centre_cell = static_cast<int>(n["centre_cell"]) != 0;
   o.encoding = static_cast<std::string>(n["encoding"]);
+  o.descriptor = static_cast<std::string>(n["descriptor"]);
   o.hue_bins = static_cast<int>(n["hue_bins"]);
   o.saturation_bins = static_cast<int>(n["saturation_bins"]);
   o.colour_weight = static_cast<double>(n["colour_weight"]);
@@ -247,7 +248,7 @@ ObjectModel ObjectModel::Load(const std::string& path) {
     if (!impl->features.IsValid(&error)) Fail(path, "feature settings: " + error);
     cv::Mat vocabulary;
     fs["vocabulary"] >> vocabulary;
-    if (vocabulary.empty() || vocabulary.cols != 128 || vocabulary.type() != CV_32F)
+    if (vocabulary.empty() || vocabulary.cols != DescriptorSize(impl->features) || vocabulary.type() != CV_32F)
       Fail(path, "holds no valid vocabulary");
     impl->encoder = std::make_unique<BowEncoder>(impl->features, vocabulary);
     impl->training = ReadJson(fs["training"]);
@@ -296,7 +297,7 @@ nlohmann::json ObjectModel::Describe() const {
           {"background", impl_->has_background},
           {"features",
            {{"image_size", f.image_size}, {"grid_step", f.grid_step}, {"patch_sizes", f.patch_sizes},
-            {"pyramid_levels", f.pyramid_levels}, {"centre_cell", f.centre_cell}, {"encoding", f.encoding}, {"hue_bins", f.hue_bins},
+            {"pyramid_levels", f.pyramid_levels}, {"centre_cell", f.centre_cell}, {"encoding", f.encoding}, {"descriptor", f.descriptor}, {"hue_bins", f.hue_bins},
             {"saturation_bins", f.saturation_bins}, {"colour_weight", f.colour_weight},
             {"dims", impl_->encoder->dims()}, {"words", impl_->encoder->vocabulary().rows}}},
           {"training", impl_->training},

@@ -9,7 +9,9 @@
 #include <nlohmann/json.hpp>
 
 #include "rolamos/error.hpp"
+#include "server/overlays.h"
 #include "server/tile_pyramid.h"
+#include "server/viewer_assets.h"
 #include "util/files.h"
 
 namespace fs = std::filesystem;
@@ -102,9 +104,21 @@ TileExportResult ExportTiles(Store store, const std::string& dir, const TileExpo
       index.push_back({{"name", name}, {"width", t.image().width()}, {"height", t.image().height()},
                        {"format", options.format}, {"tile_size", 256},
                        {"url", dzi ? name + ".dzi" : name + "/{z}/{x}/{y}." + options.ext},
-                       {"max_zoom", dzi ? t.max_level() : t.xyz_max_zoom()}});
+                       {"max_zoom", dzi ? t.max_level() : t.xyz_max_zoom()},
+                       {"dzi_level_of_zoom_0", t.xyz_shift()}});
+      fs::create_directories(tmp / "overlays");
+      std::ofstream(tmp / "overlays" / (name + ".json")) << ImageOverlays(store, name, images[i].second).dump() << "\n";
     }
     std::ofstream(tmp / "images.json") << index.dump(1) << "\n";
+    // The viewer page, told that it is static (no server: no export, files instead of the API).
+    for (const ViewerAsset& a : ViewerAssets()) {
+      std::string text(reinterpret_cast<const char*>(a.data), a.size);
+      if (std::string(a.path) == "index.html") {
+        const size_t at = text.find("<script");
+        text.insert(at, "<script>window.ROLAMOS_STATIC = true;</script>\n");
+      }
+      std::ofstream(tmp / a.path, std::ios::binary) << text;
+    }
     result.images = static_cast<int>(images.size());
     result.tiles = done;
     RenameFile(tmp.string(), dir);

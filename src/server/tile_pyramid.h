@@ -21,6 +21,7 @@ class TilePyramid {
   explicit TilePyramid(std::shared_ptr<TiledImage> image);
 
   const TiledImage& image() const { return *image_; }
+  const std::shared_ptr<TiledImage>& image_ptr() const { return image_; }
   int max_level() const { return max_level_; }
   // DZI level of XYZ zoom 0; XYZ zoom z is DZI level z + xyz_shift().
   int xyz_shift() const { return xyz_shift_; }

@@ -5,15 +5,23 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <atomic>
+#include <cstdio>
 #include <thread>
+
+#include <unistd.h>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "rolamos/error.hpp"
+#include "rolamos/export.hpp"
 #include "rolamos/tiled_image.hpp"
+#include "server/overlays.h"
 #include "server/tile_pyramid.h"
+#include "server/viewer_assets.h"
+#include "util/files.h"
 
 namespace rolamos {
 
@@ -24,6 +32,10 @@ bool TileServerOptions::IsValid(std::string* error) const {
   }
   if (threads < 0 || threads > 256) {
     *error = "threads must be 0..256";
+    return false;
+  }
+  if (!(max_export_megapixels > 0)) {
+    *error = "the export limit must be positive";
     return false;
   }
   if (jpeg_quality < 1 || jpeg_quality > 100) {
@@ -40,7 +52,7 @@ namespace {
 constexpr int kTile = TilePyramid::kTile;
 
 struct Served {
-  std::string name;
+  std::string name, path;
   std::unique_ptr<TilePyramid> tiles;
   std::string version;  // changes when the file does: part of every ETag
 };
@@ -64,6 +76,7 @@ struct TileServer::Impl {
   httplib::Server http;
   std::thread thread;
   int port = 0;
+  std::atomic<long long> exports{0};
 
   void Reply(const httplib::Request& req, httplib::Response& res, const Served& s, int level,
              long long tx, long long ty, const std::string& ext) {
@@ -162,6 +175,63 @@ struct TileServer::Impl {
                }
                Reply(req, res, *s, static_cast<int>(level), x, y, ext);
              });
+    // The viewer page, from the binary.
+    for (const ViewerAsset& a : ViewerAssets()) {
+      const std::string path = a.path;
+      auto serve = [a](const httplib::Request&, httplib::Response& res) {
+        res.set_content(reinterpret_cast<const char*>(a.data), a.size, std::string(a.mime) + "; charset=utf-8");
+        res.set_header("Cache-Control", "no-cache");
+      };
+      http.Get("/" + path, serve);
+      if (path == "index.html") http.Get("/", serve);
+    }
+    http.Get(R"(/api/overlays/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
+      const Served* s = Find(req.matches[1], res);
+      if (!s) return;
+      res.set_content(ImageOverlays(store, s->name, s->path).dump(), "application/json");
+    });
+    // Full-resolution export of a region through the export code: ?region=x,y,w,h
+    // [&scale=s][&format=png|jpg|tif]. Bounded, so a request cannot fill the disk or memory.
+    http.Get(R"(/api/export/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
+      const Served* s = Find(req.matches[1], res);
+      if (!s) return;
+      auto bad = [&](const std::string& why) {
+        res.status = 400;
+        res.set_content(why + "\n", "text/plain");
+      };
+      const std::string format = req.has_param("format") ? req.get_param_value("format") : "png";
+      if (format != "png" && format != "jpg" && format != "tif") return bad("format must be png, jpg or tif");
+      double v[4] = {0, 0, 0, 0};
+      const std::string region = req.get_param_value("region");
+      if (std::sscanf(region.c_str(), "%lf,%lf,%lf,%lf", &v[0], &v[1], &v[2], &v[3]) != 4 || !(v[2] >= 1) ||
+          !(v[3] >= 1) || !(v[0] >= 0) || !(v[1] >= 0))
+        return bad("expected region=x,y,w,h in image pixels (w, h >= 1)");
+      ExportOptions o;
+      o.region = cv::Rect2d(v[0], v[1], v[2], v[3]);
+      o.scale = req.has_param("scale") ? std::atof(req.get_param_value("scale").c_str()) : 1.0;
+      if (!(o.scale > 0 && o.scale <= 1)) return bad("scale must be in (0, 1]");
+      const double pixels = v[2] * v[3] * o.scale * o.scale;
+      if (pixels > options.max_export_megapixels * 1e6)
+        return bad("the export would be " + std::to_string(static_cast<long long>(pixels / 1e6)) +
+                   " megapixels; this server allows " + std::to_string(static_cast<long long>(options.max_export_megapixels)) +
+                   " (rolamos export has no limit)");
+      const std::string file = (std::filesystem::temp_directory_path() /
+                                ("rolamos-export-" + std::to_string(::getpid()) + "-" + std::to_string(++exports) + "." + format)).string();
+      o.output = file;
+      o.tiff.compression = Compression::kDeflate;
+      try {
+        ExportRegion(*s->tiles->image_ptr(), o);
+        const std::string bytes = ReadSmallFile(file, 4ull << 30);
+        std::filesystem::remove(file);
+        res.set_header("Content-Disposition", "attachment; filename=\"" + s->name + "-" + std::to_string(static_cast<long long>(v[0])) +
+                                                  "-" + std::to_string(static_cast<long long>(v[1])) + "." + format + "\"");
+        res.set_content(bytes, format == "png" ? "image/png" : format == "jpg" ? "image/jpeg" : "image/tiff");
+      } catch (const Error& e) {
+        std::error_code ec;
+        std::filesystem::remove(file, ec);
+        return bad(e.what());
+      }
+    });
     http.set_error_handler([](const httplib::Request&, httplib::Response& res) {
       if (res.body.empty()) res.set_content("not found\n", "text/plain");
     });
@@ -181,6 +251,7 @@ TileServer::TileServer(Store store, const TileServerOptions& options)
   auto add = [&](const std::string& name, const std::string& path) {
     Served s;
     s.name = name;
+    s.path = path;
     s.tiles = std::make_unique<TilePyramid>(std::make_shared<TiledImage>(TiledImage::Open(path, m.cache)));
     std::error_code ec;
     const auto t = std::filesystem::last_write_time(path, ec).time_since_epoch().count();

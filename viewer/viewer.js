@@ -1,0 +1,201 @@
+// The rolamos viewer: OpenSeadragon over the store's Deep Zoom tiles, with the sidecars' patch
+// outlines, frame footprints and trajectory, object detections, cursor coordinates (pixel and
+// map) and full-resolution export of the view or of a drawn rectangle. Served by
+// `rolamos serve`; `rolamos tiles` writes it with a static images.json (no export there).
+(function () {
+  'use strict';
+  const statics = window.ROLAMOS_STATIC === true;
+  const $ = (id) => document.getElementById(id);
+  const state = { images: [], current: null, overlays: null, svg: null, drawing: false };
+  window.rolamos = state;  // for the browser tests and for curious users
+
+  const viewer = OpenSeadragon({
+    id: 'map',
+    showNavigationControl: false,
+    showNavigator: true,
+    maxZoomPixelRatio: 4,
+    visibilityRatio: 0.5,
+    crossOriginPolicy: 'Anonymous',
+    drawer: 'canvas',  // a 2-D canvas: pixels can be read back (tests, screenshots) on any GPU
+    imageSmoothingEnabled: true,
+  });
+  state.viewer = viewer;
+
+  function status(text) { $('status').textContent = text; }
+
+  async function json(url) {
+    const r = await fetch(url);
+    if (!r.ok) throw new Error(url + ': HTTP ' + r.status);
+    return r.json();
+  }
+
+  async function loadImages() {
+    if (statics) {
+      // images.json of `rolamos tiles`: Deep Zoom descriptors, or XYZ directories described here.
+      state.images = (await json('images.json')).map((i) => ({ name: i.name, width: i.width, height: i.height,
+        dzi: i.format === 'dzi' ? i.url : {
+          width: i.width, height: i.height, tileSize: i.tile_size, tileOverlap: 0,
+          minLevel: i.dzi_level_of_zoom_0, maxLevel: i.dzi_level_of_zoom_0 + i.max_zoom,
+          getTileUrl: (level, x, y) => i.url.replace('{z}', level - i.dzi_level_of_zoom_0).replace('{x}', x).replace('{y}', y),
+        },
+        overlays: 'overlays/' + i.name + '.json' }));
+    } else {
+      state.images = (await json('api/images')).map((i) => ({ name: i.name, width: i.width, height: i.height,
+                                                             dzi: i.dzi.replace(/^\//, ''),
+                                                             overlays: 'api/overlays/' + i.name }));
+    }
+    const select = $('image');
+    for (const i of state.images) {
+      const o = document.createElement('option');
+      o.value = i.name;
+      o.textContent = i.name + ' (' + i.width + ' x ' + i.height + ')';
+      select.appendChild(o);
+    }
+    if (!state.images.length) { status('the store has no images'); return; }
+    const wanted = new URLSearchParams(location.search).get('image');
+    open(state.images.find((i) => i.name === wanted) || state.images[0]);
+  }
+
+  function open(image) {
+    state.current = image;
+    state.overlays = null;
+    $('image').value = image.name;
+    state.tilesLoaded = 0;
+    viewer.open(image.dzi);
+    status('opening ' + image.name);
+  }
+
+  viewer.addHandler('open', async () => {
+    const image = state.current;
+    status(image.name + ': ' + image.width + ' x ' + image.height + ' px');
+    try {
+      state.overlays = await json(image.overlays);
+    } catch (e) {
+      state.overlays = null;
+      status(image.name + ': no overlays (' + e.message + ')');
+    }
+    drawOverlays();
+    state.ready = true;
+  });
+  viewer.addHandler('tile-loaded', () => { state.tilesLoaded = (state.tilesLoaded || 0) + 1; });
+  viewer.addHandler('open-failed', (e) => status('cannot open ' + state.current.name + ': ' + e.message));
+
+  // One SVG over the whole image, in image pixels (viewBox), so shapes zoom with the map.
+  const SVG = 'http://www.w3.org/2000/svg';
+  function drawOverlays() {
+    if (state.svg) viewer.removeOverlay(state.svg);
+    state.svg = null;
+    const o = state.overlays, image = state.current;
+    if (!o) return;
+    const svg = document.createElementNS(SVG, 'svg');
+    svg.setAttribute('class', 'overlay');
+    svg.setAttribute('viewBox', '0 0 ' + image.width + ' ' + image.height);
+    svg.setAttribute('preserveAspectRatio', 'none');
+    const add = (tag, cls, attrs) => {
+      const e = document.createElementNS(SVG, tag);
+      e.setAttribute('class', cls);
+      for (const k in attrs) e.setAttribute(k, attrs[k]);
+      svg.appendChild(e);
+      return e;
+    };
+    const pts = (list) => list.map((p) => p[0] + ',' + p[1]).join(' ');
+    if ($('show-outlines').checked) for (const p of o.outlines) add('polygon', 'outline', { points: pts(p.points) });
+    if ($('show-footprints').checked) for (const f of o.footprints) add('polygon', 'footprint', { points: pts(f.points) });
+    if ($('show-trajectory').checked && o.trajectory.length > 1)
+      add('polyline', 'trajectory', { points: pts(o.trajectory.map((t) => t.point)) });
+    if ($('show-detections').checked) {
+      for (const d of o.detections) {
+        add('rect', 'detection', { x: d.bbox[0], y: d.bbox[1], width: d.bbox[2], height: d.bbox[3] });
+        const t = add('text', 'detection-label', { x: d.bbox[0], y: d.bbox[1] - 4 });
+        t.textContent = d.class + ' ' + d.score.toFixed(2);
+      }
+    }
+    const aspect = image.height / image.width;
+    viewer.addOverlay({ element: svg, location: new OpenSeadragon.Rect(0, 0, 1, aspect) });
+    state.svg = svg;
+  }
+  for (const id of ['show-outlines', 'show-footprints', 'show-trajectory', 'show-detections'])
+    $(id).addEventListener('change', drawOverlays);
+  $('image').addEventListener('change', (e) => open(state.images.find((i) => i.name === e.target.value)));
+  $('home').addEventListener('click', () => viewer.viewport.goHome());
+  $('full').addEventListener('click', () => viewer.viewport.zoomTo(viewer.viewport.imageToViewportZoom(1.0)));
+
+  // Cursor: image pixel, and map coordinates through the georeference when there is one.
+  new OpenSeadragon.MouseTracker({
+    element: viewer.element,
+    moveHandler: (e) => {
+      if (!state.current || !viewer.world.getItemCount()) return;
+      const p = viewer.viewport.viewerElementToImageCoordinates(e.position);
+      let text = 'x ' + p.x.toFixed(1) + '  y ' + p.y.toFixed(1) + ' px';
+      const g = state.overlays && state.overlays.georef;
+      if (g) {
+        const t = g.geotransform;
+        const mx = t[0] + p.x * t[1] + p.y * t[2], my = t[3] + p.x * t[4] + p.y * t[5];
+        text += '   ' + g.crs + '  E ' + mx.toFixed(3) + '  N ' + my.toFixed(3);
+      }
+      $('cursor').textContent = text;
+    },
+  });
+
+  // Export at full resolution through the server's export code.
+  function exportUrl(x, y, w, h) {
+    const c = state.current;
+    x = Math.max(0, Math.floor(x)); y = Math.max(0, Math.floor(y));
+    w = Math.min(c.width - x, Math.ceil(w)); h = Math.min(c.height - y, Math.ceil(h));
+    if (w <= 0 || h <= 0) return null;
+    return 'api/export/' + c.name + '?region=' + [x, y, w, h].join(',') + '&format=' + $('export-format').value;
+  }
+  state.exportUrl = exportUrl;
+  function download(url) {
+    if (!url) { status('nothing of the image is in that area'); return; }
+    const a = document.createElement('a');
+    a.href = url;
+    a.download = '';
+    document.body.appendChild(a);
+    a.click();
+    a.remove();
+    status('exporting ' + url);
+  }
+  function viewRegion() {
+    const b = viewer.viewport.viewportToImageRectangle(viewer.viewport.getBounds(true));
+    return [b.x, b.y, b.width, b.height];
+  }
+  state.viewRegion = viewRegion;
+  if (statics) {
+    document.querySelector('header .export').style.display = 'none';
+  } else {
+    $('export-view').addEventListener('click', () => download(exportUrl(...viewRegion())));
+    // Rectangle: press the button, then drag on the map (panning is off meanwhile).
+    let start = null, box = null;
+    $('draw').addEventListener('click', () => {
+      state.drawing = !state.drawing;
+      $('draw').classList.toggle('active', state.drawing);
+      viewer.setMouseNavEnabled(!state.drawing);
+    });
+    new OpenSeadragon.MouseTracker({
+      element: viewer.element,
+      pressHandler: (e) => {
+        if (!state.drawing) return;
+        start = viewer.viewport.viewerElementToImageCoordinates(e.position);
+        box = document.createElement('div');
+        box.className = 'selection';
+        viewer.addOverlay(box, viewer.viewport.imageToViewportRectangle(start.x, start.y, 0, 0));
+      },
+      dragHandler: (e) => {
+        if (!state.drawing || !start) return;
+        const p = viewer.viewport.viewerElementToImageCoordinates(e.position);
+        viewer.updateOverlay(box, viewer.viewport.imageToViewportRectangle(
+          Math.min(start.x, p.x), Math.min(start.y, p.y), Math.abs(p.x - start.x), Math.abs(p.y - start.y)));
+      },
+      releaseHandler: (e) => {
+        if (!state.drawing || !start) return;
+        const p = viewer.viewport.viewerElementToImageCoordinates(e.position);
+        viewer.removeOverlay(box);
+        download(exportUrl(Math.min(start.x, p.x), Math.min(start.y, p.y), Math.abs(p.x - start.x), Math.abs(p.y - start.y)));
+        start = null;
+        $('draw').click();
+      },
+    });
+  }
+  loadImages().catch((e) => status(e.message));
+})();
