@@ -30,6 +30,10 @@ bool ObjectTrainOptions::IsValid(std::string* error) const {
     *error = "kernel \"" + kernel + "\" is not chi2, rbf or linear";
     return false;
   }
+  if (kernel == "chi2" && features.encoding == "vlad") {
+    *error = "the chi-square kernel needs histograms (--encoding bow); VLAD vectors take rbf or linear";
+    return false;
+  }
   if (folds < 2 || folds > 20) {
     *error = "cross-validation folds must be in 2..20";
     return false;

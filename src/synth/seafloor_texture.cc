@@ -48,6 +48,18 @@ cv::Mat ValueNoise(long long x, long long y, int cols, int rows, int cell, uint3
 
 cv::Mat RenderSeafloor(long long x, long long y, int cols, int rows,
                        const SeafloorTextureOptions& options) {
+  // OpenCV's warps take at most 32767 pixels a side: wider areas are rendered in pieces (the
+  // texture is a function of position, so the pieces join without seams).
+  constexpr int kPiece = 16384;
+  if (cols > kPiece || rows > kPiece) {
+    cv::Mat out(rows, cols, CV_8UC3);
+    for (int r = 0; r < rows; r += kPiece)
+      for (int c = 0; c < cols; c += kPiece) {
+        const int w = std::min(kPiece, cols - c), h = std::min(kPiece, rows - r);
+        RenderSeafloor(x + c, y + r, w, h, options).copyTo(out(cv::Rect(c, r, w, h)));
+      }
+    return out;
+  }
   const double s = options.feature_scale;
   auto cell = [&](double c) { return std::max(2, static_cast<int>(std::lround(c * s))); };
   const uint32_t seed = options.seed;
