@@ -38,7 +38,7 @@ void AddServeCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--port", s->options.port, "port (0: any free one)")->capture_default_str();
   cmd->add_option("--bind", s->options.bind, "address to listen on")->capture_default_str();
   cmd->add_option("--cache-mb", s->options.cache_mb, "tile cache memory")->capture_default_str();
-  cmd->add_option("--threads", s->options.threads, "request threads (0: two per core)")
+  cmd->add_option("--threads", s->options.threads, "request threads (0: 4 per core, at least 16)")
       ->capture_default_str();
   cmd->callback([s, run] { *run = [s] { return RunServe(*s); }; });
 }

@@ -13,6 +13,7 @@
     id: 'map',
     showNavigationControl: false,
     showNavigator: true,
+    maxTilesPerFrame: 16,  // OpenSeadragon starts 1 tile load per frame by default: a jump to a new area took ~0.7 s
     maxZoomPixelRatio: 4,
     visibilityRatio: 0.5,
     crossOriginPolicy: 'Anonymous',

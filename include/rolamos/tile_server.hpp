@@ -15,7 +15,7 @@ namespace rolamos {
 struct TileServerOptions {
   std::string bind = "127.0.0.1";  // loopback unless told otherwise
   int port = 8080;                 // 0: any free port
-  int threads = 0;                 // 0: two per core
+  int threads = 0;                 // 0: 4 per core, at least 16 (browsers hold ~6 connections)
   double cache_mb = 256;
   int jpeg_quality = 85;
   double max_export_megapixels = 256;  // largest export the page may ask for

@@ -261,8 +261,11 @@ TileServer::TileServer(Store store, const TileServerOptions& options)
   for (const auto& [name, path] : StoreImages(store)) add(name, path);
   if (m.images.empty()) Fail(store.dir(), "has no mosaic and no patches to serve");
   m.Routes();
-  const int threads = options.threads > 0 ? options.threads
-                                          : 2 * static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  // Browsers keep ~6 connections open per site and cpp-httplib holds a thread per open
+  // connection: with fewer threads than that, a page waits on idle keep-alive sockets.
+  const int threads = options.threads > 0
+                          ? options.threads
+                          : std::max(16, 4 * static_cast<int>(std::max(1u, std::thread::hardware_concurrency())));
   m.http.new_task_queue = [threads] { return new httplib::ThreadPool(static_cast<size_t>(threads)); };
   // Headers and body go out as separate writes: without this, delayed ACKs add ~40 ms a tile.
   m.http.set_tcp_nodelay(true);
