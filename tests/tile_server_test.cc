@@ -9,7 +9,10 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "rolamos/georef.hpp"
+#include "rolamos/tiff_writer.hpp"
 #include "rolamos/tiled_image.hpp"
+#include "server/overlays.h"
 #include "test_support.h"
 
 namespace rolamos {
@@ -62,6 +65,13 @@ TEST_F(TileServerTest, TilesAreTheStoredPixelsAtEveryZoom) {
   cv::Mat edge = Get("/tiles/patch-1/3/5/5.png");
   EXPECT_EQ(edge.size(), cv::Size(1500 - 5 * 256, 1500 - 5 * 256));
   // Zoom 0: the whole image in one tile, the area average of it.
+  // WebP tiles: the same pixels within lossy coding.
+  cv::Mat w = Get("/tiles/patch-1/3/1/2.webp");
+  ASSERT_FALSE(w.empty());
+  if (w.channels() == 4) cv::cvtColor(w, w, cv::COLOR_BGRA2BGR);
+  cv::Mat t3 = t.channels() == 4 ? cv::Mat() : t;
+  if (t.channels() == 4) cv::cvtColor(t, t3, cv::COLOR_BGRA2BGR);
+  EXPECT_GE(test::Psnr(w, t3), 30.0);
   cv::Mat whole = Get("/tiles/patch-1/0/0/0.jpg");
   ASSERT_EQ(whole.size(), cv::Size(188, 188));
   cv::Mat expected = image_->ReadResampled(0, 0, 1.0 / 8, cv::Size(188, 188));
@@ -140,6 +150,23 @@ TEST_F(TileServerTest, ViewerPageOverlaysAndExport) {
   auto outside = client_->Get("/api/export/patch-1?region=1400,1400,500,500");
   ASSERT_TRUE(outside);
   EXPECT_EQ(outside->status, 400) << outside->body;  // leaves the image: the export code says so
+}
+
+// Map coordinates under the cursor come from the overlays' georeference of the image.
+TEST(Overlays, CarryTheImageGeoreference) {
+  test::ScratchDir dir;
+  Store store = Store::Create(dir / "g.rolamos");
+  Georef g;
+  g.crs = CrsToWkt("EPSG:32755");
+  g.geotransform = {500000, 0.01, 0, 5200000, 0, -0.01};
+  TiffWriteOptions o;
+  o.compression = Compression::kZstd;
+  WritePyramidTiff(store.MosaicPath(), test::MakeImage(600, 400), o, &g);
+  const auto j = ImageOverlays(store, "mosaic", store.MosaicPath());
+  ASSERT_TRUE(j["georef"].is_object()) << j.dump();
+  EXPECT_EQ(j["georef"]["crs"], "EPSG::32755");
+  EXPECT_DOUBLE_EQ(j["georef"]["geotransform"][1].get<double>(), 0.01);
+  EXPECT_TRUE(j["outlines"].empty());
 }
 
 }  // namespace

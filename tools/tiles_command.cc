@@ -29,7 +29,7 @@ void AddTilesCommand(CLI::App& app, Runner* run) {
   cmd->add_option("-o,--output", s->output, "new directory for the tiles")->required();
   cmd->add_option("--format", s->options.format, "dzi (OpenSeadragon) or xyz (Leaflet/QGIS)")
       ->capture_default_str();
-  cmd->add_option("--encoding", s->options.ext, "jpg or png")->capture_default_str();
+  cmd->add_option("--encoding", s->options.ext, "jpg, png or webp")->capture_default_str();
   cmd->add_option("--jpeg-quality", s->options.jpeg_quality, "JPEG quality")->capture_default_str();
   cmd->add_flag("-q,--quiet", s->quiet, "no progress bar");
   cmd->callback([s, run] { *run = [s] { return RunTiles(*s); }; });

@@ -23,8 +23,8 @@ bool TileExportOptions::IsValid(std::string* error) const {
     *error = "tile format \"" + format + "\" is not dzi or xyz";
     return false;
   }
-  if (ext != "jpg" && ext != "png") {
-    *error = "tile encoding \"" + ext + "\" is not jpg or png";
+  if (ext != "jpg" && ext != "png" && ext != "webp") {
+    *error = "tile encoding \"" + ext + "\" is not jpg, png or webp";
     return false;
   }
   if (jpeg_quality < 1 || jpeg_quality > 100) {

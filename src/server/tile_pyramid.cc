@@ -36,6 +36,10 @@ std::vector<uchar> TilePyramid::Encode(cv::Mat tile, const std::string& ext, int
   std::vector<uchar> bytes;
   if (ext == "png") {
     cv::imencode(".png", tile, bytes, {cv::IMWRITE_PNG_COMPRESSION, 1});
+  } else if (ext == "webp") {
+    if (tile.channels() == 2) cv::cvtColor(tile, tile, cv::COLOR_GRAY2BGRA);  // keeps alpha
+    if (tile.channels() == 1) cv::cvtColor(tile, tile, cv::COLOR_GRAY2BGR);
+    cv::imencode(".webp", tile, bytes, {cv::IMWRITE_WEBP_QUALITY, jpeg_quality});
   } else {
     if (tile.channels() == 4) cv::cvtColor(tile, tile, cv::COLOR_BGRA2BGR);
     if (tile.channels() == 2) cv::extractChannel(tile, tile, 0);

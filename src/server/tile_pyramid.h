@@ -29,7 +29,7 @@ class TilePyramid {
   cv::Size LevelSize(int level) const;
   // Tile (tx, ty) of a DZI level, BGR(A); empty when outside the level.
   cv::Mat Tile(int level, long long tx, long long ty) const;
-  // "jpg" or "png"; JPEG drops alpha.
+  // "jpg", "png" or "webp" (at `jpeg_quality`, alpha kept); JPEG drops alpha.
   static std::vector<uchar> Encode(cv::Mat tile, const std::string& ext, int jpeg_quality);
   // The Deep Zoom descriptor (NAME.dzi) of this image.
   std::string DziDescriptor(const std::string& ext) const;

@@ -102,7 +102,8 @@ struct TileServer::Impl {
       return;
     }
     const auto bytes = TilePyramid::Encode(tile, ext, options.jpeg_quality);
-    res.set_content(std::string(bytes.begin(), bytes.end()), ext == "png" ? "image/png" : "image/jpeg");
+    res.set_content(std::string(bytes.begin(), bytes.end()),
+                    ext == "png" ? "image/png" : ext == "webp" ? "image/webp" : "image/jpeg");
   }
 
   const Served* Find(const std::string& name, httplib::Response& res) const {
@@ -138,9 +139,9 @@ struct TileServer::Impl {
                long long z, x, y;
                const std::string ext = req.matches[5];
                if (!ParseIndex(req.matches[2], &z) || !ParseIndex(req.matches[3], &x) ||
-                   !ParseIndex(req.matches[4], &y) || (ext != "jpg" && ext != "png")) {
+                   !ParseIndex(req.matches[4], &y) || (ext != "jpg" && ext != "png" && ext != "webp")) {
                  res.status = 400;
-                 res.set_content("expected /tiles/NAME/Z/X/Y.jpg|png with whole numbers\n", "text/plain");
+                 res.set_content("expected /tiles/NAME/Z/X/Y.jpg|png|webp with whole numbers\n", "text/plain");
                  return;
                }
                const long long level = z + s->tiles->xyz_shift();
@@ -163,9 +164,9 @@ struct TileServer::Impl {
                long long level, x, y;
                const std::string ext = req.matches[5];
                if (!ParseIndex(req.matches[2], &level) || !ParseIndex(req.matches[3], &x) ||
-                   !ParseIndex(req.matches[4], &y) || (ext != "jpg" && ext != "png")) {
+                   !ParseIndex(req.matches[4], &y) || (ext != "jpg" && ext != "png" && ext != "webp")) {
                  res.status = 400;
-                 res.set_content("expected /dzi/NAME_files/LEVEL/X_Y.jpg|png\n", "text/plain");
+                 res.set_content("expected /dzi/NAME_files/LEVEL/X_Y.jpg|png|webp\n", "text/plain");
                  return;
                }
                if (level > s->tiles->max_level()) {
