@@ -21,6 +21,7 @@ int main(int argc, char** argv) {
   rolamos::cli::AddSynthCommand(app, &run);
   rolamos::cli::AddMosaicCommand(app, &run);
   rolamos::cli::AddComposeCommand(app, &run);
+  rolamos::cli::AddAlignCommand(app, &run);
   rolamos::cli::AddServeCommand(app, &run);
   rolamos::cli::AddTilesCommand(app, &run);
   rolamos::cli::AddObjectsCommand(app, &run);

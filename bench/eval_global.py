@@ -1,0 +1,46 @@
+#!/usr/bin/env python3
+"""Global accuracy of a store against a synthetic survey's ground truth: every stitched frame's
+3 x 3 grid placed in the global frame (patch_to_global x frame_to_patch, or the aligned
+frame_to_global when `rolamos align` wrote one), compared with its ground-truth place after one
+best-fit homography for the whole map. Prints JSON: frames, RMS and p95 in pixels.
+
+  bench/eval_global.py SURVEY_DIR STORE [--online]
+"""
+import json, os, sys
+import numpy as np
+
+survey, store = sys.argv[1], sys.argv[2]
+online = "--online" in sys.argv
+gt = {os.path.basename(f["file"]): np.array(f["frame_to_world"]).reshape(3, 3)
+      for f in json.load(open(os.path.join(survey, "ground_truth.json")))["frames"]}
+manifest = json.load(open(os.path.join(store, "store.json")))
+ours, theirs = [], []
+w = h = None
+for p in manifest["patches"]:
+    s = json.load(open(os.path.join(store, p["sidecar"])))
+    w, h = s["frame_size"]
+    G = np.array(s.get("patch_to_global_online", s["patch_to_global"]) if online else s["patch_to_global"]).reshape(3, 3)
+    for f in s["frames"]:
+        H = np.array(f["frame_to_global"]).reshape(3, 3) if ("frame_to_global" in f and not online) else \
+            (np.array(s.get("patch_to_global_online", s["patch_to_global"])).reshape(3, 3) @ np.array(f["frame_to_patch"]).reshape(3, 3))
+        T = gt[os.path.basename(f["source"])]
+        for x in (0, (w - 1) / 2, w - 1):
+            for y in (0, (h - 1) / 2, h - 1):
+                a, b = H @ [x, y, 1], T @ [x, y, 1]
+                ours.append(a[:2] / a[2]); theirs.append(b[:2] / b[2])
+ours, theirs = np.array(ours), np.array(theirs)
+# One best-fit homography (DLT, normalised) from our global frame to the world.
+def norm(p):
+    c = p.mean(0); s = np.sqrt(2) / np.sqrt(((p - c) ** 2).sum(1)).mean()
+    return np.array([[s, 0, -s * c[0]], [0, s, -s * c[1]], [0, 0, 1]])
+Ta, Tb = norm(ours), norm(theirs)
+A = []
+for (x, y), (u, v) in zip((Ta @ np.c_[ours, np.ones(len(ours))].T).T[:, :2], (Tb @ np.c_[theirs, np.ones(len(theirs))].T).T[:, :2]):
+    A.append([-x, -y, -1, 0, 0, 0, u * x, u * y, u]); A.append([0, 0, 0, -x, -y, -1, v * x, v * y, v])
+Hn = np.linalg.svd(np.array(A))[2][-1].reshape(3, 3)
+H = np.linalg.inv(Tb) @ Hn @ Ta
+m = (H @ np.c_[ours, np.ones(len(ours))].T).T
+m = m[:, :2] / m[:, 2:]
+err = np.sqrt(((m - theirs) ** 2).sum(1))
+print(json.dumps({"frames": len(ours) // 9, "rms_px": float(np.sqrt((err ** 2).mean())), "p95_px": float(np.percentile(err, 95)),
+                  "max_px": float(err.max())}))

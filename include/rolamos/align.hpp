@@ -1,0 +1,43 @@
+// Global alignment of a store (after `compose` has placed the patches): frames of different times
+// that see the same ground (neighbouring lawnmower lanes, crossing tracks) are matched, and a
+// similarity or affine correction of every frame's online placement is solved for by sparse linear least
+// squares, so that drift along the survey does not accumulate. Consecutive frames keep their
+// online relative placement as constraints; the first frame is held. Each patch's
+// `patch_to_global` becomes the homography that best carries its frames to their corrected
+// places (the online one is kept as "patch_to_global_online"), and every frame records its
+// corrected "frame_to_global"; `compose` then draws the aligned mosaic.
+#pragma once
+
+#include <functional>
+#include <string>
+
+#include "rolamos/store.hpp"
+
+namespace rolamos {
+
+struct AlignOptions {
+  std::string frames_dir;        // where the frames are, when not where the sidecars say
+  std::string model = "affine";  // correction of each frame's placement: similarity or affine
+  double search_radius = 0.5;    // frames whose centres are closer than this x frame width are tried
+  int min_index_gap = 4;         // frames closer in the sequence are linked by the chain already
+  int max_pairs_per_frame = 1;   // nearest later candidates tried per frame (more were worse)
+  int min_inliers = 40;          // a loop pair needs this many homography inliers
+  double chain_weight = 1.0;     // of the online frame-to-frame placements
+  double loop_weight = 1.0;      // of a loop pair's matched points
+
+  bool IsValid(std::string* error) const;
+};
+
+struct AlignSummary {
+  int frames = 0;
+  int chain_links = 0;
+  int pairs_tried = 0, pairs_found = 0;
+  double loop_error_before_px = 0;  // RMS distance of loop pairs' matched points, global pixels
+  double loop_error_after_px = 0;
+  double seconds = 0;
+};
+
+using AlignProgress = std::function<void(double fraction)>;
+AlignSummary AlignStore(Store store, const AlignOptions& options, const AlignProgress& progress = {});
+
+}  // namespace rolamos
