@@ -4,6 +4,7 @@
 #include "command.h"
 #include "rolamos/compose.hpp"
 #include "rolamos/georeference.hpp"
+#include "rolamos/link_patches.hpp"
 #include "util/memory.h"
 #include "util/progress.h"
 
@@ -15,6 +16,8 @@ struct ComposeSwitches {
   long long max_pixels = 0;
   double cache_mb = 256;
   TiffSwitches tiff{"webp", 90, 256, 0};
+  LinkOptions link;
+  bool relink = true;
   bool quiet = false;
 };
 
@@ -23,6 +26,14 @@ static int RunCompose(const ComposeSwitches& s) {
   o.max_pixels = s.max_pixels;
   o.cache_mb = s.cache_mb;
   o.tiff = ToWriteOptions(s.tiff);
+  if (s.relink) {
+    // Patches that lost the thread are placed by recognising where their first frames were seen.
+    Progress linking("link", s.quiet);
+    const LinkSummary l = LinkPatches(Store::Open(s.store), s.link, [&](double f) { linking.Update(f); });
+    linking.Done();
+    for (const auto& [id, to] : l.linked) std::printf("patch %d linked to patch %d by place recognition\n", id, to);
+    for (const auto& [id, why] : l.unlinked) std::printf("patch %d not linked: %s\n", id, why.c_str());
+  }
   Progress progress("compose", s.quiet);
   ComposeResult r = ComposeMosaic(Store::Open(s.store), o, [&](double f) { progress.Update(f); });
   progress.Done();
@@ -51,6 +62,8 @@ void AddComposeCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--max-pixels", s->max_pixels, "scale the mosaic to fit this many pixels (0 = full)")
       ->capture_default_str();
   cmd->add_option("--cache-mb", s->cache_mb, "tile cache for reading patches")->capture_default_str();
+  cmd->add_option("--frames", s->link.frames_dir, "folder of the frames (place recognition reads them), when moved since `mosaic`");
+  cmd->add_flag("!--no-link", s->relink, "do not look for where unlinked patches belong");
   AddTiffSwitches(cmd, &s->tiff);
   cmd->add_flag("-q,--quiet", s->quiet, "no progress bar");
   cmd->callback([s, run] { *run = [s] { return RunCompose(*s); }; });
