@@ -19,6 +19,7 @@ def timed(cmd, timeout=None):
     try:
         r = subprocess.run(["/usr/bin/time", "-f", "TIME %e %M"] + cmd, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
+        subprocess.run(["pkill", "-f", os.path.basename(cmd[0])])  # /usr/bin/time leaves its child running
         return None, None, None
     t, m = re.search(r"TIME ([\d.]+) (\d+)", r.stderr).groups()
     return r, float(t), int(m) / 1024
