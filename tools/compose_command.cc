@@ -12,7 +12,8 @@ namespace rolamos::cli {
 
 struct ComposeSwitches {
   std::string store;
-  std::string navigation;
+  std::string navigation, crs;
+  NavigationCamera camera;
   long long max_pixels = 0;
   double cache_mb = 256;
   TiffSwitches tiff{"webp", 90, 256, 0};
@@ -39,7 +40,16 @@ static int RunCompose(const ComposeSwitches& s) {
   progress.Done();
   for (const auto& [id, why] : r.left_out) std::printf("patch %d left out: %s\n", id, why.c_str());
   if (!s.navigation.empty()) {
-    GeoreferenceResult g = GeoreferenceMosaic(Store::Open(s.store), ReadFrameNavigationCsv(s.navigation));
+    const Store store = Store::Open(s.store);
+    NavigationCamera camera = s.camera;
+    if (!store.patches().empty()) {  // the frame size, for the default principal point
+      const auto size = store.ReadSidecar(store.patches().front().id).extra.value("frame_size", nlohmann::json());
+      if (size.is_array()) {
+        camera.width = size[0].get<int>();
+        camera.height = size[1].get<int>();
+      }
+    }
+    GeoreferenceResult g = GeoreferenceMosaic(store, ReadNavigationCsv(s.navigation, camera, s.crs));
     std::printf("georeferenced from %d frames (%s): pixel %.4g m, residual median %.3f m, max %.3f m\n",
                 g.frames_used, g.georef.crs.c_str(), std::hypot(g.georef.geotransform[1], g.georef.geotransform[4]),
                 g.median_residual_m, g.max_residual_m);
@@ -58,7 +68,10 @@ void AddComposeCommand(CLI::App& app, Runner* run) {
       "compose", "Place the store's patches in one frame and compose mosaic.tif, out of core");
   cmd->add_option("store", s->store, "the store")->required();
   cmd->add_option("--navigation", s->navigation,
-                  "CSV of per-frame georeference (frame, epsg, gt0..gt5[, sequence]) to place the mosaic on the map");
+                  "CSV of per-frame georeference (frame, epsg, gt0..gt5[, sequence]) or of vehicle navigation "
+                  "(frame, easting,northing or lat,lon, altitude, heading) to place the mosaic on the map");
+  cmd->add_option("--focal", s->camera.focal_px, "focal length in pixels (vehicle navigation)");
+  cmd->add_option("--crs", s->crs, "CRS of eastings/northings without an epsg column, e.g. EPSG:32755");
   cmd->add_option("--max-pixels", s->max_pixels, "scale the mosaic to fit this many pixels (0 = full)")
       ->capture_default_str();
   cmd->add_option("--cache-mb", s->cache_mb, "tile cache for reading patches")->capture_default_str();

@@ -22,6 +22,29 @@ struct FrameNavigation {
 // Throws Error naming the file, the line and the column.
 std::map<std::string, FrameNavigation> ReadFrameNavigationCsv(const std::string& path);
 
+// The camera the navigation needs to turn a position into a frame's footprint: a nadir camera
+// with focal length `focal_px` (pixels) and principal point (cx, cy) (< 0: the frame's centre).
+struct NavigationCamera {
+  double focal_px = 0;
+  double cx = -1, cy = -1;
+  int width = 0, height = 0;  // frame size, for the default principal point
+  bool IsValid(std::string* error) const;
+};
+
+// Reads a vehicle navigation CSV: a frame column (`frame`, `file` or `image`: the frame's file
+// name), a position as easting,northing (with an `epsg` column or `crs`) or
+// lat,lon (WGS 84: converted to the UTM zone of the first fix), altitude above the seabed
+// (metres) and heading (degrees clockwise from north, the direction of the image's top). Each
+// frame gets the pixel -> map affine of a nadir camera there (pixel size = altitude / focal).
+// Throws Error naming the file, the line and the column.
+std::map<std::string, FrameNavigation> ReadVehicleNavigationCsv(const std::string& path,
+                                                                const NavigationCamera& camera,
+                                                                const std::string& crs = "");
+
+// Either kind of CSV, told apart by its header (gt0..gt5 columns: per-frame affines).
+std::map<std::string, FrameNavigation> ReadNavigationCsv(const std::string& path, const NavigationCamera& camera,
+                                                         const std::string& crs = "");
+
 struct GeoreferenceResult {
   Georef georef;
   int frames_used = 0;

@@ -4,8 +4,10 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <sstream>
 
+#include <ogr_spatialref.h>
 #include <opencv2/calib3d.hpp>
 
 #include "rolamos/error.hpp"
@@ -77,6 +79,131 @@ std::map<std::string, FrameNavigation> ReadFrameNavigationCsv(const std::string&
   }
   if (nav.empty()) Fail(path, "lists no frames");
   return nav;
+}
+
+bool NavigationCamera::IsValid(std::string* error) const {
+  if (!(focal_px > 0) || !std::isfinite(focal_px)) {
+    *error = "the camera's focal length in pixels is needed (--focal) to turn positions into footprints";
+    return false;
+  }
+  if ((cx < 0 || cy < 0) && (width <= 0 || height <= 0)) {
+    *error = "the principal point or the frame size is needed";
+    return false;
+  }
+  return true;
+}
+
+namespace {
+
+// WGS 84 lat/lon -> UTM of the zone of (lat0, lon0), through GDAL.
+class ToUtm {
+ public:
+  ToUtm(double lat0, double lon0) {
+    const int zone = std::clamp(static_cast<int>(std::floor((lon0 + 180) / 6)) + 1, 1, 60);
+    epsg_ = (lat0 >= 0 ? 32600 : 32700) + zone;
+    OGRSpatialReference wgs84, utm;
+    wgs84.importFromEPSG(4326);
+    wgs84.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
+    utm.importFromEPSG(epsg_);
+    utm.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
+    transform_.reset(OGRCreateCoordinateTransformation(&wgs84, &utm));
+    if (!transform_) Fail("EPSG:" + std::to_string(epsg_), "GDAL cannot transform WGS 84 into it");
+  }
+  cv::Point2d operator()(double lat, double lon) const {
+    double x = lon, y = lat;
+    if (!transform_->Transform(1, &x, &y)) Fail("lat/lon " + std::to_string(lat) + "," + std::to_string(lon), "cannot be transformed");
+    return {x, y};
+  }
+  int epsg() const { return epsg_; }
+
+ private:
+  int epsg_ = 0;
+  std::unique_ptr<OGRCoordinateTransformation> transform_;
+};
+
+}  // namespace
+
+std::map<std::string, FrameNavigation> ReadVehicleNavigationCsv(const std::string& path,
+                                                                const NavigationCamera& camera,
+                                                                const std::string& crs) {
+  std::string error;
+  if (!camera.IsValid(&error)) Fail(path, error);
+  std::ifstream in(path);
+  if (!in) Fail(path, "cannot be read");
+  std::string line;
+  if (!std::getline(in, line)) Fail(path, "is empty");
+  const auto header = SplitCsv(line);
+  std::map<std::string, int> col;
+  for (int i = 0; i < static_cast<int>(header.size()); ++i) col[ToLower(header[static_cast<size_t>(i)])] = i;
+  auto find = [&](std::initializer_list<const char*> names) {
+    for (const char* n : names)
+      if (col.count(n)) return col[n];
+    return -1;
+  };
+  const int frame = find({"frame", "file", "image"});
+  const int e = find({"easting", "x", "e"}), n = find({"northing", "y", "n"});
+  const int lat = find({"lat", "latitude"}), lon = find({"lon", "longitude", "lng"});
+  const int alt = find({"altitude", "alt", "altitude_m"}), heading = find({"heading", "yaw", "heading_deg"});
+  const int epsg = find({"epsg"});
+  if (frame < 0 || alt < 0 || heading < 0 || ((e < 0 || n < 0) && (lat < 0 || lon < 0)))
+    Fail(path, "needs the columns frame, easting,northing (or lat,lon), altitude and heading");
+  const bool geographic = e < 0 || n < 0;
+  if (!geographic && epsg < 0 && crs.empty())
+    Fail(path, "gives eastings and northings without an epsg column: say their CRS (--crs EPSG:XXXX)");
+  const double cx = camera.cx >= 0 ? camera.cx : (camera.width - 1) / 2.0;
+  const double cy = camera.cy >= 0 ? camera.cy : (camera.height - 1) / 2.0;
+  std::unique_ptr<ToUtm> to_utm;
+  std::map<std::string, FrameNavigation> nav;
+  int number = 1;
+  while (std::getline(in, line)) {
+    ++number;
+    if (line.empty() || line == "\r") continue;
+    const std::string where = path + ":" + std::to_string(number);
+    const auto cells = SplitCsv(line);
+    if (cells.size() < header.size()) Fail(where, "has fewer columns than the header");
+    auto number_at = [&](int c) {
+      try {
+        size_t used = 0;
+        const double v = std::stod(cells[static_cast<size_t>(c)], &used);
+        if (used != cells[static_cast<size_t>(c)].size() || !std::isfinite(v)) throw std::invalid_argument("");
+        return v;
+      } catch (const std::exception&) {
+        Fail(where, "column " + header[static_cast<size_t>(c)] + " is not a number");
+      }
+    };
+    cv::Point2d position;
+    FrameNavigation f;
+    if (geographic) {
+      const double la = number_at(lat), lo = number_at(lon);
+      if (std::abs(la) > 90 || std::abs(lo) > 180) Fail(where, "latitude/longitude out of range");
+      if (!to_utm) to_utm = std::make_unique<ToUtm>(la, lo);
+      position = (*to_utm)(la, lo);
+      f.crs = "EPSG:" + std::to_string(to_utm->epsg());
+    } else {
+      position = {number_at(e), number_at(n)};
+      f.crs = epsg >= 0 ? "EPSG:" + cells[static_cast<size_t>(epsg)] : crs;
+    }
+    const double altitude = number_at(alt);
+    if (!(altitude > 0)) Fail(where, "altitude must be positive (metres above the seabed)");
+    const double psi = number_at(heading) * CV_PI / 180.0, gsd = altitude / camera.focal_px;
+    // Nadir camera, image top towards the heading: right = (cos, -sin), down = (-sin, -cos) in (E, N).
+    const double g1 = gsd * std::cos(psi), g2 = -gsd * std::sin(psi);
+    const double g4 = -gsd * std::sin(psi), g5 = -gsd * std::cos(psi);
+    f.geotransform = {position.x - g1 * cx - g2 * cy, g1, g2, position.y - g4 * cx - g5 * cy, g4, g5};
+    std::string key = cells[static_cast<size_t>(frame)];
+    nav[key] = f;
+  }
+  if (nav.empty()) Fail(path, "lists no frames");
+  return nav;
+}
+
+std::map<std::string, FrameNavigation> ReadNavigationCsv(const std::string& path, const NavigationCamera& camera,
+                                                         const std::string& crs) {
+  std::ifstream in(path);
+  std::string line;
+  if (!in || !std::getline(in, line)) Fail(path, "cannot be read or is empty");
+  return ToLower(line).find("gt0") != std::string::npos ? ReadFrameNavigationCsv(path)
+                                                         : ReadVehicleNavigationCsv(path, camera, crs);
 }
 
 GeoreferenceResult GeoreferenceMosaic(Store store, const std::map<std::string, FrameNavigation>& nav) {
