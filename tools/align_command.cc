@@ -16,6 +16,12 @@ static int RunAlign(const AlignSwitches& s) {
   Progress progress("align", s.quiet);
   const AlignSummary r = AlignStore(Store::Open(s.store), s.options, [&](double f) { progress.Update(f); });
   progress.Done();
+  if (!r.corrected) {
+    std::printf("%s: %d frames, %d of %d loop pairs matched, loop error %.2f px: %s; placements left as they are, %.1f s\n",
+                s.store.c_str(), r.frames, r.pairs_found, r.pairs_tried, r.loop_error_before_px,
+                r.pairs_found ? "the loops already close" : "no revisited ground found", r.seconds);
+    return 0;
+  }
   std::printf("%s: %d frames aligned, %d of %d loop pairs matched, loop error %.2f -> %.2f px, %.1f s; "
               "run `rolamos compose %s` to draw the aligned mosaic\n",
               s.store.c_str(), r.frames, r.pairs_found, r.pairs_tried, r.loop_error_before_px,
@@ -33,6 +39,8 @@ void AddAlignCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--min-gap", s->options.min_index_gap, "frames closer in the sequence are not loop pairs")->capture_default_str();
   cmd->add_option("--pairs", s->options.max_pairs_per_frame, "nearest candidates tried per frame")->capture_default_str();
   cmd->add_option("--min-inliers", s->options.min_inliers, "homography inliers a loop pair needs")->capture_default_str();
+  cmd->add_option("--min-loop-error", s->options.min_loop_error_px, "loops closing better than this (px RMS) are left alone")
+      ->capture_default_str();
   cmd->add_flag("-q,--quiet", s->quiet, "no progress bar");
   cmd->callback([s, run] { *run = [s] { return RunAlign(*s); }; });
 }

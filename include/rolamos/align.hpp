@@ -24,6 +24,7 @@ struct AlignOptions {
   int min_inliers = 40;          // a loop pair needs this many homography inliers
   double chain_weight = 1.0;     // of the online frame-to-frame placements
   double loop_weight = 1.0;      // of a loop pair's matched points
+  double min_loop_error_px = 1.5;  // loops closing better than this (RMS) leave the map as it is
 
   bool IsValid(std::string* error) const;
 };
@@ -32,6 +33,7 @@ struct AlignSummary {
   int frames = 0;
   int chain_links = 0;
   int pairs_tried = 0, pairs_found = 0;
+  bool corrected = false;           // false: the loops already closed (or none was found)
   double loop_error_before_px = 0;  // RMS distance of loop pairs' matched points, global pixels
   double loop_error_after_px = 0;
   double seconds = 0;

@@ -30,6 +30,10 @@ bool AlignOptions::IsValid(std::string* error) const {
     *error = "alignment model \"" + model + "\" is not similarity or affine";
     return false;
   }
+  if (!(min_loop_error_px >= 0)) {
+    *error = "the loop error below which nothing is corrected cannot be negative";
+    return false;
+  }
   if (!(chain_weight > 0) || !(loop_weight > 0)) {
     *error = "weights must be positive";
     return false;
@@ -238,12 +242,13 @@ AlignSummary AlignStore(Store store, const AlignOptions& options, const AlignPro
           if (!H.empty() && count >= options.min_inliers) {
             // Up to 60 inliers, evenly through the list, as point pairs in online global pixels.
             const int step = std::max(1, count / 60);
+            const double w = options.loop_weight;
             int seen = 0;
             for (size_t k = 0; k < inlier.size(); ++k) {
               if (!inlier[k] || (seen++ % step)) continue;
               found[static_cast<size_t>(c)].push_back({i, j, Apply(frames[static_cast<size_t>(i)].to_global, m.from[k]),
                                                        Apply(frames[static_cast<size_t>(j)].to_global, m.to[k]),
-                                                       options.loop_weight, true});
+                                                       w, true});
             }
           }
         }
@@ -267,6 +272,16 @@ AlignSummary AlignStore(Store store, const AlignOptions& options, const AlignPro
     }
   }
   summary.loop_error_before_px = loop_points ? std::sqrt(before / loop_points) : 0;
+  // Loops that already close within the matching noise reveal no drift: correcting them would
+  // only spread that noise over the map (measured: 0.63 -> 0.90 px on a survey whose loops closed
+  // to 0.7 px). The online placement stays.
+  if (loop_points == 0 || summary.loop_error_before_px < options.min_loop_error_px) {
+    summary.loop_error_after_px = summary.loop_error_before_px;
+    summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    if (progress) progress(1.0);
+    return summary;
+  }
+  summary.corrected = true;
 
   // 4. Solve for the corrections: the first frame held, every frame weakly pulled to its place.
   Solver solver;
