@@ -83,6 +83,8 @@ try {
     // Let the viewer draw the new view before asking whether it is fully loaded.
     await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
     await loaded();
+    // Fully loaded tiles are drawn on the next frames: let them be drawn before reading pixels.
+    await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
     const diff = await page.evaluate(async () => {
       const r = window.rolamos;
       const canvas = r.viewer.drawer.canvas;
