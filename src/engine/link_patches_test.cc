@@ -63,7 +63,7 @@ TEST(LinkPatches, RelinksAPatchAfterLostTrackingByItsFrames) {
   for (const auto& p : store.patches()) {
     const PatchSidecar s = store.ReadSidecar(p.id);
     for (const auto& f : s.frames)
-      for (const cv::Vec3d q : {cv::Vec3d(0, 0, 1), cv::Vec3d(479, 0, 1), cv::Vec3d(0, 359, 1), cv::Vec3d(479, 359, 1)}) {
+      for (const cv::Vec3d& q : {cv::Vec3d(0, 0, 1), cv::Vec3d(479, 0, 1), cv::Vec3d(0, 359, 1), cv::Vec3d(479, 359, 1)}) {
         const cv::Vec3d a = ToMatx(*s.patch_to_global) * ToMatx(f.frame_to_patch) * q;
         const cv::Vec3d b = gt[fs::path(f.source).filename().string()] * q;
         ours.emplace_back(a[0] / a[2], a[1] / a[2]);
