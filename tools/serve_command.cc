@@ -20,8 +20,8 @@ static int RunServe(const ServeSwitches& s) {
   pthread_sigmask(SIG_BLOCK, &stop_signals, nullptr);
   TileServer server(Store::Open(s.store), s.options);
   const int port = server.Start();
-  std::printf("serving %s on http://%s:%d  (images: /api/images; XYZ: /tiles/NAME/{z}/{x}/{y}.jpg; "
-              "Deep Zoom: /dzi/NAME.dzi). Ctrl-C stops.\n",
+  std::printf("serving %s on http://%s:%d/  (open it in a browser: the viewer; images: /api/images; "
+              "XYZ: /tiles/NAME/{z}/{x}/{y}.jpg; Deep Zoom: /dzi/NAME.dzi). Ctrl-C stops.\n",
               s.store.c_str(), s.options.bind.c_str(), port);
   std::fflush(stdout);
   int signal = 0;
