@@ -50,12 +50,7 @@ void WriteNavigation(const Survey& s, const std::string& path, double focal, boo
 
 TEST(Navigation, VehicleNavigationPlacesTheMosaic) {
   test::ScratchDir dir;
-  SurveyOptions so;
-  so.frame_width = 480;
-  so.frame_height = 360;
-  so.focal_px = 420;
-  so.frames = 16;
-  const Survey survey = WriteSurvey(so, dir / "survey");
+  const Survey survey = WriteSurvey(test::SmallSurvey(16), dir / "survey");
   MosaickerOptions mo;
   mo.tiff.compression = Compression::kZstd;
   Store store = Store::Create(dir / "s.rolamos");

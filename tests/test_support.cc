@@ -10,11 +10,15 @@
 #include <cmath>
 #include <filesystem>
 
+#include <map>
+
+#include <opencv2/calib3d.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "rolamos/error.hpp"
 #include "synth/seafloor_texture.h"
+#include "util/homography.h"
 
 namespace fs = std::filesystem;
 
@@ -149,6 +153,48 @@ void WriteShapesDataset(const std::string& dir, int per_class, uint32_t seed, bo
       cv::imwrite(dir + "/" + classes[c] + name, ShapeSample(classes[c], seed * 7919u + static_cast<uint32_t>(c * 1000 + i)));
     }
   }
+}
+
+SurveyOptions SmallSurvey(int frames) {
+  SurveyOptions o;
+  o.frame_width = 480;
+  o.frame_height = 360;
+  o.focal_px = 420;
+  o.frames = frames;
+  return o;
+}
+
+std::vector<double> ErrorsAgainstTruth(const Store& store, const Survey& truth, bool aligned) {
+  std::map<std::string, cv::Matx33d> gt;
+  for (const auto& f : truth.frames) gt[std::filesystem::path(f.file).filename().string()] = ToMatx(f.frame_to_world);
+  std::vector<cv::Point2d> ours, theirs;
+  for (const auto& p : store.patches()) {
+    const PatchSidecar s = store.ReadSidecar(p.id);
+    const Homography online = s.extra.value("patch_to_global_online", *s.patch_to_global);
+    for (const auto& f : s.frames) {
+      const cv::Matx33d H = aligned ? ToMatx(f.extra.at("frame_to_global").get<Homography>())
+                                    : ToMatx(online) * ToMatx(f.frame_to_patch);
+      const cv::Matx33d T = gt.at(std::filesystem::path(f.source).filename().string());
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) {
+          const cv::Point2d q(i * (truth.frame_size.width - 1) / 2.0, j * (truth.frame_size.height - 1) / 2.0);
+          ours.push_back(ApplyHomography(H, q));
+          theirs.push_back(ApplyHomography(T, q));
+        }
+    }
+  }
+  const cv::Mat fit = cv::findHomography(ours, theirs, 0);
+  std::vector<cv::Point2d> mapped;
+  cv::perspectiveTransform(ours, mapped, fit);
+  std::vector<double> errors;
+  for (size_t i = 0; i < mapped.size(); ++i) errors.push_back(cv::norm(mapped[i] - theirs[i]));
+  return errors;
+}
+
+double Rms(const std::vector<double>& errors) {
+  double sse = 0;
+  for (double e : errors) sse += e * e;
+  return errors.empty() ? 0 : std::sqrt(sse / errors.size());
 }
 
 }  // namespace rolamos::test

@@ -6,6 +6,9 @@
 
 #include <opencv2/core.hpp>
 
+#include "rolamos/store.hpp"
+#include "rolamos/synth.hpp"
+
 namespace rolamos::test {
 
 // A fresh directory under the build's temp area, removed when the object dies.
@@ -42,6 +45,16 @@ double Psnr(const cv::Mat& a, const cv::Mat& b);
 std::string ErrorOf(const std::function<void()>& f);
 // PSNR of the colour channels where `b`'s alpha (last channel) is non-zero.
 double MaskedPsnr(const cv::Mat& a, const cv::Mat& b);
+
+// A small synthetic survey (480 x 360 frames, focal 420 px) over the procedural seafloor.
+SurveyOptions SmallSurvey(int frames);
+
+// Where the store puts every stitched frame's 3 x 3 grid against where the survey's ground
+// truth does, after one best-fit homography for the whole map: the distance of every point,
+// global pixels. `aligned`: the frames' aligned frame_to_global; otherwise the online placement
+// (patch_to_global_online, or patch_to_global, times frame_to_patch).
+std::vector<double> ErrorsAgainstTruth(const Store& store, const Survey& truth, bool aligned = false);
+double Rms(const std::vector<double>& errors);
 
 // Object identification data: 160 x 160 crops of generated seafloor with one object in the
 // middle (a purple "disc", a pale "star" of spines, a dark "bar"), rotated, scaled and shifted

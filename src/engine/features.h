@@ -24,7 +24,7 @@ struct FeatureOptions {
 struct Features {
   std::vector<cv::Point2f> points;  // in full-resolution frame pixels
   cv::Mat descriptors;
-  int norm = 4;  // cv::NORM_L2 (SIFT) or cv::NORM_HAMMING (ORB, AKAZE: binary)
+  int norm = cv::NORM_L2;  // or cv::NORM_HAMMING (ORB, AKAZE: binary descriptors)
   bool empty() const { return points.empty(); }
 };
 

@@ -8,10 +8,8 @@
 
 #include <Eigen/Sparse>
 #include <opencv2/calib3d.hpp>
-#include <opencv2/imgcodecs.hpp>
 
-#include "engine/features.h"
-#include "engine/preprocess.h"
+#include "engine/stored_frames.h"
 #include "rolamos/error.hpp"
 #include "util/homography.h"
 
@@ -52,10 +50,6 @@ struct Frame {
   cv::Size size;
 };
 
-cv::Point2d Apply(const cv::Matx33d& H, cv::Point2d p) {
-  const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1);
-  return {q[0] / q[2], q[1] / q[2]};
-}
 
 // A correspondence between two frames' corrections: C_a(P) should equal C_b(Q), P and Q in
 // online global pixels.
@@ -152,9 +146,9 @@ AlignSummary AlignStore(Store store, const AlignOptions& options, const AlignPro
   std::map<int, PatchSidecar> sidecars;
   for (const auto& entry : store.patches()) {
     PatchSidecar s = store.ReadSidecar(entry.id);
-    const auto online = s.extra.contains("patch_to_global_online") ? s.extra["patch_to_global_online"].get<Homography>()
-                                                                     : (s.patch_to_global ? *s.patch_to_global : Homography{});
     if (!s.patch_to_global) Fail(store.dir(), "patch " + std::to_string(s.id) + " is not placed: run `rolamos compose` first");
+    // Always from the online placement, so aligning again gives the same result.
+    const Homography online = s.extra.value("patch_to_global_online", *s.patch_to_global);
     const auto fs = s.extra.value("frame_size", nlohmann::json());
     if (!fs.is_array()) Fail(store.PatchSidecarPath(s.id), "has no frame_size (not written by rolamos mosaic)");
     for (size_t k = 0; k < s.frames.size(); ++k) {
@@ -180,7 +174,7 @@ AlignSummary AlignStore(Store store, const AlignOptions& options, const AlignPro
   for (int i = 0; i + 1 < n; ++i) {
     const Frame& a = frames[static_cast<size_t>(i)];
     for (const cv::Point2d p : Grid(a.size)) {
-      const cv::Point2d P = Apply(a.to_global, p);
+      const cv::Point2d P = ApplyHomography(a.to_global, p);
       links.push_back({i, i + 1, P, P, options.chain_weight, false});
     }
     ++summary.chain_links;
@@ -188,7 +182,7 @@ AlignSummary AlignStore(Store store, const AlignOptions& options, const AlignPro
   // 3. Loop pairs: frames near each other on the map but apart in time, matched for real.
   std::vector<cv::Point2d> centre(static_cast<size_t>(n));
   for (int i = 0; i < n; ++i)
-    centre[static_cast<size_t>(i)] = Apply(frames[static_cast<size_t>(i)].to_global,
+    centre[static_cast<size_t>(i)] = ApplyHomography(frames[static_cast<size_t>(i)].to_global,
                                            {frames[static_cast<size_t>(i)].size.width / 2.0, frames[static_cast<size_t>(i)].size.height / 2.0});
   std::vector<std::pair<int, int>> candidates;
   for (int i = 0; i < n; ++i) {
@@ -203,11 +197,9 @@ AlignSummary AlignStore(Store store, const AlignOptions& options, const AlignPro
     for (size_t k = 0; k < near.size() && k < static_cast<size_t>(options.max_pairs_per_frame); ++k)
       candidates.emplace_back(i, near[k].second);
   }
-  FeatureOptions fo;
-  fo.max_features = 1000;
-  fo.detect_scale = 0.4;
+  const FeatureOptions fo = StoredFrameFeatureOptions();
   const FeatureExtractor extractor(fo);
-  const Preprocessor pre(PreprocessOptions{});
+  // Each frame is described once, whichever pair asks first.
   std::map<int, std::shared_ptr<const Features>> cache;
   std::mutex mutex;
   auto features = [&](int i) -> std::shared_ptr<const Features> {
@@ -216,14 +208,10 @@ AlignSummary AlignStore(Store store, const AlignOptions& options, const AlignPro
       auto it = cache.find(i);
       if (it != cache.end()) return it->second;
     }
-    std::string path = frames[static_cast<size_t>(i)].source;
-    if (!options.frames_dir.empty()) path = (std::filesystem::path(options.frames_dir) / std::filesystem::path(path).filename()).string();
-    const cv::Mat image = cv::imread(path, cv::IMREAD_COLOR);
-    if (image.empty()) Fail(path, "cannot be read (give the frames' folder with --frames DIR)");
-    auto f = std::make_shared<const Features>(extractor.Extract(pre.DetectionImage(image)));
+    auto f = std::make_shared<const Features>(DescribeStoredFrame(
+        StoredFramePath(frames[static_cast<size_t>(i)].source, options.frames_dir), extractor));
     std::lock_guard<std::mutex> lock(mutex);
-    cache[i] = f;
-    return f;
+    return cache.emplace(i, f).first->second;
   };
   std::vector<std::vector<Link>> found(candidates.size());
   std::atomic<int> done{0};
@@ -232,25 +220,15 @@ AlignSummary AlignStore(Store store, const AlignOptions& options, const AlignPro
     for (int c = r.start; c < r.end; ++c) {
       try {
         const auto [i, j] = candidates[static_cast<size_t>(c)];
-        const auto fi = features(i), fj = features(j);
-        const Matches m = MatchFeatures(*fi, *fj, fo);
-        if (static_cast<int>(m.from.size()) >= options.min_inliers) {
-          std::vector<uchar> inlier;
-          const cv::Mat H = cv::findHomography(m.from, m.to, cv::RANSAC, 3.0, inlier, 2000, 0.999);
-          int count = 0;
-          for (uchar v : inlier) count += v;
-          if (!H.empty() && count >= options.min_inliers) {
-            // Up to 60 inliers, evenly through the list, as point pairs in online global pixels.
-            const int step = std::max(1, count / 60);
-            const double w = options.loop_weight;
-            int seen = 0;
-            for (size_t k = 0; k < inlier.size(); ++k) {
-              if (!inlier[k] || (seen++ % step)) continue;
-              found[static_cast<size_t>(c)].push_back({i, j, Apply(frames[static_cast<size_t>(i)].to_global, m.from[k]),
-                                                       Apply(frames[static_cast<size_t>(j)].to_global, m.to[k]),
-                                                       w, true});
-            }
-          }
+        const VerifiedMatch v = MatchVerified(*features(i), *features(j), fo, options.min_inliers);
+        // Up to 60 inliers, evenly through the list, as point pairs in online global pixels.
+        const int step = std::max(1, v.inliers / 60);
+        int seen = 0;
+        for (size_t k = 0; v.inliers > 0 && k < v.inlier.size(); ++k) {
+          if (!v.inlier[k] || (seen++ % step)) continue;
+          found[static_cast<size_t>(c)].push_back({i, j, ApplyHomography(frames[static_cast<size_t>(i)].to_global, v.matches.from[k]),
+                                                   ApplyHomography(frames[static_cast<size_t>(j)].to_global, v.matches.to[k]),
+                                                   options.loop_weight, true});
         }
       } catch (...) {
         std::lock_guard<std::mutex> lock(mutex);
@@ -297,7 +275,7 @@ AlignSummary AlignStore(Store store, const AlignOptions& options, const AlignPro
   const std::vector<cv::Matx33d> C = solver.Solve();
   double after = 0;
   for (const auto& l : links)
-    if (l.loop) after += std::pow(cv::norm(Apply(C[static_cast<size_t>(l.a)], l.P) - Apply(C[static_cast<size_t>(l.b)], l.Q)), 2);
+    if (l.loop) after += std::pow(cv::norm(ApplyHomography(C[static_cast<size_t>(l.a)], l.P) - ApplyHomography(C[static_cast<size_t>(l.b)], l.Q)), 2);
   summary.loop_error_after_px = loop_points ? std::sqrt(after / loop_points) : 0;
 
   // 5. New places: frames record theirs; each patch gets the homography that best carries its
@@ -310,8 +288,8 @@ AlignSummary AlignStore(Store store, const AlignOptions& options, const AlignPro
     s.frames[f.record].extra["frame_to_global"] = ToArray9(aligned);
     const cv::Matx33d to_patch = ToMatx(s.frames[f.record].frame_to_patch);
     for (const cv::Point2d p : Grid(f.size)) {
-      patch_pts[f.patch].push_back(Apply(to_patch, p));
-      global_pts[f.patch].push_back(Apply(aligned, p));
+      patch_pts[f.patch].push_back(ApplyHomography(to_patch, p));
+      global_pts[f.patch].push_back(ApplyHomography(aligned, p));
     }
   }
   for (auto& [id, s] : sidecars) {

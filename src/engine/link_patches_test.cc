@@ -1,10 +1,9 @@
 #include "rolamos/link_patches.hpp"
 
 #include <filesystem>
-#include <map>
+#include <algorithm>
 
 #include <gtest/gtest.h>
-#include <opencv2/calib3d.hpp>
 #include <opencv2/imgcodecs.hpp>
 
 #include "rolamos/compose.hpp"
@@ -12,7 +11,6 @@
 #include "rolamos/synth.hpp"
 #include "synth/seafloor_texture.h"
 #include "test_support.h"
-#include "util/homography.h"
 
 namespace rolamos {
 namespace {
@@ -24,12 +22,7 @@ namespace fs = std::filesystem;
 // mosaic then holds every frame where the ground truth says.
 TEST(LinkPatches, RelinksAPatchAfterLostTrackingByItsFrames) {
   test::ScratchDir dir;
-  SurveyOptions so;
-  so.frame_width = 480;
-  so.frame_height = 360;
-  so.focal_px = 420;
-  so.frames = 24;
-  const Survey survey = WriteSurvey(so, dir / "survey");
+  const Survey survey = WriteSurvey(test::SmallSurvey(24), dir / "survey");
   for (int k : {10, 11}) {
     char name[64];
     std::snprintf(name, sizeof name, "/survey/frames/frame_%05d.jpg", k);
@@ -57,35 +50,15 @@ TEST(LinkPatches, RelinksAPatchAfterLostTrackingByItsFrames) {
   EXPECT_EQ(c.patches_used, 2);
   EXPECT_TRUE(c.left_out.empty());
   // Every frame against the ground truth after one best-fit homography for the whole map.
-  std::map<std::string, cv::Matx33d> gt;
-  for (const auto& f : survey.frames) gt[fs::path(f.file).filename().string()] = ToMatx(f.frame_to_world);
-  std::vector<cv::Point2d> ours, theirs;
-  for (const auto& p : store.patches()) {
-    const PatchSidecar s = store.ReadSidecar(p.id);
-    for (const auto& f : s.frames)
-      for (const cv::Vec3d& q : {cv::Vec3d(0, 0, 1), cv::Vec3d(479, 0, 1), cv::Vec3d(0, 359, 1), cv::Vec3d(479, 359, 1)}) {
-        const cv::Vec3d a = ToMatx(*s.patch_to_global) * ToMatx(f.frame_to_patch) * q;
-        const cv::Vec3d b = gt[fs::path(f.source).filename().string()] * q;
-        ours.emplace_back(a[0] / a[2], a[1] / a[2]);
-        theirs.emplace_back(b[0] / b[2], b[1] / b[2]);
-      }
-  }
-  const cv::Mat fit = cv::findHomography(ours, theirs, 0);
-  std::vector<cv::Point2d> mapped;
-  cv::perspectiveTransform(ours, mapped, fit);
-  double worst = 0;
-  for (size_t i = 0; i < mapped.size(); ++i) worst = std::max(worst, cv::norm(mapped[i] - theirs[i]));
+  const std::vector<double> errors = test::ErrorsAgainstTruth(store, survey);
+  const double worst = *std::max_element(errors.begin(), errors.end());
   EXPECT_LT(worst, 4.0);
 }
 
 // A patch whose frames match nothing before it stays unlinked, with the reason.
 TEST(LinkPatches, ReportsWhatItCannotLink) {
   test::ScratchDir dir;
-  SurveyOptions so;
-  so.frame_width = 480;
-  so.frame_height = 360;
-  so.focal_px = 420;
-  so.frames = 8;
+  SurveyOptions so = test::SmallSurvey(8);
   WriteSurvey(so, dir / "a");
   SeafloorTextureOptions other;
   other.seed = 4242;  // another stretch of seafloor altogether

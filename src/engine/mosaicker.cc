@@ -20,6 +20,7 @@
 #include "engine/patch_writer.h"
 #include "engine/preprocess.h"
 #include "engine/self_calibration.h"
+#include "engine/stage_options.h"
 #include "rolamos/error.hpp"
 #include "util/homography.h"
 #include "util/memory.h"
@@ -39,42 +40,6 @@ struct PreparedFrame {
 };
 
 namespace {
-
-FeatureOptions ToFeatureOptions(const MosaickerOptions& o) {
-  FeatureOptions f;
-  f.type = o.features;
-  f.max_features = o.max_features;
-  f.detect_scale = o.detect_scale;
-  f.ratio = o.ratio;
-  f.cross_check = o.cross_check;
-  return f;
-}
-
-EgomotionOptions ToEgomotionOptions(const MosaickerOptions& o) {
-  EgomotionOptions e;
-  e.epipolar_threshold_px = o.epipolar_threshold;
-  e.homography_threshold_px = o.homography_threshold;
-  e.min_inliers = o.min_inliers;
-  e.use_fundamental = o.fundamental;
-  return e;
-}
-
-PreprocessOptions ToPreprocessOptions(const MosaickerOptions& o) {
-  PreprocessOptions p;
-  p.calibration = o.calibration;
-  p.bilateral = o.bilateral;
-  p.temporal = o.temporal;
-  p.clahe = o.clahe;
-  return p;
-}
-
-EccOptions ToEccOptions(const MosaickerOptions& o) {
-  EccOptions e;
-  e.enabled = o.ecc;
-  e.scale = o.ecc_scale;
-  e.motion = o.ecc_motion;
-  return e;
-}
 
 // Largest distance between where two homographies put the frame's corners.
 double MaxCornerShift(const cv::Matx33d& a, const cv::Matx33d& b, cv::Size s) {
@@ -560,7 +525,8 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
         if (failure || integrated == total) break;
         next = std::move(ready[integrated]);
         ready.erase(integrated);
-        // Frame i + 1's worker may still need chain[i - 1 + 1]; older links are done with.
+        // Workers still preparing frames after this one read chain[k - 1] with k > integrated:
+        // entries before integrated - 1 are no longer needed.
         chain.erase(chain.begin(), chain.lower_bound(integrated - 1));
         ++integrated;
         changed.notify_all();

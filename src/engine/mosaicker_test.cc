@@ -21,14 +21,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-SurveyOptions SmallSurvey(int frames) {
-  SurveyOptions o;
-  o.frame_width = 480;
-  o.frame_height = 360;
-  o.focal_px = 420;
-  o.frames = frames;
-  return o;
-}
 
 MosaickerOptions FastOptions() {
   MosaickerOptions o;
@@ -62,7 +54,7 @@ double PatchRmsError(const PatchSidecar& s, const Survey& truth) {
 
 TEST(Mosaicker, StitchesASyntheticSurveyWhereTheGroundTruthSays) {
   test::ScratchDir dir;
-  Survey survey = WriteSurvey(SmallSurvey(24), dir / "survey");
+  Survey survey = WriteSurvey(test::SmallSurvey(24), dir / "survey");
   Store store = Store::Create(dir / "s.rolamos");
   MosaicSummary sum = MosaicInput(dir / "survey/frames", store, FastOptions());
   EXPECT_EQ(sum.frames, 24);
@@ -95,7 +87,7 @@ TEST(Mosaicker, StitchesASyntheticSurveyWhereTheGroundTruthSays) {
 
 TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {
   test::ScratchDir dir;
-  Survey survey = WriteSurvey(SmallSurvey(30), dir / "survey");
+  Survey survey = WriteSurvey(test::SmallSurvey(30), dir / "survey");
   std::map<std::string, cv::Matx33d> gt;
   for (const auto& f : survey.frames) gt[fs::path(f.file).filename().string()] = ToMatx(f.frame_to_world);
   Store store = Store::Create(dir / "s.rolamos");
@@ -137,7 +129,7 @@ TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {
 // one on this thread must give the same patches, frame for frame.
 TEST(Mosaicker, ParallelPreparationGivesWhatPushingInOrderGives) {
   test::ScratchDir dir;
-  Survey survey = WriteSurvey(SmallSurvey(20), dir / "survey");
+  Survey survey = WriteSurvey(test::SmallSurvey(20), dir / "survey");
   MosaickerOptions o = FastOptions();
   o.patch_megapixels = 0.6;  // several patches, so closing and linking are covered too
   Store parallel = Store::Create(dir / "parallel.rolamos");
@@ -168,7 +160,7 @@ TEST(Mosaicker, ParallelPreparationGivesWhatPushingInOrderGives) {
 
 TEST(Mosaicker, BadFramesAreRejectedWithReasonsAndPatchesStayValid) {
   test::ScratchDir dir;
-  WriteSurvey(SmallSurvey(12), dir / "survey");
+  WriteSurvey(test::SmallSurvey(12), dir / "survey");
   const std::string frames = dir / "survey/frames";
   // Frame 4 truncated, frame 6 another size, frame 8 featureless sand (flat), then a text file.
   const std::string f4 = frames + "/frame_00004.jpg";
@@ -195,7 +187,7 @@ TEST(Mosaicker, BadFramesAreRejectedWithReasonsAndPatchesStayValid) {
 
 TEST(Mosaicker, ReadsVideoAndFrameLists) {
   test::ScratchDir dir;
-  Survey survey = WriteSurvey(SmallSurvey(16), dir / "survey");
+  Survey survey = WriteSurvey(test::SmallSurvey(16), dir / "survey");
   // The same frames as a video (Motion-JPEG in AVI, which OpenCV writes without extra codecs)...
   cv::VideoWriter video(dir / "dive.avi", cv::VideoWriter::fourcc('M', 'J', 'P', 'G'), 10,
                         survey.frame_size);
@@ -220,7 +212,7 @@ TEST(Mosaicker, ReadsVideoAndFrameLists) {
 
 TEST(Mosaicker, AutoCalibrationIsEstimatedAndKeptInTheStore) {
   test::ScratchDir dir;
-  WriteSurvey(SmallSurvey(10), dir / "survey");
+  WriteSurvey(test::SmallSurvey(10), dir / "survey");
   Store store = Store::Create(dir / "s.rolamos");
   MosaickerOptions o = FastOptions();
   o.calibration = "auto";

@@ -178,6 +178,7 @@ ObjectModel ObjectModel::Train(const std::string& data_dir, const ObjectTrainOpt
   cv::Mat all;
   cv::vconcat(sampled, all);
   sampled.clear();
+  const int kmeans_samples = all.rows;
   if (progress) progress("vocabulary", 0, 1);
   impl->encoder = std::make_unique<BowEncoder>(options.features, BuildVocabulary(all, options.vocabulary, options.seed));
   all.release();
@@ -208,7 +209,7 @@ ObjectModel ObjectModel::Train(const std::string& data_dir, const ObjectTrainOpt
   for (size_t c = 0; c < data.classes.size(); ++c) per_class[data.classes[c]] = counts[c];
   impl->training = {{"images", per_class},
                     {"vocabulary", options.vocabulary},
-                    {"kmeans_samples", all.rows > 0 ? all.rows : per_image * n},
+                    {"kmeans_samples", kmeans_samples},
                     {"kernel", options.kernel},
                     {"folds", options.folds},
                     {"seed", static_cast<int>(options.seed)},
@@ -260,7 +261,7 @@ ObjectModel ObjectModel::Load(const std::string& path) {
   } catch (const cv::Exception& e) {
     Fail(path, std::string("is truncated or damaged (") + e.err + ")");
   }
-  const size_t svms = impl->svms.Describe()["classes"].size();
+  const size_t svms = static_cast<size_t>(impl->svms.classes());
   if (impl->all_classes.size() < 2 || svms != impl->all_classes.size())
     Fail(path, "lists " + std::to_string(impl->all_classes.size()) + " classes but holds " +
                    std::to_string(svms) + " SVMs");

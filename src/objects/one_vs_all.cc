@@ -164,7 +164,6 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
   double best = -1;
   const int steps = static_cast<int>(gammas.size() * o.c_grid.size()) + 1;
   int step = 0;
-  grid_scores_.clear();
   for (double gamma : gammas) {
     for (int i = 0; i < n; ++i)
       for (int j = 0; j < n; ++j) gram.at<float>(i, j) = static_cast<float>(KernelValue(kernel_, pairwise.at<float>(i, j), gamma));
@@ -196,7 +195,6 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
         }
       }
       const double accuracy = double(correct) / n;
-      grid_scores_.emplace_back(c, gamma);
       if (accuracy > best + 1e-12) {  // ties keep the smaller C, the earlier gamma
         best = accuracy;
         c_ = c;

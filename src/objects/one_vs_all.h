@@ -32,6 +32,7 @@ class OneVsAll {
              const std::function<void(int, int)>& progress = {});
   // Each class's decision value for one row (> 0: that class); -infinity without an SVM.
   std::vector<double> Scores(const cv::Mat& row) const;
+  int classes() const { return static_cast<int>(trained_.size()); }
   // Kernel, C, gamma, cross-validated accuracy, support vectors.
   nlohmann::json Describe() const;
 
@@ -42,7 +43,6 @@ class OneVsAll {
   int kernel_ = 0;               // cv::ml::SVM kernel type
   double c_ = 1, gamma_ = 1;
   double cv_accuracy_ = 0;
-  std::vector<std::pair<double, double>> grid_scores_;  // not stored
   cv::Mat support_;              // support vectors, one per row (CV_32F)
   cv::Mat coefficients_;         // classes x support (CV_64F); zero rows for negatives-only
   std::vector<double> rho_;      // per class

@@ -22,10 +22,6 @@ nlohmann::json Quad(const cv::Matx33d& H, double w, double h) {
   return points;
 }
 
-cv::Point2d Apply(const cv::Matx33d& H, cv::Point2d p) {
-  const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1);
-  return {q[0] / q[2], q[1] / q[2]};
-}
 
 }  // namespace
 
@@ -66,7 +62,7 @@ nlohmann::json ImageOverlays(const Store& store, const std::string& name, const 
       const std::string source = std::filesystem::path(f.source).filename().string();
       if (fw > 0) out["footprints"].push_back({{"patch", s.id}, {"frame", f.index}, {"source", source},
                                                {"points", Quad(H, fw, fh)}});
-      const cv::Point2d c = Apply(H, {fw / 2, fh / 2});
+      const cv::Point2d c = ApplyHomography(H, {fw / 2, fh / 2});
       out["trajectory"].push_back({{"frame", f.index}, {"patch", s.id}, {"point", {c.x, c.y}}});
     }
   }

@@ -28,4 +28,9 @@ cv::Rect2d WarpedBounds(const cv::Matx33d& H, cv::Size size) {
   return cv::Rect2d(x0, y0, x1 - x0, y1 - y0);
 }
 
+cv::Point2d ApplyHomography(const cv::Matx33d& H, cv::Point2d p) {
+  const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1);
+  return {q[0] / q[2], q[1] / q[2]};
+}
+
 }  // namespace rolamos

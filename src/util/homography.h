@@ -11,6 +11,8 @@ namespace rolamos {
 cv::Matx33d ToMatx(const std::array<double, 9>& h);
 // Normalised so that the last element is 1.
 std::array<double, 9> ToArray9(const cv::Matx33d& m);
+// Where H takes the point p.
+cv::Point2d ApplyHomography(const cv::Matx33d& H, cv::Point2d p);
 // Bounding box of an image of `size` (pixel edges, -0.5 .. size - 0.5) mapped by H.
 cv::Rect2d WarpedBounds(const cv::Matx33d& H, cv::Size size);
 

@@ -1,0 +1,41 @@
+#include "engine/stage_options.h"
+
+namespace rolamos {
+
+FeatureOptions ToFeatureOptions(const MosaickerOptions& o) {
+  FeatureOptions f;
+  f.type = o.features;
+  f.max_features = o.max_features;
+  f.detect_scale = o.detect_scale;
+  f.ratio = o.ratio;
+  f.cross_check = o.cross_check;
+  return f;
+}
+
+EgomotionOptions ToEgomotionOptions(const MosaickerOptions& o) {
+  EgomotionOptions e;
+  e.epipolar_threshold_px = o.epipolar_threshold;
+  e.homography_threshold_px = o.homography_threshold;
+  e.min_inliers = o.min_inliers;
+  e.use_fundamental = o.fundamental;
+  return e;
+}
+
+PreprocessOptions ToPreprocessOptions(const MosaickerOptions& o) {
+  PreprocessOptions p;
+  p.calibration = o.calibration;
+  p.bilateral = o.bilateral;
+  p.temporal = o.temporal;
+  p.clahe = o.clahe;
+  return p;
+}
+
+EccOptions ToEccOptions(const MosaickerOptions& o) {
+  EccOptions e;
+  e.enabled = o.ecc;
+  e.scale = o.ecc_scale;
+  e.motion = o.ecc_motion;
+  return e;
+}
+
+}  // namespace rolamos

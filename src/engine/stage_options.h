@@ -1,0 +1,17 @@
+// The mosaic options, split into each stage's own options (so each stage validates its part).
+#pragma once
+
+#include "engine/ecc_refine.h"
+#include "engine/egomotion.h"
+#include "engine/features.h"
+#include "engine/preprocess.h"
+#include "rolamos/mosaicker.hpp"
+
+namespace rolamos {
+
+FeatureOptions ToFeatureOptions(const MosaickerOptions& o);
+EgomotionOptions ToEgomotionOptions(const MosaickerOptions& o);
+PreprocessOptions ToPreprocessOptions(const MosaickerOptions& o);
+EccOptions ToEccOptions(const MosaickerOptions& o);
+
+}  // namespace rolamos
