@@ -12,6 +12,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "rolamos/error.hpp"
 #include "rolamos/mosaicker.hpp"
 #include "rolamos/synth.hpp"
 #include "rolamos/tiled_image.hpp"
@@ -110,6 +111,61 @@ TEST_F(ComposeTest, APatchThatCannotBePlacedIsReportedNotGuessed) {
   EXPECT_EQ(r.left_out.front().first, 2);
   EXPECT_NE(r.left_out.front().second.find("not linked"), std::string::npos);
   EXPECT_GE(r.patches_used, 1);
+}
+
+// Killed half way (here: cancelled from the progress callback), the store still opens with its
+// previous mosaic; the re-run finishes only the chunks that were missing, and the mosaic is the
+// same as one composed in a single run.
+TEST_F(ComposeTest, AnInterruptedComposeResumesWhereItStopped) {
+  ComposeOptions o;
+  o.tiff.compression = Compression::kZstd;
+  o.chunk_px = 256;
+  const ComposeResult whole = ComposeMosaic(*store_, o);
+  ASSERT_GT(whole.chunks, 6);
+  const fs::path mosaic = dir_ / "s.rolamos/mosaic.tif";
+  fs::copy_file(mosaic, dir_ / "whole.tif");
+  const auto before = fs::last_write_time(mosaic);
+  int reports = 0;
+  EXPECT_THROW(ComposeMosaic(*store_, o, [&](double) {
+                 if (++reports == 5) throw Error("interrupted");
+               }),
+               Error);
+  EXPECT_EQ(fs::last_write_time(mosaic), before);  // the old mosaic is untouched
+  EXPECT_TRUE(fs::exists(dir_ / "s.rolamos/mosaic.tif.partial/journal.txt"));
+  EXPECT_NO_THROW(Store::Open(dir_ / "s.rolamos"));
+  const ComposeResult resumed = ComposeMosaic(*store_, o);
+  EXPECT_GT(resumed.chunks_resumed, 0);
+  EXPECT_LT(resumed.chunks_resumed, resumed.chunks);
+  EXPECT_FALSE(fs::exists(dir_ / "s.rolamos/mosaic.tif.partial"));
+  auto cache = std::make_shared<TileCache>();
+  TiledImage a = TiledImage::Open(dir_ / "whole.tif", cache), b = TiledImage::Open(mosaic, cache);
+  for (int k = 0; k < a.num_levels(); ++k) {
+    const auto& L = a.info().levels[size_t(k)];
+    const cv::Rect all(0, 0, static_cast<int>(L.width), static_cast<int>(L.height));
+    cv::Mat d;
+    cv::absdiff(a.ReadRegion(k, all), b.ReadRegion(k, all), d);
+    EXPECT_EQ(cv::countNonZero(d.reshape(1)), 0) << "level " << k;
+  }
+  // Other options are other pixels: a partial compose for them is not resumed.
+  reports = 0;
+  EXPECT_THROW(ComposeMosaic(*store_, o, [&](double) {
+                 if (++reports == 3) throw Error("interrupted");
+               }),
+               Error);
+  o.feather_px = 32;
+  const ComposeResult other = ComposeMosaic(*store_, o);
+  EXPECT_EQ(other.chunks_resumed, 0);
+  EXPECT_NE(other.discarded.find("other patches or options"), std::string::npos);
+}
+
+TEST_F(ComposeTest, ImpossibleOptionsAreRefusedBeforeWork) {
+  ComposeOptions o;
+  o.chunk_px = 1000;
+  EXPECT_THROW(ComposeMosaic(*store_, o), Error);
+  o.chunk_px = 4096;
+  o.threads = -1;
+  EXPECT_THROW(ComposeMosaic(*store_, o), Error);
+  EXPECT_FALSE(fs::exists(dir_ / "s.rolamos/mosaic.tif"));
 }
 
 }  // namespace

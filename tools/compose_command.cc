@@ -19,6 +19,7 @@ struct ComposeSwitches {
   TiffSwitches tiff{"webp", 90, 256, 0};
   LinkOptions link;
   bool relink = true;
+  bool restart = false;
   bool quiet = false;
 };
 
@@ -27,6 +28,8 @@ static int RunCompose(const ComposeSwitches& s) {
   o.max_pixels = s.max_pixels;
   o.cache_mb = s.cache_mb;
   o.tiff = ToWriteOptions(s.tiff);
+  o.threads = s.tiff.threads;
+  o.restart = s.restart;
   if (s.relink) {
     // Patches that lost the thread are placed by recognising where their first frames were seen.
     Progress linking("link", s.quiet);
@@ -38,6 +41,9 @@ static int RunCompose(const ComposeSwitches& s) {
   Progress progress("compose", s.quiet);
   ComposeResult r = ComposeMosaic(Store::Open(s.store), o, [&](double f) { progress.Update(f); });
   progress.Done();
+  if (!r.discarded.empty()) std::printf("not resumed: %s\n", r.discarded.c_str());
+  if (r.chunks_resumed > 0)
+    std::printf("resumed: %lld of %lld chunks were done by an interrupted run\n", r.chunks_resumed, r.chunks);
   for (const auto& [id, why] : r.left_out) std::printf("patch %d left out: %s\n", id, why.c_str());
   if (!s.navigation.empty()) {
     const Store store = Store::Open(s.store);
@@ -76,6 +82,7 @@ void AddComposeCommand(CLI::App& app, Runner* run) {
       ->capture_default_str();
   cmd->add_option("--cache-mb", s->cache_mb, "tile cache for reading patches")->capture_default_str();
   cmd->add_option("--frames", s->link.frames_dir, "folder of the frames (place recognition reads them), when moved since `mosaic`");
+  cmd->add_flag("--restart", s->restart, "start over instead of finishing an interrupted compose");
   cmd->add_flag("!--no-link", s->relink, "do not look for where unlinked patches belong");
   AddTiffSwitches(cmd, &s->tiff);
   cmd->add_flag("-q,--quiet", s->quiet, "no progress bar");

@@ -1,8 +1,14 @@
-// The global mosaic: patches placed in one frame and composed out of core, band by band, into the
-// store's mosaic.tif (pyramidal tiled BigTIFF). Placement in this version: a patch's own
-// patch_to_global when its sidecar has one, otherwise the chain of links between consecutive
-// patches written by the engine; a patch that neither places is left out and reported, not
-// guessed. (Place recognition and global alignment are the next steps.)
+// The global mosaic: patches placed in one frame and composed out of core into the store's
+// mosaic.tif (pyramidal tiled BigTIFF). Placement: a patch's own patch_to_global when its sidecar
+// has one (written by `align` or by an earlier compose), otherwise the chain of links between
+// patches written by the engine or by place recognition; a patch that neither places is left out
+// and reported, not guessed.
+//
+// Composition runs chunk by chunk (squares of 4096 mosaic pixels, on all cores): each chunk's
+// blocks are rendered from the patches that reach them and reduced up the pyramid, so memory is
+// the tile cache plus a few blocks per thread, whatever the mosaic's size. Finished chunks are
+// journaled in STORE/mosaic.tif.partial/; an interrupted compose re-run with the same patches and
+// options finishes only the rest. The old mosaic.tif stays readable until the new one replaces it.
 #pragma once
 
 #include <string>
@@ -20,6 +26,10 @@ struct ComposeOptions {
   TiffWriteOptions tiff;     // the mosaic's codec and tiles
   double cache_mb = 256;     // tile cache for reading the patches
   int feather_px = 64;       // blend width across patch seams, in patch pixels
+  int threads = 0;           // 0: one per core
+  bool restart = false;      // ignore a partial compose left by an interrupted run
+  int chunk_px = 4096;       // mosaic pixels per chunk side (power of two >= the tile size):
+                             // the unit of parallel work and of what an interruption loses
 
   bool IsValid(std::string* error) const;
 };
@@ -29,6 +39,9 @@ struct ComposeResult {
   double scale = 1.0;
   int patches_used = 0;
   std::vector<std::pair<int, std::string>> left_out;  // patch id, why
+  long long chunks = 0;          // units of work (and of resuming)
+  long long chunks_resumed = 0;  // already done by an interrupted run
+  std::string discarded;         // why a partial compose found was not resumed ("" if none)
 };
 
 ComposeResult ComposeMosaic(Store store, const ComposeOptions& options,

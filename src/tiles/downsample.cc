@@ -40,7 +40,7 @@ cv::Mat Downsample2x(const cv::Mat& src, bool has_alpha) {
   CV_Assert(!src.empty());
   cv::Mat even = src;
   const int pad_x = src.cols & 1, pad_y = src.rows & 1;
-  if (pad_x || pad_y) cv::copyMakeBorder(src, even, 0, pad_y, 0, pad_x, cv::BORDER_REPLICATE);
+  if (pad_x || pad_y) cv::copyMakeBorder(src, even, 0, pad_y, 0, pad_x, cv::BORDER_REPLICATE | cv::BORDER_ISOLATED);  // not the rows past a view
   cv::Mat dst(even.rows / 2, even.cols / 2, src.type());
   if (!has_alpha) {
     // Exact halving takes OpenCV's fast 2x2 box path.

@@ -144,7 +144,7 @@ cv::Mat CutFileTile(const cv::Mat& band, int tx, int tile_size) {
   }
   if (w < tile_size || h < tile_size) {
     cv::Mat padded;
-    cv::copyMakeBorder(inner, padded, 0, tile_size - h, 0, tile_size - w, cv::BORDER_REPLICATE);
+    cv::copyMakeBorder(inner, padded, 0, tile_size - h, 0, tile_size - w, cv::BORDER_REPLICATE | cv::BORDER_ISOLATED);
     return padded;
   }
   return tile;

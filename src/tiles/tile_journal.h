@@ -1,0 +1,71 @@
+// Resumable storage for a pyramid that is written tile by tile, in any order and from several
+// threads: compressed tiles go to an append-only data file, and a journal records which chunks
+// (groups of tiles) are complete. A run that dies (Ctrl-C, kill, full disk) loses only its
+// unfinished chunks; the next run with the same inputs reads the journal and does the rest.
+// WriteTiff() then lays the tiles out as the store's pyramidal BigTIFF.
+#pragma once
+
+#include <cstdint>
+#include <mutex>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "rolamos/image_format.hpp"
+#include "rolamos/tiff_writer.hpp"
+
+namespace rolamos {
+
+struct JournalTile {
+  int level = 0;        // pyramid level; -1 for a chunk's raw root pixels
+  long long index = 0;  // tile index in that level (row-major), or the chunk id for roots
+  uint64_t offset = 0;
+  uint32_t size = 0;
+};
+
+class TileJournal {
+ public:
+  // Opens or creates `dir`. A journal there that was written for another `fingerprint` (other
+  // inputs or options), or any journal when `restart`, is discarded and discarded() says why.
+  TileJournal(const std::string& dir, const std::string& fingerprint, bool restart);
+  ~TileJournal();
+  TileJournal(const TileJournal&) = delete;
+  TileJournal& operator=(const TileJournal&) = delete;
+
+  // Appends bytes to the data file (thread-safe). They count only once Commit() names them.
+  JournalTile Put(int level, long long index, const void* data, size_t size);
+  // Records `chunk` complete with its tiles, in one append (thread-safe).
+  void Commit(long long chunk, const std::vector<JournalTile>& tiles);
+  bool IsDone(long long chunk) const;
+  long long chunks_done() const;
+  const std::string& discarded() const { return discarded_; }
+
+  // The committed tile (level, index); throws Error when it was never committed.
+  std::vector<uint8_t> Read(int level, long long index) const;
+  // Writes the pyramid: `tiles_per_level[k]` tiles of level k, all of which must be committed.
+  void WriteTiff(const std::string& path, const PixelLayout& layout,
+                 const TiffWriteOptions& options, const std::vector<long long>& tiles_per_level,
+                 const std::vector<long long>& level_widths,
+                 const std::vector<long long>& level_heights,
+                 const std::vector<uint8_t>& jpeg_tables) const;
+  // Deletes the directory (after the TIFF is in place).
+  void Remove();
+
+ private:
+  void Load(const std::string& fingerprint);
+  void Record(const JournalTile& t);
+  std::string Where() const { return dir_; }
+
+  std::string dir_, data_path_, journal_path_;
+  int data_fd_ = -1, journal_fd_ = -1;
+  mutable std::mutex mutex_;
+  uint64_t data_end_ = 0;
+  std::set<long long> done_;
+  std::vector<std::vector<std::pair<uint64_t, uint32_t>>> levels_;  // [level+1][index]
+  std::string discarded_;
+};
+
+// A stable 64-bit hash (FNV-1a) as hex, for journal fingerprints.
+std::string FingerprintHex(const std::string& text);
+
+}  // namespace rolamos
