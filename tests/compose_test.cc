@@ -158,6 +158,27 @@ TEST_F(ComposeTest, AnInterruptedComposeResumesWhereItStopped) {
   EXPECT_NE(other.discarded.find("other patches or options"), std::string::npos);
 }
 
+// Without navigation: metres in a local frame from altitude / focal, origin at the first frame.
+TEST_F(ComposeTest, ALocalEngineeringFrameWithoutNavigation) {
+  EXPECT_THROW(GeoreferenceLocal(*store_, 0.002), Error);  // no mosaic yet
+  ComposeMosaic(*store_, ComposeOptions{});
+  EXPECT_THROW(GeoreferenceLocal(*store_, 0), Error);
+  EXPECT_THROW(GeoreferenceLocal(*store_, std::nan("")), Error);
+  const Georef g = GeoreferenceLocal(*store_, 2.0 / 420);  // 2 m altitude, 420 px focal
+  const auto read = ReadGeoref(Store::Open(dir_ / "s.rolamos").MosaicPath());
+  ASSERT_TRUE(read.has_value());
+  EXPECT_NE(read->crs.find("rolamos local engineering frame"), std::string::npos) << read->crs;
+  EXPECT_NEAR(read->geotransform[1], 2.0 / 420, 1e-9);
+  EXPECT_NEAR(read->geotransform[5], -2.0 / 420, 1e-9);
+  // The first frame's centre is the origin.
+  const PatchSidecar first = store_->ReadSidecar(store_->patches().front().id);
+  const cv::Vec3d c = ToMatx(*first.patch_to_global) * ToMatx(first.frames.front().frame_to_patch) * cv::Vec3d(239.5, 179.5, 1);
+  const auto xy = read->PixelToMap(c[0] / c[2], c[1] / c[2]);
+  EXPECT_NEAR(xy[0], 0, 1e-6);
+  EXPECT_NEAR(xy[1], 0, 1e-6);
+  EXPECT_TRUE(Store::Open(dir_ / "s.rolamos").global().georef.has_value());
+}
+
 TEST_F(ComposeTest, ImpossibleOptionsAreRefusedBeforeWork) {
   ComposeOptions o;
   o.chunk_px = 1000;

@@ -3,6 +3,7 @@
 
 #include "command.h"
 #include "rolamos/compose.hpp"
+#include "rolamos/error.hpp"
 #include "rolamos/georeference.hpp"
 #include "rolamos/link_patches.hpp"
 #include "util/memory.h"
@@ -20,10 +21,16 @@ struct ComposeSwitches {
   LinkOptions link;
   bool relink = true;
   bool restart = false;
+  double altitude_m = 0;
   bool quiet = false;
 };
 
 static int RunCompose(const ComposeSwitches& s) {
+  if (s.altitude_m < 0 || (s.altitude_m > 0 && !(s.camera.focal_px > 0)))
+    throw rolamos::Error("compose: --altitude needs a positive altitude and --focal (pixels) for the local frame's pixel size");
+  if (s.altitude_m > 0 && !s.navigation.empty())
+    throw rolamos::Error("compose: --altitude gives a local frame for surveys without navigation; with --navigation, "
+                "vehicle altitude goes in the navigation CSV");
   ComposeOptions o;
   o.max_pixels = s.max_pixels;
   o.cache_mb = s.cache_mb;
@@ -60,6 +67,11 @@ static int RunCompose(const ComposeSwitches& s) {
                 g.frames_used, g.georef.crs.c_str(), std::hypot(g.georef.geotransform[1], g.georef.geotransform[4]),
                 g.median_residual_m, g.max_residual_m);
   }
+  if (s.navigation.empty() && s.altitude_m > 0) {
+    const Georef g = GeoreferenceLocal(Store::Open(s.store), s.altitude_m / s.camera.focal_px);
+    std::printf("local engineering frame (no navigation): %.4g m a pixel, origin at the first frame's centre\n",
+                g.geotransform[1]);
+  }
   const double seconds = progress.ElapsedSeconds();
   std::printf("%s/mosaic.tif: %lld x %lld at scale %.4g from %d patches, %.1f s (%.1f Mpx/s), peak "
               "memory %.0f MiB\n",
@@ -77,6 +89,9 @@ void AddComposeCommand(CLI::App& app, Runner* run) {
                   "CSV of per-frame georeference (frame, epsg, gt0..gt5[, sequence]) or of vehicle navigation "
                   "(frame, easting,northing or lat,lon, altitude, heading) to place the mosaic on the map");
   cmd->add_option("--focal", s->camera.focal_px, "focal length in pixels (vehicle navigation)");
+  cmd->add_option("--altitude", s->altitude_m,
+                  "without navigation: camera altitude in metres; with --focal, georeferences the mosaic in a "
+                  "local engineering frame (metres, origin at the first frame)");
   cmd->add_option("--crs", s->crs, "CRS of eastings/northings without an epsg column, e.g. EPSG:32755");
   cmd->add_option("--max-pixels", s->max_pixels, "scale the mosaic to fit this many pixels (0 = full)")
       ->capture_default_str();

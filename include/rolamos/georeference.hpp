@@ -57,4 +57,13 @@ struct GeoreferenceResult {
 // navigation or their CRSs differ.
 GeoreferenceResult GeoreferenceMosaic(Store store, const std::map<std::string, FrameNavigation>& nav);
 
+// Without navigation: a local engineering frame in metres (kLocalCrsWkt), x along the first
+// frame's columns and y against its rows, origin at the first frame's centre, pixel size
+// altitude / focal (metres per frame pixel, divided by the mosaic's scale). Throws Error without a
+// mosaic or with a non-positive pixel size.
+inline constexpr const char* kLocalCrsWkt =
+    "LOCAL_CS[\"rolamos local engineering frame (metres from the first frame)\",UNIT[\"metre\",1],"
+    "AXIS[\"x\",EAST],AXIS[\"y\",NORTH]]";
+Georef GeoreferenceLocal(Store store, double metres_per_frame_pixel);
+
 }  // namespace rolamos

@@ -280,4 +280,34 @@ GeoreferenceResult GeoreferenceMosaic(Store store, const std::map<std::string, F
   return r;
 }
 
+Georef GeoreferenceLocal(Store store, double metres_per_frame_pixel) {
+  if (!store.HasMosaic()) Fail(store.dir(), "has no mosaic.tif yet (run compose first)");
+  if (!(metres_per_frame_pixel > 0) || !std::isfinite(metres_per_frame_pixel))
+    Fail(store.dir(), "the local frame needs a positive pixel size (altitude / focal length)");
+  const GlobalRecord global = store.global();
+  // The first placed frame's centre, in mosaic pixels.
+  std::optional<cv::Point2d> origin;
+  for (const auto& entry : store.patches()) {
+    const PatchSidecar s = store.ReadSidecar(entry.id);
+    if (!s.patch_to_global || s.frames.empty()) continue;
+    const auto size = s.extra.value("frame_size", nlohmann::json::array({0, 0}));
+    const cv::Vec3d g = ToMatx(*s.patch_to_global) * ToMatx(s.frames.front().frame_to_patch) *
+                        cv::Vec3d(0.5 * (size[0].get<double>() - 1), 0.5 * (size[1].get<double>() - 1), 1);
+    origin = cv::Point2d(global.scale * g[0] / g[2] + 0.5 * global.scale - 0.5,
+                         global.scale * g[1] / g[2] + 0.5 * global.scale - 0.5);
+    break;
+  }
+  if (!origin) Fail(store.dir(), "has no placed frame to put the local frame's origin at");
+  const double px = metres_per_frame_pixel / global.scale;
+  Georef g;
+  g.crs = kLocalCrsWkt;
+  g.geotransform = {-origin->x * px, px, 0, origin->y * px, 0, -px};
+  WriteGeoref(store.MosaicPath(), g);
+  GlobalRecord updated = global;
+  updated.georef = g;
+  updated.georef->crs = CrsToWkt(g.crs);
+  store.SetGlobal(updated);
+  return g;
+}
+
 }  // namespace rolamos
