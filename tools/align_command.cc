@@ -2,6 +2,7 @@
 
 #include "command.h"
 #include "rolamos/align.hpp"
+#include "rolamos/georeference.hpp"
 #include "util/progress.h"
 
 namespace rolamos::cli {
@@ -9,13 +10,20 @@ namespace rolamos::cli {
 struct AlignSwitches {
   std::string store;
   AlignOptions options;
+  std::string navigation, crs;
+  NavigationCamera camera;
   bool quiet = false;
 };
 
 static int RunAlign(const AlignSwitches& s) {
+  AlignOptions o = s.options;
+  if (!s.navigation.empty()) o.navigation = ReadNavigationCsv(s.navigation, FrameCamera(Store::Open(s.store), s.camera), s.crs);
   Progress progress("align", s.quiet);
-  const AlignSummary r = AlignStore(Store::Open(s.store), s.options, [&](double f) { progress.Update(f); });
+  const AlignSummary r = AlignStore(Store::Open(s.store), o, [&](double f) { progress.Update(f); });
   progress.Done();
+  if (r.navigation_frames > 0)
+    std::printf("navigation of %d frames: frame centres %.3f m from it before, %.3f m after (median)\n",
+                r.navigation_frames, r.navigation_before_m, r.navigation_after_m);
   if (!r.corrected) {
     std::printf("%s: %d frames, %d of %d loop pairs matched, loop error %.2f px: %s; placements left as they are, %.1f s\n",
                 s.store.c_str(), r.frames, r.pairs_found, r.pairs_tried, r.loop_error_before_px,
@@ -41,6 +49,13 @@ void AddAlignCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--min-inliers", s->options.min_inliers, "homography inliers a loop pair needs")->capture_default_str();
   cmd->add_option("--min-loop-error", s->options.min_loop_error_px, "loops closing better than this (px RMS) are left alone")
       ->capture_default_str();
+  cmd->add_option("--navigation", s->navigation,
+                  "also pull every frame towards its navigation: CSV of per-frame georeference or of vehicle navigation "
+                  "(as compose --navigation)");
+  cmd->add_option("--navigation-weight", s->options.navigation_weight, "of a navigation point against a matched one")
+      ->capture_default_str();
+  cmd->add_option("--focal", s->camera.focal_px, "focal length in pixels (vehicle navigation)");
+  cmd->add_option("--crs", s->crs, "CRS of eastings/northings without an epsg column, e.g. EPSG:32755");
   cmd->add_flag("-q,--quiet", s->quiet, "no progress bar");
   cmd->callback([s, run] { *run = [s] { return RunAlign(*s); }; });
 }

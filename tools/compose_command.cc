@@ -54,14 +54,7 @@ static int RunCompose(const ComposeSwitches& s) {
   for (const auto& [id, why] : r.left_out) std::printf("patch %d left out: %s\n", id, why.c_str());
   if (!s.navigation.empty()) {
     const Store store = Store::Open(s.store);
-    NavigationCamera camera = s.camera;
-    if (!store.patches().empty()) {  // the frame size, for the default principal point
-      const auto size = store.ReadSidecar(store.patches().front().id).extra.value("frame_size", nlohmann::json());
-      if (size.is_array()) {
-        camera.width = size[0].get<int>();
-        camera.height = size[1].get<int>();
-      }
-    }
+    const NavigationCamera camera = FrameCamera(store, s.camera);
     GeoreferenceResult g = GeoreferenceMosaic(store, ReadNavigationCsv(s.navigation, camera, s.crs));
     std::printf("georeferenced from %d frames (%s): pixel %.4g m, residual median %.3f m, max %.3f m\n",
                 g.frames_used, g.georef.crs.c_str(), std::hypot(g.georef.geotransform[1], g.georef.geotransform[4]),

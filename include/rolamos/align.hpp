@@ -9,8 +9,10 @@
 #pragma once
 
 #include <functional>
+#include <map>
 #include <string>
 
+#include "rolamos/georeference.hpp"
 #include "rolamos/store.hpp"
 
 namespace rolamos {
@@ -25,6 +27,11 @@ struct AlignOptions {
   double chain_weight = 1.0;     // of the online frame-to-frame placements
   double loop_weight = 1.0;      // of a loop pair's matched points
   double min_loop_error_px = 1.5;  // loops closing better than this (RMS) leave the map as it is
+  // Per-frame navigation (ReadNavigationCsv), when known: each frame is also pulled towards where
+  // the navigation puts it (through one similarity from global pixels to the map, refitted as the
+  // solution moves), so the scale drift that vision alone cannot see is corrected too.
+  std::map<std::string, FrameNavigation> navigation;
+  double navigation_weight = 0.2;  // of a navigation point, against 1 for a matched point
 
   bool IsValid(std::string* error) const;
 };
@@ -36,6 +43,9 @@ struct AlignSummary {
   bool corrected = false;           // false: the loops already closed (or none was found)
   double loop_error_before_px = 0;  // RMS distance of loop pairs' matched points, global pixels
   double loop_error_after_px = 0;
+  int navigation_frames = 0;        // frames with navigation
+  double navigation_before_m = 0;   // median distance of frame centres from their navigation
+  double navigation_after_m = 0;    // (one similarity fitted from the placement to the map)
   double seconds = 0;
 };
 

@@ -31,6 +31,9 @@ struct NavigationCamera {
   bool IsValid(std::string* error) const;
 };
 
+// `camera` with the frame size of the store's frames filled in (for the default principal point).
+NavigationCamera FrameCamera(const Store& store, NavigationCamera camera);
+
 // Reads a vehicle navigation CSV: a frame column (`frame`, `file` or `image`: the frame's file
 // name), a position as easting,northing (with an `epsg` column or `crs`) or
 // lat,lon (WGS 84: converted to the UTM zone of the first fix), altitude above the seabed

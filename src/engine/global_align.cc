@@ -32,7 +32,7 @@ bool AlignOptions::IsValid(std::string* error) const {
     *error = "the loop error below which nothing is corrected cannot be negative";
     return false;
   }
-  if (!(chain_weight > 0) || !(loop_weight > 0)) {
+  if (!(chain_weight > 0) || !(loop_weight > 0) || !(navigation_weight > 0)) {
     *error = "weights must be positive";
     return false;
   }
@@ -100,6 +100,14 @@ struct Solver {
     Row(ax, 0, l.weight);
     Row(ay, 0, l.weight);
   }
+  // Pulls frame i's point P (online global pixels) towards `target`.
+  void Pull(int i, cv::Point2d P, cv::Point2d target, double w) {
+    std::vector<std::pair<int, double>> x, y;
+    Terms(i, (P - centre) / unit, 1, &x, &y);
+    const cv::Point2d t = (target - centre) / unit;
+    Row(x, t.x, w);
+    Row(y, t.y, w);
+  }
   // Holds frame i at identity (strong) or pulls it there (weak).
   void Hold(int i, double w) {
     const int o = k() * i;
@@ -127,6 +135,45 @@ struct Solver {
     return out;
   }
 };
+
+// A frame point with its place on the map from the navigation.
+struct NavPoint {
+  int frame;
+  cv::Point2d P;    // online global pixels
+  cv::Point2d map;  // map units
+};
+
+// Similarity global pixels -> map over all points (robust), fitted about the means because map
+// coordinates are large numbers.
+cv::Matx33d FitToMap(const std::vector<cv::Point2d>& from, const std::vector<cv::Point2d>& to) {
+  cv::Point2d a(0, 0), b(0, 0);
+  for (size_t i = 0; i < from.size(); ++i) a += from[i], b += to[i];
+  a *= 1.0 / from.size();
+  b *= 1.0 / to.size();
+  std::vector<cv::Point2f> x, y;
+  for (size_t i = 0; i < from.size(); ++i) x.emplace_back(from[i] - a), y.emplace_back(to[i] - b);
+  std::vector<uchar> inliers;
+  const cv::Mat A = cv::estimateAffinePartial2D(x, y, inliers, cv::LMEDS);
+  if (A.empty()) Fail("align", "the navigation does not fit any similarity transform of the placement");
+  const cv::Matx23d T(A);
+  return cv::Matx33d(1, 0, b.x, 0, 1, b.y, 0, 0, 1) * cv::Matx33d(T(0, 0), T(0, 1), T(0, 2), T(1, 0), T(1, 1), T(1, 2), 0, 0, 1) *
+         cv::Matx33d(1, 0, -a.x, 0, 1, -a.y, 0, 0, 1);
+}
+
+// Median distance on the map between frame centres (every 5th point) placed by `C` and their
+// navigation, after the best similarity; also returns that similarity.
+double NavigationResidual(const std::vector<NavPoint>& nav, const std::vector<cv::Matx33d>* C, cv::Matx33d* to_map) {
+  std::vector<cv::Point2d> from, to;
+  for (const auto& p : nav) {
+    from.push_back(C ? ApplyHomography((*C)[static_cast<size_t>(p.frame)], p.P) : p.P);
+    to.push_back(p.map);
+  }
+  *to_map = FitToMap(from, to);
+  std::vector<double> d;
+  for (size_t i = 0; i < from.size(); i += 5) d.push_back(cv::norm(ApplyHomography(*to_map, from[i]) - to[i]));
+  std::nth_element(d.begin(), d.begin() + static_cast<long>(d.size() / 2), d.end());
+  return d[d.size() / 2];
+}
 
 std::vector<cv::Point2d> Grid(cv::Size s) {
   std::vector<cv::Point2d> g;
@@ -168,6 +215,46 @@ AlignSummary AlignStore(Store store, const AlignOptions& options, const AlignPro
   const int n = static_cast<int>(frames.size());
   AlignSummary summary;
   summary.frames = n;
+
+  // Navigation points: five near each frame's centre, where lens distortion matters least.
+  std::vector<NavPoint> nav;
+  for (int i = 0; i < n && !options.navigation.empty(); ++i) {
+    const Frame& f = frames[static_cast<size_t>(i)];
+    const std::filesystem::path src(f.source);
+    auto it = options.navigation.find(src.parent_path().filename().string() + "/" + src.filename().string());
+    if (it == options.navigation.end()) it = options.navigation.find(src.filename().string());
+    if (it == options.navigation.end()) continue;
+    const auto& g = it->second.geotransform;
+    for (const cv::Point2d p : {cv::Point2d(0.5, 0.5), cv::Point2d(0.35, 0.5), cv::Point2d(0.65, 0.5),
+                                cv::Point2d(0.5, 0.35), cv::Point2d(0.5, 0.65)}) {
+      const double col = p.x * (f.size.width - 1), row = p.y * (f.size.height - 1);
+      nav.push_back({i, ApplyHomography(f.to_global, {col, row}), {g[0] + col * g[1] + row * g[2], g[3] + col * g[4] + row * g[5]}});
+    }
+    ++summary.navigation_frames;
+  }
+  if (!options.navigation.empty() && summary.navigation_frames < 2)
+    Fail(store.dir(), "fewer than two stitched frames have navigation (are the frame names those of the CSV?)");
+  cv::Matx33d to_map = cv::Matx33d::eye();
+  if (!nav.empty()) {
+    summary.navigation_before_m = NavigationResidual(nav, nullptr, &to_map);
+    // The online frame is the first frame's view, in perspective when that frame was tilted: a
+    // homography, not a similarity, from the map. The placements are first carried into a frame
+    // similar to the map (the homography, then the similarity back to pixels), so that the chain
+    // and the navigation disagree only where the survey really drifted.
+    if (summary.navigation_frames >= 4) {
+      std::vector<cv::Point2d> from, to;
+      cv::Point2d mean(0, 0);
+      for (const auto& p : nav) mean += p.map;
+      mean *= 1.0 / nav.size();
+      for (const auto& p : nav) from.push_back(p.P), to.push_back(p.map - mean);
+      const cv::Mat H = cv::findHomography(from, to, cv::LMEDS);
+      if (!H.empty()) {
+        const cv::Matx33d rectify = to_map.inv() * cv::Matx33d(1, 0, mean.x, 0, 1, mean.y, 0, 0, 1) * cv::Matx33d(H);
+        for (auto& f : frames) f.to_global = rectify * f.to_global;
+        for (auto& p : nav) p.P = ApplyHomography(rectify, p.P);
+      }
+    }
+  }
 
   std::vector<Link> links;
   // 2. The chain: consecutive frames keep their online relative placement (a 3 x 3 grid).
@@ -253,26 +340,37 @@ AlignSummary AlignStore(Store store, const AlignOptions& options, const AlignPro
   // Loops that already close within the matching noise reveal no drift: correcting them would
   // only spread that noise over the map (measured: 0.63 -> 0.90 px on a survey whose loops closed
   // to 0.7 px). The online placement stays.
-  if (loop_points == 0 || summary.loop_error_before_px < options.min_loop_error_px) {
+  if (nav.empty() && (loop_points == 0 || summary.loop_error_before_px < options.min_loop_error_px)) {
     summary.loop_error_after_px = summary.loop_error_before_px;
     summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     if (progress) progress(1.0);
     return summary;
   }
   summary.corrected = true;
+  // With navigation, loops that already close are left out of the solution for the same reason.
+  if (summary.loop_error_before_px < options.min_loop_error_px)
+    links.erase(std::remove_if(links.begin(), links.end(), [](const Link& l) { return l.loop; }), links.end());
 
-  // 4. Solve for the corrections: the first frame held, every frame weakly pulled to its place.
-  Solver solver;
-  solver.n = n;
-  solver.affine = options.model == "affine";
+  // 4. Solve for the corrections: every frame weakly pulled to its place; the first frame held,
+  // or with navigation, every frame pulled towards it (the similarity to the map refitted a few
+  // times as the placement moves).
   double w = 0;
   for (const auto& f : frames) w = std::max(w, double(f.size.width));
-  solver.unit = w;
-  solver.centre = centre[0];
-  for (const auto& l : links) solver.Add(l);
-  solver.Hold(0, 1e3);
-  for (int i = 1; i < n; ++i) solver.Hold(i, 1e-4);
-  const std::vector<cv::Matx33d> C = solver.Solve();
+  std::vector<cv::Matx33d> C;
+  for (int round = 0; round < (nav.empty() ? 1 : 4); ++round) {
+    Solver solver;
+    solver.n = n;
+    solver.affine = options.model == "affine";
+    solver.unit = w;
+    solver.centre = centre[0];
+    for (const auto& l : links) solver.Add(l);
+    const cv::Matx33d from_map = to_map.inv();
+    for (const auto& p : nav) solver.Pull(p.frame, p.P, ApplyHomography(from_map, p.map), options.navigation_weight);
+    solver.Hold(0, nav.empty() ? 1e3 : 1e-4);
+    for (int i = 1; i < n; ++i) solver.Hold(i, 1e-4);
+    C = solver.Solve();
+    if (!nav.empty()) summary.navigation_after_m = NavigationResidual(nav, &C, &to_map);
+  }
   double after = 0;
   for (const auto& l : links)
     if (l.loop) after += std::pow(cv::norm(ApplyHomography(C[static_cast<size_t>(l.a)], l.P) - ApplyHomography(C[static_cast<size_t>(l.b)], l.Q)), 2);

@@ -206,6 +206,16 @@ std::map<std::string, FrameNavigation> ReadNavigationCsv(const std::string& path
                                                          : ReadVehicleNavigationCsv(path, camera, crs);
 }
 
+NavigationCamera FrameCamera(const Store& store, NavigationCamera camera) {
+  if (store.patches().empty()) return camera;
+  const auto size = store.ReadSidecar(store.patches().front().id).extra.value("frame_size", nlohmann::json());
+  if (size.is_array() && size.size() == 2) {
+    camera.width = size[0].get<int>();
+    camera.height = size[1].get<int>();
+  }
+  return camera;
+}
+
 GeoreferenceResult GeoreferenceMosaic(Store store, const std::map<std::string, FrameNavigation>& nav) {
   if (!store.HasMosaic()) Fail(store.dir(), "has no mosaic.tif yet (run compose first)");
   // Correspondences: points around each frame's centre, in mosaic pixels and in map units.
