@@ -98,7 +98,7 @@ void AddObjectsCommand(CLI::App& app, Runner* run) {
   train->add_option("--vocabulary", t->options.vocabulary, "visual words (k-means)")->capture_default_str();
   train->add_option("--descriptor", t->options.features.descriptor, "sift (gray) or opponent-sift (colour)")
       ->capture_default_str();
-  train->add_option("--encoding", t->options.features.encoding, "bow (word histograms) or vlad (residuals to the words)")
+  train->add_option("--encoding", t->options.features.encoding, "bow (word histograms), vlad (residuals to the words) or fisher (Fisher vectors: a Gaussian mixture of --vocabulary components)")
       ->capture_default_str();
   train->add_option("--kernel", t->options.kernel, "SVM kernel: chi2, rbf or linear")->capture_default_str();
   train->add_option("--folds", t->options.folds, "cross-validation folds for the SVM parameters")->capture_default_str();
@@ -111,6 +111,9 @@ void AddObjectsCommand(CLI::App& app, Runner* run) {
   train->add_option("--hue-bins", t->options.features.hue_bins, "colour histogram hue bins (0 = no colour)")->capture_default_str();
   train->add_option("--saturation-bins", t->options.features.saturation_bins, "colour histogram saturation bins")->capture_default_str();
   train->add_option("--colour-weight", t->options.features.colour_weight, "weight of colour against words")->capture_default_str();
+  train->add_flag("--object-view,!--no-object-view", t->options.features.object_view,
+                  "also describe the square around the object found near the centre");
+  train->add_option("--pca-dims", t->options.features.pca_dims, "descriptor dimensions kept by PCA (fisher)")->capture_default_str();
   train->add_option("--kmeans-samples", t->options.kmeans_samples, "descriptors sampled for k-means")->capture_default_str();
   train->add_option("--seed", t->options.seed, "random seed (sampling, k-means)")->capture_default_str();
   train->add_flag("-q,--quiet", t->quiet, "no progress bar");

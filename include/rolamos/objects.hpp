@@ -29,10 +29,15 @@ struct ObjectFeatureOptions {
   std::vector<int> patch_sizes = {12, 24, 36};  // SIFT support diameters, pixels at image_size
   int pyramid_levels = 2;                 // spatial pyramid: 1 = whole image, 2 = + 2 x 2 cells
   bool centre_cell = true;                // one more cell: the central half, where the object is
+  // A second view: the square around the blob that stands out near the centre, described at the
+  // same size whatever the object's (its whole and its quarters, words and colour).
+  bool object_view = false;
   // vlad: per visual word, the sum of the descriptors' residuals to it, power- and
   // L2-normalised (the best on validation data: 74 % against 68 % for plain counts);
   // bow: word counts (histograms, the paper's, for the chi-square kernel).
+  // fisher: Fisher vectors over a Gaussian mixture of PCA-reduced descriptors (pca_dims).
   std::string encoding = "vlad";
+  int pca_dims = 64;                      // fisher only
   int hue_bins = 12, saturation_bins = 4;  // colour histogram per pyramid cell; 0 = none
   double colour_weight = 1.0;             // of the colour part against the words
 

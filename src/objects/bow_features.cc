@@ -5,6 +5,7 @@
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "objects/object_crop.h"
 #include "rolamos/error.hpp"
 
 namespace rolamos {
@@ -40,8 +41,12 @@ bool ObjectFeatureOptions::IsValid(std::string* error) const {
     *error = "descriptor \"" + descriptor + "\" is not sift or opponent-sift";
     return false;
   }
-  if (encoding != "bow" && encoding != "vlad") {
-    *error = "encoding \"" + encoding + "\" is not bow or vlad";
+  if (encoding != "bow" && encoding != "vlad" && encoding != "fisher") {
+    *error = "encoding \"" + encoding + "\" is not bow, vlad or fisher";
+    return false;
+  }
+  if (pca_dims < 8 || pca_dims > DescriptorSize(*this)) {
+    *error = "PCA dimensions (fisher) must be in 8.." + std::to_string(DescriptorSize(*this));
     return false;
   }
   if (!(colour_weight >= 0)) {
@@ -51,11 +56,16 @@ bool ObjectFeatureOptions::IsValid(std::string* error) const {
   return true;
 }
 
-cv::Mat NormaliseSample(const cv::Mat& image, int image_size) {
+cv::Mat ToBgr8(const cv::Mat& image) {
   cv::Mat bgr = image;
   if (bgr.depth() != CV_8U) bgr.convertTo(bgr, CV_8U, bgr.depth() == CV_16U ? 1.0 / 257 : 1.0);
   if (bgr.channels() == 1) cv::cvtColor(bgr, bgr, cv::COLOR_GRAY2BGR);
   if (bgr.channels() == 4) cv::cvtColor(bgr, bgr, cv::COLOR_BGRA2BGR);
+  return bgr;
+}
+
+cv::Mat NormaliseSample(const cv::Mat& image, int image_size) {
+  const cv::Mat bgr = ToBgr8(image);
   cv::Mat out;
   cv::resize(bgr, out, cv::Size(image_size, image_size), 0, 0,
              bgr.cols > image_size ? cv::INTER_AREA : cv::INTER_LINEAR);
@@ -140,11 +150,17 @@ cv::Mat BuildVocabulary(const cv::Mat& samples, int words, unsigned seed) {
   return centres;
 }
 
-BowEncoder::BowEncoder(const ObjectFeatureOptions& options, cv::Mat vocabulary)
+BowEncoder::BowEncoder(const ObjectFeatureOptions& options, cv::Mat vocabulary, cv::Mat pca)
     : options_(options), vocabulary_(std::move(vocabulary)), cells_(Cells(options)) {
   std::string error;
   if (!options.IsValid(&error)) Fail("object features", error);
-  CV_Assert(vocabulary_.type() == CV_32F && vocabulary_.cols == DescriptorSize(options) && vocabulary_.rows > 0);
+  if (options.encoding == "fisher") {
+    fisher_.gmm = vocabulary_;
+    fisher_.pca = std::move(pca);
+    if (!fisher_.IsValid(DescriptorSize(options))) Fail("object features", "the Fisher codebook does not fit the descriptors");
+  } else {
+    CV_Assert(vocabulary_.type() == CV_32F && vocabulary_.cols == DescriptorSize(options) && vocabulary_.rows > 0);
+  }
 }
 
 namespace {
@@ -167,54 +183,104 @@ std::vector<BowEncoder::Cell> BowEncoder::Cells(const ObjectFeatureOptions& o) {
     const int n = 1 << l;
     const float side = size / n;
     for (int y = 0; y < n; ++y)
-      for (int x = 0; x < n; ++x) cells.push_back({cv::Rect2f(x * side, y * side, side, side), 1.0f / (n * n)});
+      for (int x = 0; x < n; ++x) cells.push_back({cv::Rect2f(x * side, y * side, side, side), 1.0f / (n * n), 0});
   }
   // Samples are crops centred on their object: the central half describes the object itself,
   // apart from the seafloor around it.
-  if (o.centre_cell) cells.push_back({cv::Rect2f(size / 4, size / 4, size / 2, size / 2), 1.0f});
+  if (o.centre_cell) cells.push_back({cv::Rect2f(size / 4, size / 4, size / 2, size / 2), 1.0f, 0});
+  // The object's own square (see object_crop.h): the whole of it and its quarters.
+  if (o.object_view) {
+    cells.push_back({cv::Rect2f(0, 0, size, size), 1.0f, 1});
+    for (int y = 0; y < 2; ++y)
+      for (int x = 0; x < 2; ++x) cells.push_back({cv::Rect2f(x * size / 2, y * size / 2, size / 2, size / 2), 0.25f, 1});
+  }
   return cells;
 }
 
+int BowEncoder::WordDims() const {
+  if (options_.encoding == "fisher") return 2 * fisher_.components() * fisher_.dims();
+  return options_.encoding == "vlad" ? vocabulary_.rows * vocabulary_.cols : vocabulary_.rows;
+}
+
 int BowEncoder::dims() const {
-  const int words = options_.encoding == "vlad" ? vocabulary_.rows * vocabulary_.cols : vocabulary_.rows;
-  return static_cast<int>(cells_.size()) * (words + options_.hue_bins * options_.saturation_bins);
+  return static_cast<int>(cells_.size()) * (WordDims() + options_.hue_bins * options_.saturation_bins);
+}
+
+// Per cell: for each component k, sum over its descriptors of p_k(x) (x - m_k) / s_k and of
+// p_k(x) ((x - m_k)^2 / s_k^2 - 1), scaled by 1 / sqrt(w_k) and 1 / sqrt(2 w_k).
+void BowEncoder::FisherStatistics(const cv::Mat& desc, const std::vector<cv::Point2f>& where, int view, float* v) const {
+  const cv::Mat x = fisher_.Project(desc);
+  const cv::Mat post = fisher_.Posteriors(x);
+  const int d = fisher_.dims(), K = fisher_.components(), words = WordDims();
+  std::vector<float> u(static_cast<size_t>(d));
+  std::vector<int> in;
+  for (int i = 0; i < x.rows; ++i) {
+    in.clear();
+    for (int c = 0; c < static_cast<int>(cells_.size()); ++c)
+      if (cells_[static_cast<size_t>(c)].view == view && cells_[static_cast<size_t>(c)].rect.contains(where[static_cast<size_t>(i)]))
+        in.push_back(c);
+    const float* xi = x.ptr<float>(i);
+    const float* p = post.ptr<float>(i);
+    for (int k = 0; k < K; ++k) {
+      if (p[k] < 1e-4f) continue;  // the posteriors are peaked: most components see nothing
+      const float* g = fisher_.gmm.ptr<float>(k);
+      const float a = p[k] / std::sqrt(g[2 * d]), b = p[k] / std::sqrt(2 * g[2 * d]);
+      for (int j = 0; j < d; ++j) u[static_cast<size_t>(j)] = (xi[j] - g[j]) / std::sqrt(g[d + j]);
+      for (int c : in) {
+        float* mu = v + c * words + k * 2 * d;
+        float* sigma = mu + d;
+        for (int j = 0; j < d; ++j) {
+          const float t = u[static_cast<size_t>(j)];
+          mu[j] += a * t;
+          sigma[j] += b * (t * t - 1);
+        }
+      }
+    }
+  }
 }
 
 cv::Mat BowEncoder::Encode(const cv::Mat& image) const {
-  const cv::Mat sample = NormaliseSample(image, options_.image_size);
-  std::vector<cv::Point2f> where;
-  const cv::Mat desc = DenseDescriptors(sample, options_, &where);
-  const bool vlad = options_.encoding == "vlad";
+  const bool vlad = options_.encoding == "vlad", fisher = options_.encoding == "fisher";
   const int dim = vocabulary_.cols;
-  const int words = vlad ? vocabulary_.rows * dim : vocabulary_.rows, cells = static_cast<int>(cells_.size());
+  const int words = WordDims(), cells = static_cast<int>(cells_.size());
   const int colours = options_.hue_bins * options_.saturation_bins;
   cv::Mat out = cv::Mat::zeros(1, dims(), CV_32F);
   float* v = out.ptr<float>();
-  std::vector<cv::DMatch> nearest;
-  cv::BFMatcher(cv::NORM_L2).match(desc, vocabulary_, nearest);
-  for (const auto& m : nearest) {
-    const cv::Point2f p = where[static_cast<size_t>(m.queryIdx)];
-    for (int c = 0; c < cells; ++c) {
-      if (!cells_[static_cast<size_t>(c)].rect.contains(p)) continue;
-      if (!vlad) {
-        v[c * words + m.trainIdx] += 1.f;
-        continue;
+  // The views described: the whole sample, and (object_view) the square around its object.
+  std::vector<cv::Mat> samples = {NormaliseSample(image, options_.image_size)};
+  if (options_.object_view) samples.push_back(NormaliseSample(ObjectCrop(ToBgr8(image)), options_.image_size));
+  for (int view = 0; view < static_cast<int>(samples.size()); ++view) {
+    std::vector<cv::Point2f> where;
+    const cv::Mat desc = DenseDescriptors(samples[static_cast<size_t>(view)], options_, &where);
+    std::vector<cv::DMatch> nearest;
+    if (fisher)
+      FisherStatistics(desc, where, view, v);
+    else
+      cv::BFMatcher(cv::NORM_L2).match(desc, vocabulary_, nearest);
+    for (const auto& m : nearest) {
+      const cv::Point2f p = where[static_cast<size_t>(m.queryIdx)];
+      for (int c = 0; c < cells; ++c) {
+        if (cells_[static_cast<size_t>(c)].view != view || !cells_[static_cast<size_t>(c)].rect.contains(p)) continue;
+        if (!vlad) {
+          v[c * words + m.trainIdx] += 1.f;
+          continue;
+        }
+        // VLAD: the descriptor's residual to its word, summed per word.
+        float* r = v + c * words + m.trainIdx * dim;
+        const float* d = desc.ptr<float>(m.queryIdx);
+        const float* w = vocabulary_.ptr<float>(m.trainIdx);
+        for (int k = 0; k < dim; ++k) r[k] += d[k] - w[k];
       }
-      // VLAD: the descriptor's residual to its word, summed per word.
-      float* r = v + c * words + m.trainIdx * dim;
-      const float* d = desc.ptr<float>(m.queryIdx);
-      const float* w = vocabulary_.ptr<float>(m.trainIdx);
-      for (int k = 0; k < dim; ++k) r[k] += d[k] - w[k];
     }
   }
   for (int c = 0; c < cells; ++c) {
     float* block = v + c * words;
-    if (!vlad) {
+    if (!vlad && !fisher) {
       NormaliseL1(block, words, cells_[static_cast<size_t>(c)].weight);
       continue;
     }
-    // Intra-normalisation per word, signed square root, then L2 over the cell.
-    for (int w = 0; w < vocabulary_.rows; ++w) {
+    // VLAD: intra-normalisation per word; both: signed square root, then L2 over the cell.
+    for (int w = 0; w < (vlad ? vocabulary_.rows : 0); ++w) {
       float* r = block + w * dim;
       double n2 = 0;
       for (int k = 0; k < dim; ++k) n2 += double(r[k]) * r[k];
@@ -224,24 +290,29 @@ cv::Mat BowEncoder::Encode(const cv::Mat& image) const {
         r[k] = x >= 0 ? std::sqrt(x) : -std::sqrt(-x);
       }
     }
+    if (fisher)
+      for (int k = 0; k < words; ++k) block[k] = block[k] >= 0 ? std::sqrt(block[k]) : -std::sqrt(-block[k]);
     double n2 = 0;
     for (int k = 0; k < words; ++k) n2 += double(block[k]) * block[k];
     const float k2 = n2 > 0 ? static_cast<float>(cells_[static_cast<size_t>(c)].weight / std::sqrt(n2)) : 0.f;
     for (int k = 0; k < words; ++k) block[k] *= k2;
   }
   if (colours > 0) {
-    cv::Mat hsv;
-    cv::cvtColor(sample, hsv, cv::COLOR_BGR2HSV);
     float* col = v + cells * words;
-    for (int y = 0; y < hsv.rows; ++y) {
-      const cv::Vec3b* p = hsv.ptr<cv::Vec3b>(y);
-      for (int x = 0; x < hsv.cols; ++x) {
-        const int h = std::min(options_.hue_bins - 1, p[x][0] * options_.hue_bins / 180);
-        const int s = std::min(options_.saturation_bins - 1, p[x][1] * options_.saturation_bins / 256);
-        const float w = p[x][2] / 255.f;  // weighted by value: the hue of dark pixels is noise
-        const cv::Point2f at(x + 0.5f, y + 0.5f);
-        for (int c = 0; c < cells; ++c)
-          if (cells_[static_cast<size_t>(c)].rect.contains(at)) col[c * colours + h * options_.saturation_bins + s] += w;
+    for (int view = 0; view < static_cast<int>(samples.size()); ++view) {
+      cv::Mat hsv;
+      cv::cvtColor(samples[static_cast<size_t>(view)], hsv, cv::COLOR_BGR2HSV);
+      for (int y = 0; y < hsv.rows; ++y) {
+        const cv::Vec3b* p = hsv.ptr<cv::Vec3b>(y);
+        for (int x = 0; x < hsv.cols; ++x) {
+          const int h = std::min(options_.hue_bins - 1, p[x][0] * options_.hue_bins / 180);
+          const int s = std::min(options_.saturation_bins - 1, p[x][1] * options_.saturation_bins / 256);
+          const float w = p[x][2] / 255.f;  // weighted by value: the hue of dark pixels is noise
+          const cv::Point2f at(x + 0.5f, y + 0.5f);
+          for (int c = 0; c < cells; ++c)
+            if (cells_[static_cast<size_t>(c)].view == view && cells_[static_cast<size_t>(c)].rect.contains(at))
+              col[c * colours + h * options_.saturation_bins + s] += w;
+        }
       }
     }
     for (int c = 0; c < cells; ++c)

@@ -9,10 +9,13 @@
 
 #include <opencv2/core.hpp>
 
+#include "objects/fisher_codebook.h"
 #include "rolamos/objects.hpp"
 
 namespace rolamos {
 
+// Any image as BGR 8-bit.
+cv::Mat ToBgr8(const cv::Mat& image);
 // The sample as the descriptors see it: resized to image_size square, BGR 8-bit.
 cv::Mat NormaliseSample(const cv::Mat& image, int image_size);
 
@@ -29,21 +32,27 @@ cv::Mat BuildVocabulary(const cv::Mat& samples, int words, unsigned seed);
 
 class BowEncoder {
  public:
-  BowEncoder(const ObjectFeatureOptions& options, cv::Mat vocabulary);
+  // bow and vlad: `vocabulary` is the k-means words; fisher: the codebook's mixture, with `pca`.
+  BowEncoder(const ObjectFeatureOptions& options, cv::Mat vocabulary, cv::Mat pca = {});
   int dims() const;
   // One row (CV_32F) describing `image` (any size, BGR/BGRA/gray).
   cv::Mat Encode(const cv::Mat& image) const;
   const cv::Mat& vocabulary() const { return vocabulary_; }
+  const cv::Mat& pca() const { return fisher_.pca; }
 
  private:
   struct Cell {
     cv::Rect2f rect;  // in sample pixels
     float weight;
+    int view;         // 0: the whole sample; 1: the square around its object
   };
   static std::vector<Cell> Cells(const ObjectFeatureOptions& o);
+  int WordDims() const;  // per cell, before colour
+  void FisherStatistics(const cv::Mat& desc, const std::vector<cv::Point2f>& where, int view, float* v) const;
 
   ObjectFeatureOptions options_;
-  cv::Mat vocabulary_;  // words x DescriptorSize, CV_32F
+  cv::Mat vocabulary_;  // words x DescriptorSize, CV_32F (fisher: the mixture, as fisher_.gmm)
+  FisherCodebook fisher_;
   std::vector<Cell> cells_;
 };
 

@@ -30,8 +30,8 @@ bool ObjectTrainOptions::IsValid(std::string* error) const {
     *error = "kernel \"" + kernel + "\" is not chi2, rbf or linear";
     return false;
   }
-  if (kernel == "chi2" && features.encoding == "vlad") {
-    *error = "the chi-square kernel needs histograms (--encoding bow); VLAD vectors take rbf or linear";
+  if (kernel == "chi2" && features.encoding != "bow") {
+    *error = "the chi-square kernel needs histograms (--encoding bow); VLAD and Fisher vectors take rbf or linear";
     return false;
   }
   if (folds < 2 || folds > 20) {
@@ -90,7 +90,7 @@ void ForEach(int n, const std::function<void(int)>& work) {
 void WriteFeatureOptions(cv::FileStorage& fs, const ObjectFeatureOptions& o) {
   fs << "features" << "{" << "image_size" << o.image_size << "grid_step" << o.grid_step
      << "patch_sizes" << o.patch_sizes << "pyramid_levels" << o.pyramid_levels << "centre_cell" << (o.centre_cell ? 1 : 0) << "encoding" << o.encoding << "descriptor" << o.descriptor << "hue_bins" << o.hue_bins
-     << "saturation_bins" << o.saturation_bins << "colour_weight" << o.colour_weight << "}";
+     << "saturation_bins" << o.saturation_bins << "colour_weight" << o.colour_weight << "pca_dims" << o.pca_dims << "object_view" << (o.object_view ? 1 : 0) << "}";
 }
 
 ObjectFeatureOptions ReadFeatureOptions(const cv::FileNode& n) {
@@ -106,6 +106,9 @@ ObjectFeatureOptions ReadFeatureOptions(const cv::FileNode& n) {
   o.hue_bins = static_cast<int>(n["hue_bins"]);
   o.saturation_bins = static_cast<int>(n["saturation_bins"]);
   o.colour_weight = static_cast<double>(n["colour_weight"]);
+  // Added after the first models: absent there, which means the defaults of then.
+  if (!n["pca_dims"].empty()) o.pca_dims = static_cast<int>(n["pca_dims"]);
+  o.object_view = !n["object_view"].empty() && static_cast<int>(n["object_view"]) != 0;
   return o;
 }
 
@@ -180,7 +183,12 @@ ObjectModel ObjectModel::Train(const std::string& data_dir, const ObjectTrainOpt
   sampled.clear();
   const int kmeans_samples = all.rows;
   if (progress) progress("vocabulary", 0, 1);
-  impl->encoder = std::make_unique<BowEncoder>(options.features, BuildVocabulary(all, options.vocabulary, options.seed));
+  if (options.features.encoding == "fisher") {
+    const FisherCodebook book = BuildFisherCodebook(all, options.vocabulary, options.features.pca_dims, options.seed);
+    impl->encoder = std::make_unique<BowEncoder>(options.features, book.gmm, book.pca);
+  } else {
+    impl->encoder = std::make_unique<BowEncoder>(options.features, BuildVocabulary(all, options.vocabulary, options.seed));
+  }
   all.release();
   if (progress) progress("vocabulary", 1, 1);
 
@@ -229,6 +237,7 @@ void ObjectModel::Save(const std::string& path) const {
     WriteFeatureOptions(fs, impl_->features);
     WriteJson(fs, "training", impl_->training);
     fs << "vocabulary" << impl_->encoder->vocabulary();
+    if (!impl_->encoder->pca().empty()) fs << "pca" << impl_->encoder->pca();
     impl_->svms.Write(fs);
     fs.release();
   }
@@ -251,11 +260,16 @@ ObjectModel ObjectModel::Load(const std::string& path) {
     impl->features = ReadFeatureOptions(fs["features"]);
     std::string error;
     if (!impl->features.IsValid(&error)) Fail(path, "feature settings: " + error);
-    cv::Mat vocabulary;
+    cv::Mat vocabulary, pca;
     fs["vocabulary"] >> vocabulary;
-    if (vocabulary.empty() || vocabulary.cols != DescriptorSize(impl->features) || vocabulary.type() != CV_32F)
+    if (impl->features.encoding == "fisher") {
+      fs["pca"] >> pca;
+      FisherCodebook book{pca, vocabulary};
+      if (!book.IsValid(DescriptorSize(impl->features))) Fail(path, "holds no valid Fisher codebook");
+    } else if (vocabulary.empty() || vocabulary.cols != DescriptorSize(impl->features) || vocabulary.type() != CV_32F) {
       Fail(path, "holds no valid vocabulary");
-    impl->encoder = std::make_unique<BowEncoder>(impl->features, vocabulary);
+    }
+    impl->encoder = std::make_unique<BowEncoder>(impl->features, vocabulary, pca);
     impl->training = ReadJson(fs["training"]);
     impl->svms.Read(fs.root(), path);
   } catch (const cv::Exception& e) {
@@ -303,7 +317,7 @@ nlohmann::json ObjectModel::Describe() const {
           {"features",
            {{"image_size", f.image_size}, {"grid_step", f.grid_step}, {"patch_sizes", f.patch_sizes},
             {"pyramid_levels", f.pyramid_levels}, {"centre_cell", f.centre_cell}, {"encoding", f.encoding}, {"descriptor", f.descriptor}, {"hue_bins", f.hue_bins},
-            {"saturation_bins", f.saturation_bins}, {"colour_weight", f.colour_weight},
+            {"saturation_bins", f.saturation_bins}, {"colour_weight", f.colour_weight}, {"pca_dims", f.pca_dims}, {"object_view", f.object_view},
             {"dims", impl_->encoder->dims()}, {"words", impl_->encoder->vocabulary().rows}}},
           {"training", impl_->training},
           {"svm", svms}};

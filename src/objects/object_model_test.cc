@@ -30,9 +30,10 @@ TEST(ObjectModel, TrainsSavesLoadsAndIdentifiesHeldOutShapes) {
   test::ScratchDir dir;
   test::WriteShapesDataset(dir / "train", 24, 1);
   test::WriteShapesDataset(dir / "validation", 10, 2);
-  for (const std::string encoding : {"bow", "vlad"}) {
+  for (const std::string encoding : {"bow", "vlad", "fisher"}) {
     ObjectTrainOptions o = SmallOptions();
     o.features.encoding = encoding;
+    if (encoding == "fisher") o.vocabulary = 16, o.features.pca_dims = 32;
     o.kernel = encoding == "bow" ? "chi2" : "linear";
     const ObjectModel model = ObjectModel::Train(dir / "train", o);
     EXPECT_EQ(model.classes(), test::kShapeClasses);
