@@ -10,6 +10,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <random>
 #include <string>
@@ -45,6 +46,14 @@ cv::Mat Texture() {
   return RenderSeafloor(0, 0, kPeriod, kPeriod);
 }
 
+// OpenCV's warps address the source with 16-bit integers: source coordinates past 32767 come out
+// wrong. The seafloor repeats every kPeriod pixels, so whole periods are taken off first.
+cv::Matx33d WrapTranslation(cv::Matx33d M) {
+  M(0, 2) -= kPeriod * std::floor(M(0, 2) / kPeriod);
+  M(1, 2) -= kPeriod * std::floor(M(1, 2) / kPeriod);
+  return M;
+}
+
 int Make(long long width, long long height, int patch, int overlap, const std::string& out, bool georef) {
   const auto t0 = Clock::now();
   const cv::Mat texture = Texture();
@@ -77,7 +86,7 @@ int Make(long long width, long long height, int patch, int overlap, const std::s
       for (int y = 0; y < patch; y += writer.band_height()) {
         const int rows = std::min(writer.band_height(), patch - y);
         // band pixel -> global pixel (= texture pixel, wrapped)
-        const cv::Matx33d M = G * cv::Matx33d(1, 0, 0, 0, 1, y, 0, 0, 1);
+        const cv::Matx33d M = WrapTranslation(G * cv::Matx33d(1, 0, 0, 0, 1, y, 0, 0, 1));
         cv::Mat band;
         cv::warpPerspective(texture, band, cv::Mat(M), cv::Size(patch, rows),
                             cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_WRAP);
@@ -121,14 +130,16 @@ int Check(const std::string& dir, int samples) {
     cv::split(got, ch);
     if (cv::countNonZero(ch[3] == 255) < w * w) continue;  // only windows fully inside the data
     // mosaic pixel -> global pixel = texture pixel (wrapped)
-    const cv::Matx33d M = O.inv() * cv::Matx33d(1, 0, x, 0, 1, y, 0, 0, 1);
+    const cv::Matx33d M = WrapTranslation(O.inv() * cv::Matx33d(1, 0, x, 0, 1, y, 0, 0, 1));
     cv::Mat want;
     cv::warpPerspective(texture, want, cv::Mat(M), cv::Size(w, w), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_WRAP);
     cv::Mat bgr;
     cv::cvtColor(got, bgr, cv::COLOR_BGRA2BGR);
     cv::Mat diff;
     cv::absdiff(bgr, want, diff);
-    sum += cv::sum(diff)[0] + cv::sum(diff)[1] + cv::sum(diff)[2];
+    const double window_sum = cv::sum(diff)[0] + cv::sum(diff)[1] + cv::sum(diff)[2];
+    if (std::getenv("CHECK_VERBOSE")) std::fprintf(stderr, "window %d %d: %.2f\n", x, y, window_sum / (3.0 * w * w));
+    sum += window_sum;
     n += 3LL * w * w;
     ++windows;
   }

@@ -51,13 +51,7 @@ void WriteNavigation(const Survey& s, const std::string& path, double focal, boo
 TEST(Navigation, VehicleNavigationPlacesTheMosaic) {
   test::ScratchDir dir;
   const Survey survey = WriteSurvey(test::SmallSurvey(16), dir / "survey");
-  MosaickerOptions mo;
-  mo.tiff.compression = Compression::kZstd;
-  Store store = Store::Create(dir / "s.rolamos");
-  MosaicInput(dir / "survey/frames", store, mo);
-  ComposeOptions co;
-  co.tiff.compression = Compression::kZstd;
-  ComposeMosaic(store, co);
+  Store store = test::MosaicAndCompose(dir / "survey/frames", dir / "s.rolamos");
   NavigationCamera camera;
   camera.focal_px = 420;
   camera.width = 480;

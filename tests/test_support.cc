@@ -16,7 +16,9 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "rolamos/compose.hpp"
 #include "rolamos/error.hpp"
+#include "rolamos/mosaicker.hpp"
 #include "synth/seafloor_texture.h"
 #include "util/homography.h"
 
@@ -162,6 +164,18 @@ SurveyOptions SmallSurvey(int frames) {
   o.focal_px = 420;
   o.frames = frames;
   return o;
+}
+
+Store MosaicAndCompose(const std::string& frames_dir, const std::string& store_dir, double patch_megapixels) {
+  MosaickerOptions mo;
+  mo.tiff.compression = Compression::kZstd;
+  if (patch_megapixels > 0) mo.patch_megapixels = patch_megapixels;
+  Store store = Store::Create(store_dir);
+  MosaicInput(frames_dir, store, mo);
+  ComposeOptions co;
+  co.tiff.compression = Compression::kZstd;
+  ComposeMosaic(store, co);
+  return store;
 }
 
 std::vector<double> ErrorsAgainstTruth(const Store& store, const Survey& truth, bool aligned) {

@@ -48,6 +48,9 @@ double MaskedPsnr(const cv::Mat& a, const cv::Mat& b);
 
 // A small synthetic survey (480 x 360 frames, focal 420 px) over the procedural seafloor.
 SurveyOptions SmallSurvey(int frames);
+// The frames in `frames_dir` mosaicked into a new store at `store_dir` and composed (zstd tiles,
+// lossless, so tests compare real pixels); patch_megapixels 0 keeps the engine's default.
+Store MosaicAndCompose(const std::string& frames_dir, const std::string& store_dir, double patch_megapixels = 0);
 
 // Where the store puts every stitched frame's 3 x 3 grid against where the survey's ground
 // truth does, after one best-fit homography for the whole map: the distance of every point,

@@ -23,14 +23,9 @@ double GlobalRms(const Store& store, const Survey& truth, bool aligned) {
 TEST(AlignStore, LoopClosureReducesGlobalDriftOnALawnmowerSurvey) {
   test::ScratchDir dir;
   const Survey survey = WriteSurvey(test::SmallSurvey(72), dir / "survey");
-  MosaickerOptions mo;
-  mo.tiff.compression = Compression::kZstd;
-  mo.patch_megapixels = 0.8;
-  Store store = Store::Create(dir / "s.rolamos");
-  MosaicInput(dir / "survey/frames", store, mo);
+  Store store = test::MosaicAndCompose(dir / "survey/frames", dir / "s.rolamos", 0.8);
   ComposeOptions co;
   co.tiff.compression = Compression::kZstd;
-  ComposeMosaic(store, co);
   const double before = GlobalRms(store, survey, false);
 
   // This survey's loops close to ~0.8 px: by default that is left alone.
@@ -65,13 +60,7 @@ TEST(AlignStore, LoopClosureReducesGlobalDriftOnALawnmowerSurvey) {
 TEST(AlignStore, NavigationPullsTheFramesToTheMap) {
   test::ScratchDir dir;
   const Survey survey = WriteSurvey(test::SmallSurvey(48), dir / "survey");
-  MosaickerOptions mo;
-  mo.tiff.compression = Compression::kZstd;
-  Store store = Store::Create(dir / "s.rolamos");
-  MosaicInput(dir / "survey/frames", store, mo);
-  ComposeOptions co;
-  co.tiff.compression = Compression::kZstd;
-  ComposeMosaic(store, co);
+  Store store = test::MosaicAndCompose(dir / "survey/frames", dir / "s.rolamos");
   const double before = GlobalRms(store, survey, false);
   AlignOptions o;
   for (const auto& f : survey.frames) {

@@ -54,7 +54,6 @@ class TileJournal {
  private:
   void Load(const std::string& fingerprint);
   void Record(const JournalTile& t);
-  std::string Where() const { return dir_; }
 
   std::string dir_, data_path_, journal_path_;
   int data_fd_ = -1, journal_fd_ = -1;
