@@ -179,6 +179,36 @@ TEST_F(ComposeTest, ALocalEngineeringFrameWithoutNavigation) {
   EXPECT_TRUE(Store::Open(dir_ / "s.rolamos").global().georef.has_value());
 }
 
+// A damaged patch costs that patch (and any placed only through its link), with the reason; the
+// rest is composed.
+TEST_F(ComposeTest, BrokenPatchesAreLeftOutWithTheReason) {
+  const auto ids = store_->patches();
+  ASSERT_GE(ids.size(), 3u);
+  ComposeMosaic(*store_, ComposeOptions{});  // every patch gets its own placement
+  // The last patch's image cut short, the one before it placed at infinity.
+  const std::string last = store_->PatchImagePath(ids.back().id);
+  fs::resize_file(last, fs::file_size(last) / 3);
+  PatchSidecar s = store_->ReadSidecar(ids[ids.size() - 2].id);
+  s.patch_to_global = Homography{1, 0, 0, 0, 1, 0, -0.01, 0, 1};
+  store_->UpdateSidecar(s);
+  ComposeResult r = ComposeMosaic(*store_, ComposeOptions{});
+  ASSERT_EQ(r.left_out.size(), 2u);
+  EXPECT_EQ(r.left_out[0].first, ids[ids.size() - 2].id);
+  EXPECT_NE(r.left_out[0].second.find("infinity"), std::string::npos) << r.left_out[0].second;
+  EXPECT_EQ(r.left_out[1].first, ids.back().id);
+  EXPECT_NE(r.left_out[1].second.find(fs::path(last).filename().string()), std::string::npos) << r.left_out[1].second;
+  EXPECT_EQ(r.patches_used, static_cast<int>(ids.size()) - 2);
+  EXPECT_TRUE(Store::Open(dir_ / "s.rolamos").HasMosaic());
+  // A sidecar that disagrees with its image.
+  PatchSidecar first = store_->ReadSidecar(ids.front().id);
+  first.size[0] += 10;
+  store_->UpdateSidecar(first);
+  r = ComposeMosaic(*store_, ComposeOptions{});
+  ASSERT_FALSE(r.left_out.empty());
+  EXPECT_EQ(r.left_out[0].first, ids.front().id);
+  EXPECT_NE(r.left_out[0].second.find("sidecar says"), std::string::npos) << r.left_out[0].second;
+}
+
 TEST_F(ComposeTest, ImpossibleOptionsAreRefusedBeforeWork) {
   ComposeOptions o;
   o.chunk_px = 1000;

@@ -9,6 +9,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "objects/bow_features.h"
+#include "objects/object_crop.h"
 #include "objects/one_vs_all.h"
 #include "rolamos/error.hpp"
 #include "rolamos/objects.hpp"
@@ -167,8 +168,10 @@ ObjectModel ObjectModel::Train(const std::string& data_dir, const ObjectTrainOpt
   std::vector<cv::Mat> sampled(static_cast<size_t>(n));
   std::atomic<int> done{0};
   ForEach(n, [&](int i) {
-    const cv::Mat sample = NormaliseSample(ReadSample(data.files[static_cast<size_t>(i)]), options.features.image_size);
-    const cv::Mat desc = DenseDescriptors(sample, options.features);
+    const cv::Mat image = ReadSample(data.files[static_cast<size_t>(i)]);
+    cv::Mat desc = DenseDescriptors(NormaliseSample(image, options.features.image_size), options.features);
+    if (options.features.object_view)  // the words must fit the object's own descriptors too
+      cv::vconcat(desc, DenseDescriptors(NormaliseSample(ObjectCrop(image), options.features.image_size), options.features), desc);
     std::vector<int> order(static_cast<size_t>(desc.rows));
     std::iota(order.begin(), order.end(), 0);
     std::mt19937 rng(options.seed + static_cast<unsigned>(i));

@@ -63,6 +63,28 @@ std::string Fingerprint(const std::vector<PlacedPatch>& placed, const ComposeRes
   return FingerprintHex(f.str());
 }
 
+// Why a patch cannot be drawn ("" when it can): an image that does not open or disagrees with its
+// sidecar, or a placement that is not finite, folds the patch, or sends part of it to infinity.
+std::string PlacementProblem(const cv::Matx33d& G, const PatchSidecar& s, const std::string& path,
+                             const std::shared_ptr<TileCache>& cache) {
+  for (double v : G.val)
+    if (!std::isfinite(v)) return "its placement is not finite";
+  const double w = double(s.size[0]), h = double(s.size[1]);
+  for (const cv::Vec3d c : {cv::Vec3d(0, 0, 1), cv::Vec3d(w, 0, 1), cv::Vec3d(0, h, 1), cv::Vec3d(w, h, 1)})
+    if ((G * c)[2] <= 1e-9) return "its placement sends part of it to infinity (degenerate homography)";
+  const double det = G(0, 0) * G(1, 1) - G(0, 1) * G(1, 0);
+  if (!(std::abs(det) > 1e-6 && std::abs(det) < 1e6)) return "its placement is degenerate (scale " + std::to_string(det) + ")";
+  try {
+    const TiledImage image = TiledImage::Open(path, cache);
+    if (image.width() != s.size[0] || image.height() != s.size[1])
+      return "its image is " + std::to_string(image.width()) + " x " + std::to_string(image.height()) +
+             " but its sidecar says " + std::to_string(s.size[0]) + " x " + std::to_string(s.size[1]);
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
 }  // namespace
 
 ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const ProgressFn& progress) {
@@ -100,6 +122,11 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
     PlacedPatch p;
     p.id = entry.id;
     p.path = (std::filesystem::path(store.dir()) / entry.image).string();
+    const std::string problem = PlacementProblem(G, s, p.path, cache);
+    if (!problem.empty()) {
+      result.left_out.emplace_back(entry.id, problem + "; left out");
+      continue;
+    }
     p.to_mosaic = G;  // global for now; the mosaic's offset and scale come next
     p.size = cv::Size(static_cast<int>(s.size[0]), static_cast<int>(s.size[1]));
     to_global[entry.id] = G;
