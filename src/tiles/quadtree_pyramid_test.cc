@@ -144,6 +144,24 @@ TEST(QuadtreePyramid, AnInterruptedBuildResumesToTheSameFile) {
   ExpectSameLevels(fresh, out);
 }
 
+// Writing the TIFF frees the journal's copies: a run that died then must start over, not read
+// holes as tiles.
+TEST(QuadtreePyramid, AJournalThatWasBeingAssembledIsStartedOver) {
+  ScratchDir dir;
+  const cv::Mat image = TestImage(700, 600);
+  QuadtreeOptions q;
+  q.chunk_px = 256;
+  const std::string partial = dir / "partial";
+  {
+    TileJournal journal(partial, "same", false);
+    BuildQuadtreePyramid(dir / "out.tif", LayoutOf(image), TiffWriteOptions{}, q, CropOf(image), journal, nullptr);
+    EXPECT_GT(journal.chunks_done(), 1);
+  }  // as if it died before Remove()
+  TileJournal again(partial, "same", false);
+  EXPECT_NE(again.discarded().find("already writing"), std::string::npos) << again.discarded();
+  EXPECT_EQ(again.chunks_done(), 0);
+}
+
 TEST(QuadtreePyramid, ADamagedJournalIsStartedOver) {
   ScratchDir dir;
   const std::string partial = (dir / "partial");

@@ -1,6 +1,7 @@
 #include "tiles/tile_journal.h"
 
 #include <fcntl.h>
+#include <linux/falloc.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -109,6 +110,15 @@ void TileJournal::Load(const std::string& fingerprint) {
   const uint64_t data_size = ::stat(data_path_.c_str(), &st) == 0 ? uint64_t(st.st_size) : 0;
   std::string line;
   while (std::getline(in, line)) {
+    if (line == "assembling") {
+      // WriteTiff frees the tiles it has copied: a run that died then left holes, not tiles.
+      discarded_ = "the interrupted run was already writing mosaic.tif, whose tiles it had freed";
+      done_.clear();
+      levels_.clear();
+      fs::remove(journal_path_, ec);
+      fs::remove(data_path_, ec);
+      return;
+    }
     // "chunk ID N level,index,offset,size ... end": a line cut short by a crash has no "end".
     if (line.size() < 4 || line.compare(line.size() - 4, 4, " end") != 0) continue;
     std::istringstream l(line);
@@ -203,6 +213,12 @@ void TileJournal::WriteTiff(const std::string& path, const PixelLayout& layout,
                             const std::vector<long long>& level_heights,
                             const std::vector<uint8_t>& jpeg_tables) const {
   const std::string tmp = TemporarySibling(path);
+  // Each tile's bytes are freed once copied (a hole punched in the data file), so the disk holds
+  // about one copy of the mosaic, not two; the journal says so first, for a run that dies here.
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    AppendAll(journal_fd_, "assembling\n", journal_path_);
+  }
   try {
     auto file = TiffFile::Open(tmp, "w8");  // BigTIFF always
     TIFF* tif = file->get();
@@ -218,6 +234,7 @@ void TileJournal::WriteTiff(const std::string& path, const PixelLayout& layout,
         std::vector<uint8_t> bytes = Read(static_cast<int>(k), i);
         if (TIFFWriteRawTile(tif, static_cast<uint32_t>(i), bytes.data(), static_cast<tmsize_t>(bytes.size())) < 0)
           Fail(path, "cannot write tile " + std::to_string(i) + " of level " + std::to_string(k) + ": " + file->TakeError());
+        Free(static_cast<int>(k), i);
       }
     }
     file->Close();
@@ -226,6 +243,12 @@ void TileJournal::WriteTiff(const std::string& path, const PixelLayout& layout,
     ::unlink(tmp.c_str());
     throw;
   }
+}
+
+void TileJournal::Free(int level, long long index) const {
+  const auto& e = levels_[static_cast<size_t>(level + 1)][static_cast<size_t>(index)];
+  // Only whole blocks are released; filesystems without holes keep the bytes (no error).
+  ::fallocate(data_fd_, FALLOC_FL_PUNCH_HOLE | FALLOC_FL_KEEP_SIZE, static_cast<off_t>(e.first), static_cast<off_t>(e.second));
 }
 
 void TileJournal::Remove() {

@@ -43,6 +43,8 @@ class TileJournal {
   // The committed tile (level, index); throws Error when it was never committed.
   std::vector<uint8_t> Read(int level, long long index) const;
   // Writes the pyramid: `tiles_per_level[k]` tiles of level k, all of which must be committed.
+  // The data file's copies are freed as they are written: afterwards the journal cannot be
+  // resumed (a run that dies while this runs starts over).
   void WriteTiff(const std::string& path, const PixelLayout& layout,
                  const TiffWriteOptions& options, const std::vector<long long>& tiles_per_level,
                  const std::vector<long long>& level_widths,
@@ -54,6 +56,7 @@ class TileJournal {
  private:
   void Load(const std::string& fingerprint);
   void Record(const JournalTile& t);
+  void Free(int level, long long index) const;
 
   std::string dir_, data_path_, journal_path_;
   int data_fd_ = -1, journal_fd_ = -1;
