@@ -30,7 +30,9 @@ struct ObjectFeatureOptions {
   int pyramid_levels = 2;                 // spatial pyramid: 1 = whole image, 2 = + 2 x 2 cells
   bool centre_cell = true;                // one more cell: the central half, where the object is
   // A second view: the square around the blob that stands out near the centre, described at the
-  // same size whatever the object's (its whole and its quarters, words and colour).
+  // same size whatever the object's (its whole and its quarters, words and colour). For crops
+  // centred on their object: with fisher and a linear kernel, 78 % on validation against 74 % for
+  // the default; off by default because sliding windows are not centred (more false detections).
   bool object_view = false;
   // vlad: per visual word, the sum of the descriptors' residuals to it, power- and
   // L2-normalised (the best on validation data: 74 % against 68 % for plain counts);
