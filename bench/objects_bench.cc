@@ -89,6 +89,8 @@ int main(int argc, char** argv) {
   app.add_flag("--no-centre", no_centre);
   app.add_option("--saturation-bins", o.features.saturation_bins);
   app.add_option("--colour-weight", o.features.colour_weight);
+  app.add_flag("--object-view", o.features.object_view);
+  app.add_option("--pca-dims", o.features.pca_dims);
   app.add_flag("!--no-baseline", baseline);
   CLI11_PARSE(app, argc, argv);
   o.features.centre_cell = !no_centre;

@@ -25,7 +25,9 @@ def main():
     rows = []
     configs = [("rolamos default: VLAD (64 words) + RBF one-vs-all", [], True),
                ("rolamos --encoding bow --vocabulary 400 --kernel chi2 (the paper's BoW)",
-                ["--encoding", "bow", "--vocabulary", "400", "--kernel", "chi2"], False)]
+                ["--encoding", "bow", "--vocabulary", "400", "--kernel", "chi2"], False),
+               ("rolamos --encoding fisher --object-view --kernel linear (best on validation)",
+                ["--encoding", "fisher", "--object-view", "--kernel", "linear"], False)]
     for label, flags, baseline in configs:
         r = subprocess.run([BENCH, train, val] + flags + ([] if baseline else ["--no-baseline"]),
                            capture_output=True, text=True, check=True)
