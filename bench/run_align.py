@@ -7,22 +7,13 @@ cv::Stitcher SCANS on the same frames (stopped after --peer-timeout seconds).
 
   bench/run_align.py [--frames 300] [--peer-timeout 300]
 """
+from bench_common import timed
 import argparse, glob, json, os, re, subprocess, sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CLI = os.path.join(ROOT, "build", "rolamos")
 DATA = os.path.join(ROOT, "..", "shared", "data", "seattle_rov_gopro_large")
 OUT = os.path.join(ROOT, "bench", "out", "align")
-
-
-def timed(cmd, timeout=None):
-    try:
-        r = subprocess.run(["/usr/bin/time", "-f", "TIME %e %M"] + cmd, capture_output=True, text=True, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        subprocess.run(["pkill", "-f", os.path.basename(cmd[0])])  # /usr/bin/time leaves its child running
-        return None, None, None
-    t, m = re.search(r"TIME ([\d.]+) (\d+)", r.stderr).groups()
-    return r, float(t), int(m) / 1024
 
 
 def evaluate(survey, store, online=False):

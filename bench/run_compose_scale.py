@@ -8,6 +8,7 @@ and resumed; then a 1,000-frame synthetic survey mosaicked, composed and aligned
 
 Stores are made once under bench/out/compose/ by build/compose_scale_bench and `rolamos synth`.
 """
+from bench_common import timed
 import argparse, json, os, re, signal, subprocess, statistics, time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -16,16 +17,8 @@ MAKE = os.path.join(ROOT, "build", "compose_scale_bench")
 OUT = os.path.join(ROOT, "bench", "out", "compose")
 
 
-def timed(cmd, timeout=None):
-    try:
-        r = subprocess.run(["/usr/bin/time", "-f", "TIME %e %M"] + cmd, capture_output=True, text=True, timeout=timeout)
-    except subprocess.TimeoutExpired:
-        subprocess.run(["pkill", "-f", os.path.basename(cmd[0])])  # /usr/bin/time leaves its child running
-        return None, None, None
-    if r.returncode != 0:
-        raise SystemExit(f"{' '.join(cmd)} failed:\n{r.stdout}\n{r.stderr}")
-    t, m = re.search(r"TIME ([\d.]+) (\d+)", r.stderr).groups()
-    return r, float(t), int(m) / 1024
+def timed_checked(cmd, timeout=None):
+    return timed(cmd, timeout=timeout, check=True)
 
 
 def make(name, width, height, patch, overlap, georef=False):
@@ -39,7 +32,7 @@ def make(name, width, height, patch, overlap, georef=False):
 
 
 def compose(store, codec, extra=()):
-    r, t, m = timed([CLI, "compose", store, "-q", "--no-link", "--compression", codec, "--restart", *extra])
+    r, t, m = timed_checked([CLI, "compose", store, "-q", "--no-link", "--compression", codec, "--restart", *extra])
     w, h = map(int, re.search(r"mosaic.tif: (\d+) x (\d+)", r.stdout).groups())
     return t, m, w * h / 1e6
 
@@ -56,12 +49,12 @@ def gdalwarp(store, runs, timeout):
     for _ in range(runs):
         subprocess.run(["rm", "-f", out])
         # (-co NUM_THREADS=2 as well deadlocked GDAL 3.6 here: every thread waiting, for minutes.)
-        _, t1, m1 = timed(["gdalwarp", "-q", "-multi", "-wo", "NUM_THREADS=2", "-wm", "512", "-ovr", "NONE", "-dstalpha",
+        _, t1, m1 = timed_checked(["gdalwarp", "-q", "-multi", "-wo", "NUM_THREADS=2", "-wm", "512", "-ovr", "NONE", "-dstalpha",
                            "-co", "TILED=YES", "-co", "BIGTIFF=YES", "-co", "COMPRESS=JPEG",
                            "--config", "GDAL_CACHEMAX", "256", *patches, out], timeout=timeout)
         if t1 is None:
             return None, None
-        _, t2, m2 = timed(["gdaladdo", "-q", "-r", "average", "--config", "COMPRESS_OVERVIEW", "JPEG",
+        _, t2, m2 = timed_checked(["gdaladdo", "-q", "-r", "average", "--config", "COMPRESS_OVERVIEW", "JPEG",
                            "--config", "GDAL_NUM_THREADS", "2", out])
         times.append(t1 + t2)
         mems.append(max(m1, m2))
@@ -74,13 +67,13 @@ def survey1000(lines):
         subprocess.run([CLI, "synth", "-o", survey, "--frames", "1000", "-q", "--seed", "5"], check=True)
     store = os.path.join(OUT, "s1000.rolamos")
     subprocess.run(["rm", "-rf", store])
-    r, t_mosaic, m_mosaic = timed([CLI, "mosaic", "-q", os.path.join(survey, "frames"), "-o", store])
+    r, t_mosaic, m_mosaic = timed_checked([CLI, "mosaic", "-q", os.path.join(survey, "frames"), "-o", store])
     patches = re.search(r"(\d+) patch", r.stdout)
     rows = []
     for codec in ("webp", "jpeg"):
         t, m, mpx = compose(store, codec)
         rows.append((codec, t, m, mpx))
-    r, t_align, m_align = timed([CLI, "align", "-q", store])
+    r, t_align, m_align = timed_checked([CLI, "align", "-q", store])
     loop = re.search(r"loop error ([\d.]+) -> ([\d.]+) px", r.stdout)
     t_re, m_re, mpx = compose(store, "webp")
     ev = subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "bench", "eval_global.py"), survey, store],
@@ -125,7 +118,7 @@ def main():
         time.sleep(t / 3)
         p.send_signal(signal.SIGKILL)
         p.wait()
-        r, t2, m2 = timed([CLI, "compose", big, "-q", "--no-link", "--compression", "jpeg"])
+        r, t2, m2 = timed_checked([CLI, "compose", big, "-q", "--no-link", "--compression", "jpeg"])
         resumed = re.search(r"resumed: (\d+) of (\d+) chunks", r.stdout)
         notes.append(f"Killed (SIGKILL) after {t / 3:.0f} s and run again: {resumed.group(1)} of {resumed.group(2)} "
                      f"chunks were kept, and the rest took {t2:.0f} s." if resumed else
