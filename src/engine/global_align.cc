@@ -143,23 +143,6 @@ struct NavPoint {
   cv::Point2d map;  // map units
 };
 
-// Similarity global pixels -> map over all points (robust), fitted about the means because map
-// coordinates are large numbers.
-cv::Matx33d FitToMap(const std::vector<cv::Point2d>& from, const std::vector<cv::Point2d>& to) {
-  cv::Point2d a(0, 0), b(0, 0);
-  for (size_t i = 0; i < from.size(); ++i) a += from[i], b += to[i];
-  a *= 1.0 / from.size();
-  b *= 1.0 / to.size();
-  std::vector<cv::Point2f> x, y;
-  for (size_t i = 0; i < from.size(); ++i) x.emplace_back(from[i] - a), y.emplace_back(to[i] - b);
-  std::vector<uchar> inliers;
-  const cv::Mat A = cv::estimateAffinePartial2D(x, y, inliers, cv::LMEDS);
-  if (A.empty()) Fail("align", "the navigation does not fit any similarity transform of the placement");
-  const cv::Matx23d T(A);
-  return cv::Matx33d(1, 0, b.x, 0, 1, b.y, 0, 0, 1) * cv::Matx33d(T(0, 0), T(0, 1), T(0, 2), T(1, 0), T(1, 1), T(1, 2), 0, 0, 1) *
-         cv::Matx33d(1, 0, -a.x, 0, 1, -a.y, 0, 0, 1);
-}
-
 // Median distance on the map between frame centres (every 5th point) placed by `C` and their
 // navigation, after the best similarity; also returns that similarity.
 double NavigationResidual(const std::vector<NavPoint>& nav, const std::vector<cv::Matx33d>* C, cv::Matx33d* to_map) {
@@ -168,7 +151,9 @@ double NavigationResidual(const std::vector<NavPoint>& nav, const std::vector<cv
     from.push_back(C ? ApplyHomography((*C)[static_cast<size_t>(p.frame)], p.P) : p.P);
     to.push_back(p.map);
   }
-  *to_map = FitToMap(from, to);
+  const std::optional<cv::Matx33d> fit = FitSimilarity(from, to);
+  if (!fit) Fail("align", "the navigation does not fit any similarity transform of the placement");
+  *to_map = *fit;
   std::vector<double> d;
   for (size_t i = 0; i < from.size(); i += 5) d.push_back(cv::norm(ApplyHomography(*to_map, from[i]) - to[i]));
   std::nth_element(d.begin(), d.begin() + static_cast<long>(d.size() / 2), d.end());
@@ -216,20 +201,15 @@ AlignSummary AlignStore(Store store, const AlignOptions& options, const AlignPro
   AlignSummary summary;
   summary.frames = n;
 
-  // Navigation points: five near each frame's centre, where lens distortion matters least.
+  // Navigation points: five near each frame's centre.
   std::vector<NavPoint> nav;
   for (int i = 0; i < n && !options.navigation.empty(); ++i) {
     const Frame& f = frames[static_cast<size_t>(i)];
-    const std::filesystem::path src(f.source);
-    auto it = options.navigation.find(src.parent_path().filename().string() + "/" + src.filename().string());
-    if (it == options.navigation.end()) it = options.navigation.find(src.filename().string());
-    if (it == options.navigation.end()) continue;
-    const auto& g = it->second.geotransform;
-    for (const cv::Point2d p : {cv::Point2d(0.5, 0.5), cv::Point2d(0.35, 0.5), cv::Point2d(0.65, 0.5),
-                                cv::Point2d(0.5, 0.35), cv::Point2d(0.5, 0.65)}) {
-      const double col = p.x * (f.size.width - 1), row = p.y * (f.size.height - 1);
-      nav.push_back({i, ApplyHomography(f.to_global, {col, row}), {g[0] + col * g[1] + row * g[2], g[3] + col * g[4] + row * g[5]}});
-    }
+    const FrameNavigation* fn = FindFrameNavigation(options.navigation, f.source);
+    if (!fn) continue;
+    std::vector<cv::Point2d> global, map;
+    AddNavigationPoints(*fn, f.to_global, f.size, &global, &map);
+    for (size_t k = 0; k < global.size(); ++k) nav.push_back({i, global[k], map[k]});
     ++summary.navigation_frames;
   }
   if (!options.navigation.empty() && summary.navigation_frames < 2)

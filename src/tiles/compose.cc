@@ -65,8 +65,9 @@ std::string Fingerprint(const std::vector<PlacedPatch>& placed, const ComposeRes
 
 // Why a patch cannot be drawn ("" when it can): an image that does not open or disagrees with its
 // sidecar, or a placement that is not finite, folds the patch, or sends part of it to infinity.
+// On success the patch's image is left open in `image`.
 std::string PlacementProblem(const cv::Matx33d& G, const PatchSidecar& s, const std::string& path,
-                             const std::shared_ptr<TileCache>& cache) {
+                             const std::shared_ptr<TileCache>& cache, std::shared_ptr<const TiledImage>* image) {
   for (double v : G.val)
     if (!std::isfinite(v)) return "its placement is not finite";
   const double w = double(s.size[0]), h = double(s.size[1]);
@@ -75,9 +76,9 @@ std::string PlacementProblem(const cv::Matx33d& G, const PatchSidecar& s, const 
   const double det = G(0, 0) * G(1, 1) - G(0, 1) * G(1, 0);
   if (!(std::abs(det) > 1e-6 && std::abs(det) < 1e6)) return "its placement is degenerate (scale " + std::to_string(det) + ")";
   try {
-    const TiledImage image = TiledImage::Open(path, cache);
-    if (image.width() != s.size[0] || image.height() != s.size[1])
-      return "its image is " + std::to_string(image.width()) + " x " + std::to_string(image.height()) +
+    *image = std::make_shared<const TiledImage>(TiledImage::Open(path, cache));
+    if ((*image)->width() != s.size[0] || (*image)->height() != s.size[1])
+      return "its image is " + std::to_string((*image)->width()) + " x " + std::to_string((*image)->height()) +
              " but its sidecar says " + std::to_string(s.size[0]) + " x " + std::to_string(s.size[1]);
   } catch (const Error& e) {
     return e.what();
@@ -122,7 +123,7 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
     PlacedPatch p;
     p.id = entry.id;
     p.path = (std::filesystem::path(store.dir()) / entry.image).string();
-    const std::string problem = PlacementProblem(G, s, p.path, cache);
+    const std::string problem = PlacementProblem(G, s, p.path, cache, &p.image);
     if (!problem.empty()) {
       result.left_out.emplace_back(entry.id, problem + "; left out");
       continue;
@@ -167,7 +168,7 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
     const std::string partial = store.MosaicPath() + ".partial";
     TileJournal journal(partial, Fingerprint(placed, result, options), options.restart);
     result.discarded = journal.discarded();
-    const PatchBlender blender(placed, scale, options.feather_px, cache);
+    const PatchBlender blender(placed, scale, options.feather_px);
     QuadtreeOptions qo;
     qo.threads = options.threads;
     qo.chunk_px = options.chunk_px;

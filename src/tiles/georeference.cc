@@ -216,11 +216,44 @@ NavigationCamera FrameCamera(const Store& store, NavigationCamera camera) {
   return camera;
 }
 
+const FrameNavigation* FindFrameNavigation(const std::map<std::string, FrameNavigation>& nav,
+                                           const std::string& source) {
+  const fs::path src(source);
+  auto it = nav.find(src.parent_path().filename().string() + "/" + src.filename().string());
+  if (it == nav.end()) it = nav.find(src.filename().string());
+  return it == nav.end() ? nullptr : &it->second;
+}
+
+void AddNavigationPoints(const FrameNavigation& nav, const cv::Matx33d& frame_to_global, cv::Size frame,
+                         std::vector<cv::Point2d>* global, std::vector<cv::Point2d>* map) {
+  const auto& g = nav.geotransform;
+  for (const cv::Point2d p : {cv::Point2d(0.5, 0.5), cv::Point2d(0.35, 0.5), cv::Point2d(0.65, 0.5),
+                              cv::Point2d(0.5, 0.35), cv::Point2d(0.5, 0.65)}) {
+    const double col = p.x * (frame.width - 1), row = p.y * (frame.height - 1);
+    global->push_back(ApplyHomography(frame_to_global, {col, row}));
+    map->emplace_back(g[0] + col * g[1] + row * g[2], g[3] + col * g[4] + row * g[5]);
+  }
+}
+
+std::optional<cv::Matx33d> FitSimilarity(const std::vector<cv::Point2d>& from, const std::vector<cv::Point2d>& to) {
+  cv::Point2d a(0, 0), b(0, 0);
+  for (size_t i = 0; i < from.size(); ++i) a += from[i], b += to[i];
+  a *= 1.0 / from.size();
+  b *= 1.0 / to.size();
+  std::vector<cv::Point2f> x, y;
+  for (size_t i = 0; i < from.size(); ++i) x.emplace_back(from[i] - a), y.emplace_back(to[i] - b);
+  std::vector<uchar> inliers;
+  const cv::Mat A = cv::estimateAffinePartial2D(x, y, inliers, cv::LMEDS);
+  if (A.empty()) return std::nullopt;
+  const cv::Matx23d T(A);
+  return cv::Matx33d(1, 0, b.x, 0, 1, b.y, 0, 0, 1) * cv::Matx33d(T(0, 0), T(0, 1), T(0, 2), T(1, 0), T(1, 1), T(1, 2), 0, 0, 1) *
+         cv::Matx33d(1, 0, -a.x, 0, 1, -a.y, 0, 0, 1);
+}
+
 GeoreferenceResult GeoreferenceMosaic(Store store, const std::map<std::string, FrameNavigation>& nav) {
   if (!store.HasMosaic()) Fail(store.dir(), "has no mosaic.tif yet (run compose first)");
   // Correspondences: points around each frame's centre, in mosaic pixels and in map units.
   std::vector<cv::Point2d> mosaic_pts, map_pts;
-  std::vector<int> owner;
   std::string crs;
   int frames = 0;
   for (const auto& entry : store.patches()) {
@@ -228,51 +261,22 @@ GeoreferenceResult GeoreferenceMosaic(Store store, const std::map<std::string, F
     if (!s.patch_to_global) continue;  // not placed in the mosaic
     if (!s.extra.contains("frame_size") || !s.extra["frame_size"].is_array() || s.extra["frame_size"].size() != 2)
       Fail(store.PatchSidecarPath(entry.id), "has no \"frame_size\" (written by rolamos mosaic)");
-    const double width = s.extra["frame_size"][0].get<double>(), height = s.extra["frame_size"][1].get<double>();
+    const cv::Size size(s.extra["frame_size"][0].get<int>(), s.extra["frame_size"][1].get<int>());
     for (const auto& f : s.frames) {
-      const fs::path src(f.source);
-      const std::string name = src.filename().string();
-      const std::string with_seq = src.parent_path().filename().string() + "/" + name;
-      auto it = nav.find(with_seq);
-      if (it == nav.end()) it = nav.find(name);
-      if (it == nav.end()) continue;
-      if (crs.empty()) crs = it->second.crs;
-      if (it->second.crs != crs)
-        Fail(store.dir(), "frames are in different CRSs (" + crs + ", " + it->second.crs + ")");
-      const cv::Matx33d to_mosaic = ToMatx(*s.patch_to_global) * ToMatx(f.frame_to_patch);
-      const auto& g = it->second.geotransform;
-      // Points near the centre, where lens distortion matters least.
-      for (const cv::Point2d p : {cv::Point2d(0.5, 0.5), cv::Point2d(0.35, 0.5), cv::Point2d(0.65, 0.5),
-                                  cv::Point2d(0.5, 0.35), cv::Point2d(0.5, 0.65)}) {
-        const double col = p.x * (width - 1), row = p.y * (height - 1);
-        const cv::Vec3d m = to_mosaic * cv::Vec3d(col, row, 1);
-        mosaic_pts.emplace_back(m[0] / m[2], m[1] / m[2]);
-        map_pts.emplace_back(g[0] + col * g[1] + row * g[2], g[3] + col * g[4] + row * g[5]);
-        owner.push_back(frames);
-      }
+      const FrameNavigation* n = FindFrameNavigation(nav, f.source);
+      if (!n) continue;
+      if (crs.empty()) crs = n->crs;
+      if (n->crs != crs) Fail(store.dir(), "frames are in different CRSs (" + crs + ", " + n->crs + ")");
+      AddNavigationPoints(*n, ToMatx(*s.patch_to_global) * ToMatx(f.frame_to_patch), size, &mosaic_pts, &map_pts);
       ++frames;
     }
   }
   if (frames < 2) Fail(store.dir(), "fewer than two placed frames have navigation");
-  // Similarity mosaic -> map, fitted around the means (map coordinates are large numbers).
-  cv::Point2d mc(0, 0), nc(0, 0);
-  for (size_t i = 0; i < mosaic_pts.size(); ++i) mc += mosaic_pts[i], nc += map_pts[i];
-  mc *= 1.0 / mosaic_pts.size();
-  nc *= 1.0 / map_pts.size();
-  std::vector<cv::Point2f> a, b;
-  for (size_t i = 0; i < mosaic_pts.size(); ++i) {
-    a.emplace_back(cv::Point2f(mosaic_pts[i] - mc));
-    b.emplace_back(cv::Point2f(map_pts[i] - nc));
-  }
-  std::vector<uchar> inliers;
-  cv::Mat A = cv::estimateAffinePartial2D(a, b, inliers, cv::LMEDS);
-  if (A.empty()) Fail(store.dir(), "the navigation does not fit any similarity transform");
-  const cv::Matx23d T(A);
+  const std::optional<cv::Matx33d> M = FitSimilarity(mosaic_pts, map_pts);
+  if (!M) Fail(store.dir(), "the navigation does not fit any similarity transform");
   GeoreferenceResult r;
   r.georef.crs = crs;
-  // map = T * (mosaic - mc) + nc  ->  GDAL order
-  r.georef.geotransform = {nc.x + T(0, 2) - T(0, 0) * mc.x - T(0, 1) * mc.y, T(0, 0), T(0, 1),
-                           nc.y + T(1, 2) - T(1, 0) * mc.x - T(1, 1) * mc.y, T(1, 0), T(1, 1)};
+  r.georef.geotransform = {(*M)(0, 2), (*M)(0, 0), (*M)(0, 1), (*M)(1, 2), (*M)(1, 0), (*M)(1, 1)};
   std::vector<double> residuals;
   for (size_t i = 0; i < mosaic_pts.size(); i += 5) {  // frame centres
     const auto xy = r.georef.PixelToMap(mosaic_pts[i].x, mosaic_pts[i].y);

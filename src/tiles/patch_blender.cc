@@ -39,20 +39,13 @@ cv::Mat FeatherFromAlpha(const cv::Mat& alpha, int width) {
 
 }  // namespace
 
-PatchBlender::PatchBlender(std::vector<PlacedPatch> patches, double scale, int feather_px,
-                           std::shared_ptr<TileCache> cache)
-    : patches_(std::move(patches)), scale_(scale), feather_px_(feather_px), cache_(std::move(cache)),
-      images_(patches_.size()), opened_(new std::once_flag[patches_.size()]) {}
+PatchBlender::PatchBlender(std::vector<PlacedPatch> patches, double scale, int feather_px)
+    : patches_(std::move(patches)), scale_(scale), feather_px_(feather_px) {}
 
 bool PatchBlender::OnlyOne(size_t k, const cv::Rect2d& area) const {
   for (size_t j = 0; j < patches_.size(); ++j)
     if (j != k && (patches_[j].bounds & area).area() > 0) return false;
   return true;
-}
-
-const TiledImage& PatchBlender::Image(size_t k) const {
-  std::call_once(opened_[k], [&] { images_[k] = std::make_unique<TiledImage>(TiledImage::Open(patches_[k].path, cache_)); });
-  return *images_[k];
 }
 
 namespace {
@@ -76,7 +69,7 @@ cv::Mat PatchBlender::Render(const cv::Rect& rect) const {
     const PlacedPatch& p = patches_[k];
     const cv::Rect2d cover = p.bounds & area;
     if (cover.area() <= 0) continue;
-    const TiledImage& image = Image(k);
+    const TiledImage& image = *p.image;
     // The region's footprint in the patch, with room for the feather.
     const cv::Matx33d to_region = cv::Matx33d(1, 0, -rect.x, 0, 1, -rect.y, 0, 0, 1) * p.to_mosaic;
     const cv::Rect2d need = WarpedBounds(to_region.inv(), rect.size());

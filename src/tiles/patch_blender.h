@@ -5,7 +5,6 @@
 #pragma once
 
 #include <memory>
-#include <mutex>
 #include <string>
 #include <vector>
 
@@ -19,6 +18,7 @@ namespace rolamos {
 struct PlacedPatch {
   int id = 0;
   std::string path;
+  std::shared_ptr<const TiledImage> image;  // opened (and checked) when the patch was placed
   cv::Size size;           // level-0 pixels
   cv::Matx33d to_mosaic;   // patch level-0 pixel -> mosaic pixel
   cv::Rect2d bounds;       // in mosaic pixels
@@ -26,24 +26,19 @@ struct PlacedPatch {
 
 class PatchBlender {
  public:
-  PatchBlender(std::vector<PlacedPatch> patches, double scale, int feather_px,
-               std::shared_ptr<TileCache> cache);
+  PatchBlender(std::vector<PlacedPatch> patches, double scale, int feather_px);
   // 8-bit BGRA of `rect` (mosaic pixels; alpha 255 where a patch has data), or an empty Mat when
   // no patch reaches it.
   cv::Mat Render(const cv::Rect& rect) const;
   const std::vector<PlacedPatch>& patches() const { return patches_; }
 
  private:
-  const TiledImage& Image(size_t k) const;
   // Whether patch k is the only one whose bounds reach `area`.
   bool OnlyOne(size_t k, const cv::Rect2d& area) const;
 
   std::vector<PlacedPatch> patches_;
   double scale_;
   int feather_px_;
-  std::shared_ptr<TileCache> cache_;
-  mutable std::vector<std::unique_ptr<TiledImage>> images_;  // opened on first use
-  std::unique_ptr<std::once_flag[]> opened_;
 };
 
 }  // namespace rolamos

@@ -53,9 +53,8 @@ class Builder {
     long long blocks = 0;
   };
 
-  Builder(const PyramidGeometry& g, const PixelLayout& layout, const TiffWriteOptions& tiff,
-          const QuadtreeOptions& o, const RenderFn& render, TileJournal& journal)
-      : g_(g), layout_(layout), tiff_(tiff), render_(render), journal_(journal) {
+  Builder(const PyramidGeometry& g, const QuadtreeOptions& o, const RenderFn& render, TileJournal& journal)
+      : g_(g), render_(render), journal_(journal) {
     const int top = g.levels() - 1;
     chunk_level_ = std::min(top, std::max(0, Log2Ceil(o.chunk_px / g.tile)));
     block_level_ = std::min(chunk_level_, std::max(0, Log2Ceil(o.block_px / g.tile)));
@@ -174,8 +173,6 @@ class Builder {
   }
 
   const PyramidGeometry& g_;
-  PixelLayout layout_;
-  TiffWriteOptions tiff_;
   const RenderFn& render_;
   TileJournal& journal_;
   int chunk_level_ = 0, block_level_ = 0;
@@ -189,7 +186,7 @@ QuadtreeStats BuildQuadtreePyramid(const std::string& path, const PixelLayout& l
                                    const ProgressFn& progress) {
   CV_Assert(layout.channels == 4 && layout.bits == 8);
   const PyramidGeometry g(layout.width, layout.height, tiff.tile_size, tiff.pyramid);
-  Builder builder(g, layout, tiff, options, render, journal);
+  Builder builder(g, options, render, journal);
   QuadtreeStats stats;
   stats.chunks = builder.chunks();
   stats.chunks_resumed = journal.chunks_done() - (journal.IsDone(stats.chunks) ? 1 : 0);
