@@ -40,6 +40,17 @@ struct ObjectFeatureOptions {
   // fisher: Fisher vectors over a Gaussian mixture of PCA-reduced descriptors (pca_dims).
   std::string encoding = "vlad";
   int pca_dims = 64;                      // fisher only
+  // fisher only: a second local descriptor, the mean and spread of L, a, b in the 4 x 4
+  // subregions of every dense patch, with its own Fisher codebook (colour_pca_dims).
+  bool colour_statistics = false;
+  int colour_pca_dims = 48;
+  // fisher only: each descriptor's place in the sample (x, y in -0.5..0.5) joins it in the
+  // mixture, so the words also say where they were seen (spatially augmented Fisher vectors).
+  bool spatial_coordinates = false;
+  // The description averaged over the sample's orientations: 1 (as it is), 2 (and its mirror
+  // image), 4 (its quarter turns) or 8 (both). A downward-looking camera sees an object in any
+  // orientation; the turned descriptors are permutations of the extracted ones.
+  int orientations = 1;
   int hue_bins = 12, saturation_bins = 4;  // colour histogram per pyramid cell; 0 = none
   double colour_weight = 1.0;             // of the colour part against the words
 

@@ -5,6 +5,7 @@
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "objects/dihedral.h"
 #include "objects/object_crop.h"
 #include "rolamos/error.hpp"
 
@@ -49,6 +50,22 @@ bool ObjectFeatureOptions::IsValid(std::string* error) const {
     *error = "PCA dimensions (fisher) must be in 8.." + std::to_string(DescriptorSize(*this));
     return false;
   }
+  if (colour_statistics && encoding != "fisher") {
+    *error = "colour statistics need the Fisher encoding (--encoding fisher)";
+    return false;
+  }
+  if (spatial_coordinates && encoding != "fisher") {
+    *error = "spatial coordinates need the Fisher encoding (--encoding fisher)";
+    return false;
+  }
+  if (orientations != 1 && orientations != 2 && orientations != 4 && orientations != 8) {
+    *error = "orientations must be 1, 2, 4 or 8";
+    return false;
+  }
+  if (colour_pca_dims < 8 || colour_pca_dims > 96) {
+    *error = "colour statistics PCA dimensions must be in 8..96";
+    return false;
+  }
   if (!(colour_weight >= 0)) {
     *error = "colour weight cannot be negative";
     return false;
@@ -73,6 +90,73 @@ cv::Mat NormaliseSample(const cv::Mat& image, int image_size) {
 }
 
 int DescriptorSize(const ObjectFeatureOptions& o) { return o.descriptor == "opponent-sift" ? 384 : 128; }
+
+std::vector<cv::KeyPoint> DenseKeypoints(cv::Size sample, const ObjectFeatureOptions& o) {
+  std::vector<cv::KeyPoint> keypoints;
+  for (int size : o.patch_sizes) {
+    // OpenCV's SIFT spans 4 x 4 bins of 3 sigma each, sigma = keypoint size / 2: a patch of
+    // `size` pixels is a keypoint of size / 6.
+    const int margin = size / 2;
+    for (int y = margin; y <= sample.height - margin; y += o.grid_step)
+      for (int x = margin; x <= sample.width - margin; x += o.grid_step)
+        keypoints.emplace_back(static_cast<float>(x), static_cast<float>(y), size / 6.0f, 0.f);
+  }
+  return keypoints;
+}
+
+namespace {
+
+// The integral of a pixel image (constant over each pixel's square) over [0, x) x [0, y), for
+// any real x, y: bilinear between the integral image's samples. Boxes with fractional edges then
+// weigh their edge pixels by the part they cover, so a box and its mirror image agree exactly.
+double IntegralAt(const cv::Mat& integral, double x, double y) {
+  x = std::clamp(x, 0.0, integral.cols - 1.0);
+  y = std::clamp(y, 0.0, integral.rows - 1.0);
+  const int x0 = std::min(static_cast<int>(x), integral.cols - 2), y0 = std::min(static_cast<int>(y), integral.rows - 2);
+  const double fx = x - x0, fy = y - y0;
+  const double* r0 = integral.ptr<double>(y0);
+  const double* r1 = integral.ptr<double>(y0 + 1);
+  return (1 - fy) * ((1 - fx) * r0[x0] + fx * r0[x0 + 1]) + fy * ((1 - fx) * r1[x0] + fx * r1[x0 + 1]);
+}
+
+double BoxIntegral(const cv::Mat& integral, const cv::Rect2d& r) {
+  return IntegralAt(integral, r.br().x, r.br().y) - IntegralAt(integral, r.x, r.br().y) -
+         IntegralAt(integral, r.br().x, r.y) + IntegralAt(integral, r.x, r.y);
+}
+
+}  // namespace
+
+cv::Mat ColourStatistics(const cv::Mat& sample, const std::vector<cv::KeyPoint>& keypoints) {
+  cv::Mat lab;
+  sample.convertTo(lab, CV_32F, 1.0 / 255);
+  cv::cvtColor(lab, lab, cv::COLOR_BGR2Lab);
+  // Integral images of each channel and its square: any box's mean and variance in O(1).
+  std::vector<cv::Mat> channels(3), sums(3), squares(3);
+  cv::split(lab, channels);
+  for (size_t c = 0; c < 3; ++c) cv::integral(channels[c], sums[c], squares[c], CV_64F, CV_64F);
+  const cv::Rect2d image(0, 0, sample.cols, sample.rows);
+  cv::Mat out(static_cast<int>(keypoints.size()), 96, CV_32F);
+  for (int i = 0; i < out.rows; ++i) {
+    const cv::KeyPoint& k = keypoints[static_cast<size_t>(i)];
+    // The patch SIFT describes: centred on the keypoint's pixel centre, 6 x size across.
+    const double side = k.size * 6.0, cell = side / 4;
+    const double left = k.pt.x + 0.5 - side / 2, top = k.pt.y + 0.5 - side / 2;
+    float* o = out.ptr<float>(i);
+    for (int cy = 0; cy < 4; ++cy)
+      for (int cx = 0; cx < 4; ++cx) {
+        const cv::Rect2d box = cv::Rect2d(left + cx * cell, top + cy * cell, cell, cell) & image;
+        const double area = box.area();
+        for (size_t c = 0; c < 3; ++c) {
+          const double mean = area > 0 ? BoxIntegral(sums[c], box) / area : 0;
+          const double var = area > 0 ? BoxIntegral(squares[c], box) / area - mean * mean : 0;
+          // L spans 0..100 and a, b about -60..60: one scale keeps them comparable.
+          *o++ = static_cast<float>(mean / 50);
+          *o++ = static_cast<float>(std::sqrt(std::max(0.0, var)) / 50);
+        }
+      }
+  }
+  return out;
+}
 
 cv::Mat DenseDescriptors(const cv::Mat& sample, const ObjectFeatureOptions& o,
                          std::vector<cv::Point2f>* positions) {
@@ -101,15 +185,7 @@ cv::Mat DenseDescriptors(const cv::Mat& sample, const ObjectFeatureOptions& o,
   }
   // Dim, low-contrast ROV footage: normalise local contrast so the gradients carry the shape.
   for (auto& c : channels) cv::createCLAHE(2.0, cv::Size(4, 4))->apply(c, c);
-  std::vector<cv::KeyPoint> keypoints;
-  for (int size : o.patch_sizes) {
-    // OpenCV's SIFT spans 4 x 4 bins of 3 sigma each, sigma = keypoint size / 2: a patch of
-    // `size` pixels is a keypoint of size / 6.
-    const int margin = size / 2;
-    for (int y = margin; y <= sample.rows - margin; y += o.grid_step)
-      for (int x = margin; x <= sample.cols - margin; x += o.grid_step)
-        keypoints.emplace_back(static_cast<float>(x), static_cast<float>(y), size / 6.0f, 0.f);
-  }
+  const std::vector<cv::KeyPoint> keypoints = DenseKeypoints(sample.size(), o);
   std::vector<cv::Mat> parts;
   const auto sift = cv::SIFT::create();
   for (const auto& c : channels) {
@@ -150,14 +226,18 @@ cv::Mat BuildVocabulary(const cv::Mat& samples, int words, unsigned seed) {
   return centres;
 }
 
-BowEncoder::BowEncoder(const ObjectFeatureOptions& options, cv::Mat vocabulary, cv::Mat pca)
-    : options_(options), vocabulary_(std::move(vocabulary)), cells_(Cells(options)) {
+BowEncoder::BowEncoder(const ObjectFeatureOptions& options, cv::Mat vocabulary, cv::Mat pca, FisherCodebook colour)
+    : options_(options), vocabulary_(std::move(vocabulary)), colour_(std::move(colour)), cells_(Cells(options)) {
   std::string error;
   if (!options.IsValid(&error)) Fail("object features", error);
   if (options.encoding == "fisher") {
     fisher_.gmm = vocabulary_;
     fisher_.pca = std::move(pca);
-    if (!fisher_.IsValid(DescriptorSize(options))) Fail("object features", "the Fisher codebook does not fit the descriptors");
+    const int appended = options.spatial_coordinates ? 2 : 0;
+    if (!fisher_.IsValid(DescriptorSize(options), appended))
+      Fail("object features", "the Fisher codebook does not fit the descriptors");
+    if (options.colour_statistics && !colour_.IsValid(96, appended))
+      Fail("object features", "the colour statistics' Fisher codebook is missing or does not fit them");
   } else {
     CV_Assert(vocabulary_.type() == CV_32F && vocabulary_.cols == DescriptorSize(options) && vocabulary_.rows > 0);
   }
@@ -198,20 +278,24 @@ std::vector<BowEncoder::Cell> BowEncoder::Cells(const ObjectFeatureOptions& o) {
 }
 
 int BowEncoder::WordDims() const {
-  if (options_.encoding == "fisher") return 2 * fisher_.components() * fisher_.dims();
+  if (options_.encoding == "fisher") return 2 * fisher_.components() * fisher_.mixture_dims();
   return options_.encoding == "vlad" ? vocabulary_.rows * vocabulary_.cols : vocabulary_.rows;
 }
 
+int BowEncoder::ColourFisherDims() const {
+  return options_.colour_statistics ? 2 * colour_.components() * colour_.mixture_dims() : 0;
+}
+
 int BowEncoder::dims() const {
-  return static_cast<int>(cells_.size()) * (WordDims() + options_.hue_bins * options_.saturation_bins);
+  return static_cast<int>(cells_.size()) * (WordDims() + ColourFisherDims() + options_.hue_bins * options_.saturation_bins);
 }
 
 // Per cell: for each component k, sum over its descriptors of p_k(x) (x - m_k) / s_k and of
 // p_k(x) ((x - m_k)^2 / s_k^2 - 1), scaled by 1 / sqrt(w_k) and 1 / sqrt(2 w_k).
-void BowEncoder::FisherStatistics(const cv::Mat& desc, const std::vector<cv::Point2f>& where, int view, float* v) const {
-  const cv::Mat x = fisher_.Project(desc);
-  const cv::Mat post = fisher_.Posteriors(x);
-  const int d = fisher_.dims(), K = fisher_.components(), words = WordDims();
+void BowEncoder::FisherStatistics(const FisherCodebook& book, const cv::Mat& x, const std::vector<cv::Point2f>& where,
+                                  int view, float* v, int stride) const {
+  const cv::Mat post = book.Posteriors(x);
+  const int d = x.cols, K = book.components();
   std::vector<float> u(static_cast<size_t>(d));
   std::vector<int> in;
   for (int i = 0; i < x.rows; ++i) {
@@ -223,11 +307,11 @@ void BowEncoder::FisherStatistics(const cv::Mat& desc, const std::vector<cv::Poi
     const float* p = post.ptr<float>(i);
     for (int k = 0; k < K; ++k) {
       if (p[k] < 1e-4f) continue;  // the posteriors are peaked: most components see nothing
-      const float* g = fisher_.gmm.ptr<float>(k);
+      const float* g = book.gmm.ptr<float>(k);
       const float a = p[k] / std::sqrt(g[2 * d]), b = p[k] / std::sqrt(2 * g[2 * d]);
       for (int j = 0; j < d; ++j) u[static_cast<size_t>(j)] = (xi[j] - g[j]) / std::sqrt(g[d + j]);
       for (int c : in) {
-        float* mu = v + c * words + k * 2 * d;
+        float* mu = v + c * stride + k * 2 * d;
         float* sigma = mu + d;
         for (int j = 0; j < d; ++j) {
           const float t = u[static_cast<size_t>(j)];
@@ -239,24 +323,98 @@ void BowEncoder::FisherStatistics(const cv::Mat& desc, const std::vector<cv::Poi
   }
 }
 
+namespace {
+
+void SignedSqrt(float* v, int n) {
+  for (int k = 0; k < n; ++k) v[k] = v[k] >= 0 ? std::sqrt(v[k]) : -std::sqrt(-v[k]);
+}
+
+// Scales v to an L2 norm of `norm` (zero stays zero).
+void NormaliseL2(float* v, int n, float norm) {
+  double n2 = 0;
+  for (int k = 0; k < n; ++k) n2 += double(v[k]) * v[k];
+  const float s = n2 > 0 ? static_cast<float>(norm / std::sqrt(n2)) : 0.f;
+  for (int k = 0; k < n; ++k) v[k] *= s;
+}
+
+}  // namespace
+
+std::vector<int> BowEncoder::Orientations() const {
+  switch (options_.orientations) {
+    case 2: return {0, 4};
+    case 4: return {0, 1, 2, 3};
+    case 8: return {0, 1, 2, 3, 4, 5, 6, 7};
+    default: return {0};
+  }
+}
+
+cv::Mat BowEncoder::Spatial(const cv::Mat& projected, const std::vector<cv::Point2f>& where) const {
+  if (!options_.spatial_coordinates) return projected;
+  cv::Mat out(projected.rows, projected.cols + 2, CV_32F);
+  projected.copyTo(out.colRange(0, projected.cols));
+  const float side = static_cast<float>(options_.image_size);
+  for (int i = 0; i < out.rows; ++i) {
+    out.at<float>(i, projected.cols) = where[static_cast<size_t>(i)].x / side - 0.5f;
+    out.at<float>(i, projected.cols + 1) = where[static_cast<size_t>(i)].y / side - 0.5f;
+  }
+  return out;
+}
+
 cv::Mat BowEncoder::Encode(const cv::Mat& image) const {
+  // The views described: the whole sample, and (object_view) the square around its object.
+  std::vector<View> views;
+  auto describe = [&](cv::Mat sample) {
+    View v;
+    v.descriptors = DenseDescriptors(sample, options_, &v.where);
+    if (options_.colour_statistics) v.colour = ColourStatistics(sample, DenseKeypoints(sample.size(), options_));
+    if (options_.hue_bins > 0) cv::cvtColor(sample, v.hsv, cv::COLOR_BGR2HSV);
+    views.push_back(std::move(v));
+  };
+  describe(NormaliseSample(image, options_.image_size));
+  if (options_.object_view) describe(NormaliseSample(ObjectCrop(ToBgr8(image)), options_.image_size));
+  const std::vector<int> orientations = Orientations();
+  cv::Mat out = cv::Mat::zeros(1, dims(), CV_32F);
+  for (int t : orientations) {
+    cv::Mat one = cv::Mat::zeros(1, dims(), CV_32F);
+    EncodeInto(views, DihedralTransform(t), one.ptr<float>());
+    out += one;
+  }
+  if (orientations.size() == 1) return out;
+  // The average, each part scaled back to its weight: histograms are L1-normalised already,
+  // the vector parts are L2-normalised again.
+  out *= 1.0 / orientations.size();
+  if (options_.encoding == "bow") return out;
+  float* v = out.ptr<float>();
+  const int cells = static_cast<int>(cells_.size()), words = WordDims(), colour = ColourFisherDims();
+  for (int c = 0; c < cells; ++c) {
+    NormaliseL2(v + c * words, words, cells_[static_cast<size_t>(c)].weight);
+    if (colour > 0) NormaliseL2(v + cells * words + c * colour, colour, cells_[static_cast<size_t>(c)].weight);
+  }
+  return out;
+}
+
+void BowEncoder::EncodeInto(const std::vector<View>& views, const DihedralTransform& turn, float* v) const {
   const bool vlad = options_.encoding == "vlad", fisher = options_.encoding == "fisher";
   const int dim = vocabulary_.cols;
-  const int words = WordDims(), cells = static_cast<int>(cells_.size());
+  const int words = WordDims(), cells = static_cast<int>(cells_.size()), colour = ColourFisherDims();
   const int colours = options_.hue_bins * options_.saturation_bins;
-  cv::Mat out = cv::Mat::zeros(1, dims(), CV_32F);
-  float* v = out.ptr<float>();
-  // The views described: the whole sample, and (object_view) the square around its object.
-  std::vector<cv::Mat> samples = {NormaliseSample(image, options_.image_size)};
-  if (options_.object_view) samples.push_back(NormaliseSample(ObjectCrop(ToBgr8(image)), options_.image_size));
-  for (int view = 0; view < static_cast<int>(samples.size()); ++view) {
-    std::vector<cv::Point2f> where;
-    const cv::Mat desc = DenseDescriptors(samples[static_cast<size_t>(view)], options_, &where);
+  const float side = static_cast<float>(options_.image_size);
+  float* colour_v = v + cells * words;
+  float* hist = colour_v + cells * colour;
+  for (int view = 0; view < static_cast<int>(views.size()); ++view) {
+    const View& in = views[static_cast<size_t>(view)];
+    // Positions are pixel indices; their centres turn with the sample.
+    std::vector<cv::Point2f> where(in.where.size());
+    for (size_t i = 0; i < where.size(); ++i)
+      where[i] = turn.Point(in.where[i] + cv::Point2f(0.5f, 0.5f), side) - cv::Point2f(0.5f, 0.5f);
+    const cv::Mat desc = turn.Sift(in.descriptors);
     std::vector<cv::DMatch> nearest;
     if (fisher)
-      FisherStatistics(desc, where, view, v);
+      FisherStatistics(fisher_, Spatial(fisher_.Project(desc), where), where, view, v, words);
     else
       cv::BFMatcher(cv::NORM_L2).match(desc, vocabulary_, nearest);
+    if (colour > 0)
+      FisherStatistics(colour_, Spatial(colour_.Project(turn.ColourStatistics(in.colour)), where), where, view, colour_v, colour);
     for (const auto& m : nearest) {
       const cv::Point2f p = where[static_cast<size_t>(m.queryIdx)];
       for (int c = 0; c < cells; ++c) {
@@ -272,53 +430,39 @@ cv::Mat BowEncoder::Encode(const cv::Mat& image) const {
         for (int k = 0; k < dim; ++k) r[k] += d[k] - w[k];
       }
     }
+    // Colour histograms: hue and saturation, weighted by value (the hue of dark pixels is noise).
+    for (int y = 0; colours > 0 && y < in.hsv.rows; ++y) {
+      const cv::Vec3b* p = in.hsv.ptr<cv::Vec3b>(y);
+      for (int x = 0; x < in.hsv.cols; ++x) {
+        const int h = std::min(options_.hue_bins - 1, p[x][0] * options_.hue_bins / 180);
+        const int s = std::min(options_.saturation_bins - 1, p[x][1] * options_.saturation_bins / 256);
+        const cv::Point2f at = turn.Point(cv::Point2f(x + 0.5f, y + 0.5f), side);
+        for (int c = 0; c < cells; ++c)
+          if (cells_[static_cast<size_t>(c)].view == view && cells_[static_cast<size_t>(c)].rect.contains(at))
+            hist[c * colours + h * options_.saturation_bins + s] += p[x][2] / 255.f;
+      }
+    }
   }
   for (int c = 0; c < cells; ++c) {
     float* block = v + c * words;
+    const float weight = cells_[static_cast<size_t>(c)].weight;
+    if (colours > 0) NormaliseL1(hist + c * colours, colours, static_cast<float>(options_.colour_weight) * weight);
     if (!vlad && !fisher) {
-      NormaliseL1(block, words, cells_[static_cast<size_t>(c)].weight);
+      NormaliseL1(block, words, weight);
       continue;
     }
     // VLAD: intra-normalisation per word; both: signed square root, then L2 over the cell.
     for (int w = 0; w < (vlad ? vocabulary_.rows : 0); ++w) {
-      float* r = block + w * dim;
-      double n2 = 0;
-      for (int k = 0; k < dim; ++k) n2 += double(r[k]) * r[k];
-      const float inv = n2 > 0 ? static_cast<float>(1.0 / std::sqrt(n2)) : 0.f;
-      for (int k = 0; k < dim; ++k) {
-        const float x = r[k] * inv;
-        r[k] = x >= 0 ? std::sqrt(x) : -std::sqrt(-x);
-      }
+      NormaliseL2(block + w * dim, dim, 1.f);
+      SignedSqrt(block + w * dim, dim);
     }
-    if (fisher)
-      for (int k = 0; k < words; ++k) block[k] = block[k] >= 0 ? std::sqrt(block[k]) : -std::sqrt(-block[k]);
-    double n2 = 0;
-    for (int k = 0; k < words; ++k) n2 += double(block[k]) * block[k];
-    const float k2 = n2 > 0 ? static_cast<float>(cells_[static_cast<size_t>(c)].weight / std::sqrt(n2)) : 0.f;
-    for (int k = 0; k < words; ++k) block[k] *= k2;
-  }
-  if (colours > 0) {
-    float* col = v + cells * words;
-    for (int view = 0; view < static_cast<int>(samples.size()); ++view) {
-      cv::Mat hsv;
-      cv::cvtColor(samples[static_cast<size_t>(view)], hsv, cv::COLOR_BGR2HSV);
-      for (int y = 0; y < hsv.rows; ++y) {
-        const cv::Vec3b* p = hsv.ptr<cv::Vec3b>(y);
-        for (int x = 0; x < hsv.cols; ++x) {
-          const int h = std::min(options_.hue_bins - 1, p[x][0] * options_.hue_bins / 180);
-          const int s = std::min(options_.saturation_bins - 1, p[x][1] * options_.saturation_bins / 256);
-          const float w = p[x][2] / 255.f;  // weighted by value: the hue of dark pixels is noise
-          const cv::Point2f at(x + 0.5f, y + 0.5f);
-          for (int c = 0; c < cells; ++c)
-            if (cells_[static_cast<size_t>(c)].view == view && cells_[static_cast<size_t>(c)].rect.contains(at))
-              col[c * colours + h * options_.saturation_bins + s] += w;
-        }
-      }
+    if (fisher) SignedSqrt(block, words);
+    NormaliseL2(block, words, weight);
+    if (colour > 0) {
+      SignedSqrt(colour_v + c * colour, colour);
+      NormaliseL2(colour_v + c * colour, colour, weight);
     }
-    for (int c = 0; c < cells; ++c)
-      NormaliseL1(col + c * colours, colours, static_cast<float>(options_.colour_weight) * cells_[static_cast<size_t>(c)].weight);
   }
-  return out;
 }
 
 }  // namespace rolamos

@@ -9,6 +9,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "objects/dihedral.h"
 #include "objects/fisher_codebook.h"
 #include "rolamos/objects.hpp"
 
@@ -22,23 +23,33 @@ cv::Mat NormaliseSample(const cv::Mat& image, int image_size);
 // 128 (gray SIFT) or 384 (opponent colour SIFT).
 int DescriptorSize(const ObjectFeatureOptions& o);
 
+// The dense grid: every patch size at every grid step that fits (size = patch diameter / 6,
+// OpenCV's SIFT convention).
+std::vector<cv::KeyPoint> DenseKeypoints(cv::Size sample, const ObjectFeatureOptions& o);
+
 // Dense RootSIFT descriptors (rows, CV_32F) of a normalised sample, with each descriptor's
 // position (pixels) in `positions` when given.
 cv::Mat DenseDescriptors(const cv::Mat& sample, const ObjectFeatureOptions& o,
                          std::vector<cv::Point2f>* positions = nullptr);
+
+// Local colour statistics (Perronnin et al.): the mean and standard deviation of L, a and b in
+// the 4 x 4 subregions of each keypoint's patch, 96 values per row (CV_32F).
+cv::Mat ColourStatistics(const cv::Mat& sample, const std::vector<cv::KeyPoint>& keypoints);
 
 // k-means over the rows of `samples` (k-means++ seeding, deterministic for a seed).
 cv::Mat BuildVocabulary(const cv::Mat& samples, int words, unsigned seed);
 
 class BowEncoder {
  public:
-  // bow and vlad: `vocabulary` is the k-means words; fisher: the codebook's mixture, with `pca`.
-  BowEncoder(const ObjectFeatureOptions& options, cv::Mat vocabulary, cv::Mat pca = {});
+  // bow and vlad: `vocabulary` is the k-means words; fisher: the codebook's mixture, with `pca`,
+  // and (colour_statistics) the colour statistics' own codebook.
+  BowEncoder(const ObjectFeatureOptions& options, cv::Mat vocabulary, cv::Mat pca = {}, FisherCodebook colour = {});
   int dims() const;
   // One row (CV_32F) describing `image` (any size, BGR/BGRA/gray).
   cv::Mat Encode(const cv::Mat& image) const;
   const cv::Mat& vocabulary() const { return vocabulary_; }
   const cv::Mat& pca() const { return fisher_.pca; }
+  const FisherCodebook& colour_codebook() const { return colour_; }
 
  private:
   struct Cell {
@@ -47,12 +58,27 @@ class BowEncoder {
     int view;         // 0: the whole sample; 1: the square around its object
   };
   static std::vector<Cell> Cells(const ObjectFeatureOptions& o);
-  int WordDims() const;  // per cell, before colour
-  void FisherStatistics(const cv::Mat& desc, const std::vector<cv::Point2f>& where, int view, float* v) const;
+  int WordDims() const;    // per cell, the SIFT part
+  int ColourFisherDims() const;  // per cell, the colour statistics' Fisher vector (0 without)
+  // Accumulates the Fisher statistics of `projected` descriptors (the codebook's space) into the
+  // cells of `view`; a cell's block is at v + cell * stride.
+  void FisherStatistics(const FisherCodebook& book, const cv::Mat& projected, const std::vector<cv::Point2f>& where,
+                        int view, float* v, int stride) const;
+  // One view's local descriptions, extracted once for every orientation.
+  struct View {
+    cv::Mat descriptors, colour, hsv;
+    std::vector<cv::Point2f> where;
+  };
+  // The description of `views` turned by `turn`, normalised, into v (zeroed, dims() long).
+  void EncodeInto(const std::vector<View>& views, const DihedralTransform& turn, float* v) const;
+  std::vector<int> Orientations() const;  // the dihedral transforms described
+  // Projected descriptors with their positions appended (spatial_coordinates), else as given.
+  cv::Mat Spatial(const cv::Mat& projected, const std::vector<cv::Point2f>& where) const;
 
   ObjectFeatureOptions options_;
   cv::Mat vocabulary_;  // words x DescriptorSize, CV_32F (fisher: the mixture, as fisher_.gmm)
   FisherCodebook fisher_;
+  FisherCodebook colour_;
   std::vector<Cell> cells_;
 };
 

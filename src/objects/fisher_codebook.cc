@@ -47,9 +47,9 @@ double Softmax(cv::Mat& logp) {
 
 }  // namespace
 
-bool FisherCodebook::IsValid(int descriptor_size) const {
+bool FisherCodebook::IsValid(int descriptor_size, int appended) const {
   return pca.type() == CV_32F && pca.cols == descriptor_size && pca.rows >= 2 && gmm.type() == CV_32F &&
-         gmm.rows >= 1 && gmm.cols == 2 * dims() + 1;
+         gmm.rows >= 1 && gmm.cols == 2 * (dims() + appended) + 1;
 }
 
 cv::Mat FisherCodebook::Project(const cv::Mat& descriptors) const {
@@ -60,14 +60,16 @@ cv::Mat FisherCodebook::Project(const cv::Mat& descriptors) const {
 }
 
 cv::Mat FisherCodebook::Posteriors(const cv::Mat& projected) const {
-  const int d = dims();
+  const int d = mixture_dims();
+  CV_Assert(projected.cols == d);
   cv::Mat weights = gmm.col(2 * d).t();
   cv::Mat logp = LogDensities(projected, gmm.colRange(0, d), gmm.colRange(d, 2 * d), weights);
   Softmax(logp);
   return logp;
 }
 
-FisherCodebook BuildFisherCodebook(const cv::Mat& samples, int components, int dims, unsigned seed) {
+FisherCodebook BuildFisherCodebook(const cv::Mat& samples, int components, int dims, unsigned seed,
+                                   const cv::Mat& appended) {
   if (samples.rows < 4 * components || dims < 1 || dims > samples.cols)
     Fail("fisher codebook", std::to_string(samples.rows) + " descriptors cannot fit " + std::to_string(components) +
                                 " Gaussians in " + std::to_string(dims) + " dimensions (more training images needed)");
@@ -76,7 +78,12 @@ FisherCodebook BuildFisherCodebook(const cv::Mat& samples, int components, int d
   book.pca.create(dims + 1, samples.cols, CV_32F);
   pca.mean.convertTo(book.pca.row(0), CV_32F);
   pca.eigenvectors.convertTo(book.pca.rowRange(1, dims + 1), CV_32F);
-  const cv::Mat x = book.Project(samples);
+  cv::Mat x = book.Project(samples);
+  if (!appended.empty()) {
+    CV_Assert(appended.rows == samples.rows && appended.type() == CV_32F);
+    cv::hconcat(x, appended, x);
+    dims = x.cols;
+  }
 
   // Start from k-means: means at the centres, each component's variance that of its points.
   cv::setRNGSeed(static_cast<int>(seed));

@@ -91,7 +91,8 @@ void ForEach(int n, const std::function<void(int)>& work) {
 void WriteFeatureOptions(cv::FileStorage& fs, const ObjectFeatureOptions& o) {
   fs << "features" << "{" << "image_size" << o.image_size << "grid_step" << o.grid_step
      << "patch_sizes" << o.patch_sizes << "pyramid_levels" << o.pyramid_levels << "centre_cell" << (o.centre_cell ? 1 : 0) << "encoding" << o.encoding << "descriptor" << o.descriptor << "hue_bins" << o.hue_bins
-     << "saturation_bins" << o.saturation_bins << "colour_weight" << o.colour_weight << "pca_dims" << o.pca_dims << "object_view" << (o.object_view ? 1 : 0) << "}";
+     << "saturation_bins" << o.saturation_bins << "colour_weight" << o.colour_weight << "pca_dims" << o.pca_dims << "object_view" << (o.object_view ? 1 : 0)
+     << "colour_statistics" << (o.colour_statistics ? 1 : 0) << "colour_pca_dims" << o.colour_pca_dims << "spatial_coordinates" << (o.spatial_coordinates ? 1 : 0) << "orientations" << o.orientations << "}";
 }
 
 ObjectFeatureOptions ReadFeatureOptions(const cv::FileNode& n) {
@@ -110,6 +111,10 @@ ObjectFeatureOptions ReadFeatureOptions(const cv::FileNode& n) {
   // Added after the first models: absent there, which means the defaults of then.
   if (!n["pca_dims"].empty()) o.pca_dims = static_cast<int>(n["pca_dims"]);
   o.object_view = !n["object_view"].empty() && static_cast<int>(n["object_view"]) != 0;
+  o.colour_statistics = !n["colour_statistics"].empty() && static_cast<int>(n["colour_statistics"]) != 0;
+  if (!n["colour_pca_dims"].empty()) o.colour_pca_dims = static_cast<int>(n["colour_pca_dims"]);
+  o.spatial_coordinates = !n["spatial_coordinates"].empty() && static_cast<int>(n["spatial_coordinates"]) != 0;
+  o.orientations = n["orientations"].empty() ? 1 : static_cast<int>(n["orientations"]);
   return o;
 }
 
@@ -163,22 +168,38 @@ ObjectModel ObjectModel::Train(const std::string& data_dir, const ObjectTrainOpt
   if (data.classes.size() < 2) Fail(data_dir, "needs at least two classes (or a class and background)");
   const int n = static_cast<int>(data.files.size());
 
-  // 1. Vocabulary: k-means over descriptors sampled evenly from every training image.
+  // 1. Vocabulary: k-means (or the Fisher codebooks) over descriptors sampled evenly from every
+  // training image, in every view the encoder describes.
+  const ObjectFeatureOptions& f = options.features;
   const int per_image = std::max(1, options.kmeans_samples / n);
-  std::vector<cv::Mat> sampled(static_cast<size_t>(n));
+  std::vector<cv::Mat> sampled(static_cast<size_t>(n)), sampled_colour(static_cast<size_t>(n)), sampled_where(static_cast<size_t>(n));
   std::atomic<int> done{0};
   ForEach(n, [&](int i) {
     const cv::Mat image = ReadSample(data.files[static_cast<size_t>(i)]);
-    cv::Mat desc = DenseDescriptors(NormaliseSample(image, options.features.image_size), options.features);
-    if (options.features.object_view)  // the words must fit the object's own descriptors too
-      cv::vconcat(desc, DenseDescriptors(NormaliseSample(ObjectCrop(image), options.features.image_size), options.features), desc);
+    std::vector<cv::Mat> views = {NormaliseSample(image, f.image_size)};
+    if (f.object_view) views.push_back(NormaliseSample(ObjectCrop(image), f.image_size));
+    cv::Mat desc, colour, where;
+    for (const cv::Mat& sample : views) {
+      std::vector<cv::Point2f> at;
+      desc.push_back(DenseDescriptors(sample, f, &at));
+      if (f.colour_statistics) colour.push_back(ColourStatistics(sample, DenseKeypoints(sample.size(), f)));
+      // The places as the encoder appends them (spatial_coordinates).
+      for (const cv::Point2f& p : at)
+        where.push_back(cv::Mat(cv::Matx12f(p.x / f.image_size - 0.5f, p.y / f.image_size - 0.5f)));
+    }
     std::vector<int> order(static_cast<size_t>(desc.rows));
     std::iota(order.begin(), order.end(), 0);
     std::mt19937 rng(options.seed + static_cast<unsigned>(i));
     std::shuffle(order.begin(), order.end(), rng);
-    cv::Mat pick(std::min(per_image, desc.rows), desc.cols, CV_32F);
-    for (int k = 0; k < pick.rows; ++k) desc.row(order[static_cast<size_t>(k)]).copyTo(pick.row(k));
-    sampled[static_cast<size_t>(i)] = pick;
+    order.resize(static_cast<size_t>(std::min(per_image, desc.rows)));
+    auto pick = [&](const cv::Mat& from) {
+      cv::Mat out(static_cast<int>(order.size()), from.cols, CV_32F);
+      for (size_t k = 0; k < order.size(); ++k) from.row(order[k]).copyTo(out.row(static_cast<int>(k)));
+      return out;
+    };
+    sampled[static_cast<size_t>(i)] = pick(desc);
+    sampled_where[static_cast<size_t>(i)] = pick(where);
+    if (f.colour_statistics) sampled_colour[static_cast<size_t>(i)] = pick(colour);
     if (progress) progress("descriptors", ++done, n);
   });
   cv::Mat all;
@@ -186,11 +207,19 @@ ObjectModel ObjectModel::Train(const std::string& data_dir, const ObjectTrainOpt
   sampled.clear();
   const int kmeans_samples = all.rows;
   if (progress) progress("vocabulary", 0, 1);
-  if (options.features.encoding == "fisher") {
-    const FisherCodebook book = BuildFisherCodebook(all, options.vocabulary, options.features.pca_dims, options.seed);
-    impl->encoder = std::make_unique<BowEncoder>(options.features, book.gmm, book.pca);
+  if (f.encoding == "fisher") {
+    cv::Mat appended;
+    if (f.spatial_coordinates) cv::vconcat(sampled_where, appended);
+    const FisherCodebook book = BuildFisherCodebook(all, options.vocabulary, f.pca_dims, options.seed, appended);
+    FisherCodebook colour;
+    if (f.colour_statistics) {
+      cv::Mat all_colour;
+      cv::vconcat(sampled_colour, all_colour);
+      colour = BuildFisherCodebook(all_colour, options.vocabulary, f.colour_pca_dims, options.seed, appended);
+    }
+    impl->encoder = std::make_unique<BowEncoder>(f, book.gmm, book.pca, colour);
   } else {
-    impl->encoder = std::make_unique<BowEncoder>(options.features, BuildVocabulary(all, options.vocabulary, options.seed));
+    impl->encoder = std::make_unique<BowEncoder>(f, BuildVocabulary(all, options.vocabulary, options.seed));
   }
   all.release();
   if (progress) progress("vocabulary", 1, 1);
@@ -241,6 +270,8 @@ void ObjectModel::Save(const std::string& path) const {
     WriteJson(fs, "training", impl_->training);
     fs << "vocabulary" << impl_->encoder->vocabulary();
     if (!impl_->encoder->pca().empty()) fs << "pca" << impl_->encoder->pca();
+    if (impl_->features.colour_statistics)
+      fs << "colour_pca" << impl_->encoder->colour_codebook().pca << "colour_gmm" << impl_->encoder->colour_codebook().gmm;
     impl_->svms.Write(fs);
     fs.release();
   }
@@ -264,15 +295,22 @@ ObjectModel ObjectModel::Load(const std::string& path) {
     std::string error;
     if (!impl->features.IsValid(&error)) Fail(path, "feature settings: " + error);
     cv::Mat vocabulary, pca;
+    FisherCodebook colour;
     fs["vocabulary"] >> vocabulary;
     if (impl->features.encoding == "fisher") {
       fs["pca"] >> pca;
       FisherCodebook book{pca, vocabulary};
-      if (!book.IsValid(DescriptorSize(impl->features))) Fail(path, "holds no valid Fisher codebook");
+      const int appended = impl->features.spatial_coordinates ? 2 : 0;
+      if (!book.IsValid(DescriptorSize(impl->features), appended)) Fail(path, "holds no valid Fisher codebook");
+      if (impl->features.colour_statistics) {
+        fs["colour_pca"] >> colour.pca;
+        fs["colour_gmm"] >> colour.gmm;
+        if (!colour.IsValid(96, appended)) Fail(path, "holds no valid colour statistics codebook");
+      }
     } else if (vocabulary.empty() || vocabulary.cols != DescriptorSize(impl->features) || vocabulary.type() != CV_32F) {
       Fail(path, "holds no valid vocabulary");
     }
-    impl->encoder = std::make_unique<BowEncoder>(impl->features, vocabulary, pca);
+    impl->encoder = std::make_unique<BowEncoder>(impl->features, vocabulary, pca, colour);
     impl->training = ReadJson(fs["training"]);
     impl->svms.Read(fs.root(), path);
   } catch (const cv::Exception& e) {
@@ -321,6 +359,7 @@ nlohmann::json ObjectModel::Describe() const {
            {{"image_size", f.image_size}, {"grid_step", f.grid_step}, {"patch_sizes", f.patch_sizes},
             {"pyramid_levels", f.pyramid_levels}, {"centre_cell", f.centre_cell}, {"encoding", f.encoding}, {"descriptor", f.descriptor}, {"hue_bins", f.hue_bins},
             {"saturation_bins", f.saturation_bins}, {"colour_weight", f.colour_weight}, {"pca_dims", f.pca_dims}, {"object_view", f.object_view},
+            {"colour_statistics", f.colour_statistics}, {"colour_pca_dims", f.colour_pca_dims}, {"spatial_coordinates", f.spatial_coordinates}, {"orientations", f.orientations},
             {"dims", impl_->encoder->dims()}, {"words", impl_->encoder->vocabulary().rows}}},
           {"training", impl_->training},
           {"svm", svms}};

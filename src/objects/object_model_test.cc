@@ -30,19 +30,27 @@ TEST(ObjectModel, TrainsSavesLoadsAndIdentifiesHeldOutShapes) {
   test::ScratchDir dir;
   test::WriteShapesDataset(dir / "train", 24, 1);
   test::WriteShapesDataset(dir / "validation", 10, 2);
-  for (const std::string encoding : {"bow", "vlad", "fisher"}) {
+  // The last: Fisher vectors with every addition (object view, colour statistics, places, the
+  // eight orientations), as the CLI trains by default.
+  for (const std::string variant : {"bow", "vlad", "fisher", "fisher-all"}) {
     ObjectTrainOptions o = SmallOptions();
+    const std::string encoding = variant.substr(0, variant.find('-'));
     o.features.encoding = encoding;
     if (encoding == "fisher") o.vocabulary = 16, o.features.pca_dims = 32;
+    if (variant == "fisher-all") {
+      o.features.object_view = o.features.colour_statistics = o.features.spatial_coordinates = true;
+      o.features.colour_pca_dims = 24;
+      o.features.orientations = 8;
+    }
     o.kernel = encoding == "bow" ? "chi2" : "linear";
     const ObjectModel model = ObjectModel::Train(dir / "train", o);
     EXPECT_EQ(model.classes(), test::kShapeClasses);
     const ObjectEvaluation e = EvaluateObjects(model, dir / "validation");
     EXPECT_EQ(e.images, 30);
-    EXPECT_GE(e.accuracy, 0.9) << encoding << "\n" << FormatEvaluation(e);
+    EXPECT_GE(e.accuracy, 0.9) << variant << "\n" << FormatEvaluation(e);
     EXPECT_NE(FormatEvaluation(e).find("accuracy: "), std::string::npos);
     // The file holds everything: a loaded model scores exactly as the trained one.
-    const std::string path = dir / ("model-" + encoding + ".yml.gz");
+    const std::string path = dir / ("model-" + variant + ".yml.gz");
     model.Save(path);
     const ObjectModel loaded = ObjectModel::Load(path);
     EXPECT_EQ(loaded.classes(), model.classes());
