@@ -125,7 +125,14 @@ void AddObjectsCommand(CLI::App& app, Runner* run) {
   train->add_option("--kmeans-samples", t->options.kmeans_samples, "descriptors sampled for k-means")->capture_default_str();
   train->add_option("--seed", t->options.seed, "random seed (sampling, k-means)")->capture_default_str();
   train->add_flag("-q,--quiet", t->quiet, "no progress bar");
-  train->callback([t, run] { *run = [t] { return RunTrain(*t); }; });
+  train->callback([t, run, train] {
+    // The Fisher-only additions are on by default: with another encoding, they are off unless asked for.
+    if (t->options.features.encoding != "fisher") {
+      if (train->count("--colour-statistics") + train->count("--no-colour-statistics") == 0) t->options.features.colour_statistics = false;
+      if (train->count("--spatial-coordinates") + train->count("--no-spatial-coordinates") == 0) t->options.features.spatial_coordinates = false;
+    }
+    *run = [t] { return RunTrain(*t); };
+  });
 
   auto e = std::make_shared<EvalSwitches>();
   auto* eval = cmd->add_subcommand("eval", "Accuracy, per-class precision/recall and confusion on a held-out split");

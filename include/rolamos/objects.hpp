@@ -33,25 +33,25 @@ struct ObjectFeatureOptions {
   // same size whatever the object's (its whole and its quarters, words and colour). For crops
   // centred on their object: with fisher and a linear kernel, 78 % on validation against 74 % for
   // the default; off by default because sliding windows are not centred (more false detections).
-  bool object_view = false;
+  bool object_view = true;
   // vlad: per visual word, the sum of the descriptors' residuals to it, power- and
   // L2-normalised (the best on validation data: 74 % against 68 % for plain counts);
   // bow: word counts (histograms, the paper's, for the chi-square kernel).
   // fisher: Fisher vectors over a Gaussian mixture of PCA-reduced descriptors (pca_dims).
-  std::string encoding = "vlad";
+  std::string encoding = "fisher";
   int pca_dims = 64;                      // fisher only
   // fisher only: a second local descriptor, the mean and spread of L, a, b in the 4 x 4
   // subregions of every dense patch, with its own Fisher codebook (colour_pca_dims).
-  bool colour_statistics = false;
+  bool colour_statistics = true;
   int colour_pca_dims = 48;
   // fisher only: each descriptor's place in the sample (x, y in -0.5..0.5) joins it in the
   // mixture, so the words also say where they were seen (spatially augmented Fisher vectors).
-  bool spatial_coordinates = false;
+  bool spatial_coordinates = true;
   // The description averaged over the sample's orientations: 1 (as it is), 2 (and its mirror
   // image), 4 (its quarter turns) or 8 (both). A downward-looking camera sees an object in any
   // orientation; the turned descriptors are permutations of the extracted ones.
-  int orientations = 1;
-  int hue_bins = 12, saturation_bins = 4;  // colour histogram per pyramid cell; 0 = none
+  int orientations = 2;
+  int hue_bins = 0, saturation_bins = 0;  // colour histogram per pyramid cell; 0 = none
   double colour_weight = 1.0;             // of the colour part against the words
 
   bool IsValid(std::string* error) const;
@@ -61,7 +61,7 @@ struct ObjectTrainOptions {
   ObjectFeatureOptions features;
   int vocabulary = 64;           // visual words (k-means); ~400 suits bow, ~64 vlad
   int kmeans_samples = 120000;   // descriptors sampled for k-means
-  std::string kernel = "rbf";    // chi2 (bow only), rbf or linear
+  std::string kernel = "linear"; // chi2 (bow only), rbf or linear
   int folds = 5;                 // cross-validation folds for C (and gamma)
   unsigned seed = 1;
 

@@ -4,9 +4,14 @@
 
 #include <opencv2/core.hpp>
 
+#include "objects/bow_features.h"
+#include "objects/object_crop.h"
 #include "rolamos/error.hpp"
 #include "rolamos/georef.hpp"
 #include "rolamos/objects.hpp"
+
+#include "objects/bow_features.h"
+#include "objects/object_crop.h"
 #include "rolamos/tile_cache.hpp"
 #include "rolamos/tiled_image.hpp"
 #include "util/files.h"
@@ -55,7 +60,8 @@ struct Detection {
   int cls = 0;
   std::string label;
   double score = 0;
-  cv::Rect2d box0;  // level-0 pixels
+  cv::Rect2d box0;     // level-0 pixels: the object's square, or the window
+  cv::Rect2d window0;  // level-0 pixels: the window
   std::vector<ClassScore> scores;
 };
 
@@ -129,6 +135,7 @@ DetectSummary DetectObjects(const Store& store, const ObjectModel& model, const 
   DetectSummary summary;
   const long long total = static_cast<long long>(xs.size()) * static_cast<long long>(ys.size());
   std::vector<Detection> found;
+  const bool object_boxes = model.Describe()["features"]["object_view"].get<bool>();
   // A row of windows at a time: memory holds one row, the tile cache the rest.
   for (int y : ys) {
     std::vector<cv::Mat> windows;
@@ -145,6 +152,7 @@ DetectSummary DetectObjects(const Store& store, const ObjectModel& model, const 
       rects.push_back(r);
     }
     const auto scores = model.ClassifyAll(windows);
+    auto level0 = [&](const cv::Rect2d& r) { return cv::Rect2d(r.x * to0x, r.y * to0y, r.width * to0x, r.height * to0y); };
     for (size_t i = 0; i < scores.size(); ++i) {
       const ClassScore& best = scores[i].front();
       if (!(best.score > options.min_score)) continue;
@@ -152,7 +160,15 @@ DetectSummary DetectObjects(const Store& store, const ObjectModel& model, const 
       d.label = best.label;
       d.cls = static_cast<int>(std::find(model.classes().begin(), model.classes().end(), best.label) - model.classes().begin());
       d.score = best.score;
-      d.box0 = cv::Rect2d(rects[i].x * to0x, rects[i].y * to0y, rects[i].width * to0x, rects[i].height * to0y);
+      d.window0 = level0(rects[i]);
+      d.box0 = d.window0;
+      // A model that describes the object found in each window scores the window by that object,
+      // wherever it lies in it: the detection is the object's square (what the model described),
+      // so overlapping windows that found one object agree on its place.
+      if (object_boxes) {
+        const cv::Rect box = ObjectBox(ToBgr8(windows[i])) & cv::Rect(0, 0, windows[i].cols, windows[i].rows);
+        if (!box.empty()) d.box0 = level0(cv::Rect2d(rects[i].x + box.x, rects[i].y + box.y, box.width, box.height));
+      }
       d.scores = scores[i];
       found.push_back(std::move(d));
     }
@@ -185,6 +201,7 @@ DetectSummary DetectObjects(const Store& store, const ObjectModel& model, const 
                           {"score", d.score},
                           {"image", image_name},
                           {"pixel_bbox", {b.x, b.y, b.width, b.height}},
+                          {"window_bbox", {d.window0.x, d.window0.y, d.window0.width, d.window0.height}},
                           {"scores", all}}}});
   }
   nlohmann::json doc = {{"type", "FeatureCollection"},

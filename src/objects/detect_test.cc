@@ -129,7 +129,14 @@ TEST(DetectObjects, PixelCoordinatesWithoutGeoreferenceAndClearErrors) {
   const nlohmann::json doc = nlohmann::json::parse(in);
   EXPECT_EQ(doc["rolamos"]["coordinates"], "pixel");
   EXPECT_FALSE(doc.contains("crs"));
-  for (const auto& f : doc["features"]) EXPECT_NEAR(f["properties"]["pixel_bbox"][2].get<double>(), 320, 1);
+  // Windows are 320 level-0 pixels; the detection is the object's square inside its window.
+  for (const auto& f : doc["features"]) {
+    const auto w = f["properties"]["window_bbox"], b = f["properties"]["pixel_bbox"];
+    EXPECT_NEAR(w[2].get<double>(), 320, 1);
+    EXPECT_GE(b[0].get<double>(), w[0].get<double>() - 1e-6);
+    EXPECT_LE(b[0].get<double>() + b[2].get<double>(), w[0].get<double>() + w[2].get<double>() + 1e-6);
+    EXPECT_LE(b[2].get<double>(), 320 + 1e-6);
+  }
 
   o.level = 9;
   EXPECT_NE(test::ErrorOf([&] { DetectObjects(store, ShapesModel(), o); }).find("has levels"), std::string::npos);

@@ -30,17 +30,20 @@ TEST(ObjectModel, TrainsSavesLoadsAndIdentifiesHeldOutShapes) {
   test::ScratchDir dir;
   test::WriteShapesDataset(dir / "train", 24, 1);
   test::WriteShapesDataset(dir / "validation", 10, 2);
-  // The last: Fisher vectors with every addition (object view, colour statistics, places, the
-  // eight orientations), as the CLI trains by default.
+  // The last: Fisher vectors with every addition (object view, colour statistics, places; the
+  // defaults) in all eight orientations.
   for (const std::string variant : {"bow", "vlad", "fisher", "fisher-all"}) {
     ObjectTrainOptions o = SmallOptions();
     const std::string encoding = variant.substr(0, variant.find('-'));
     o.features.encoding = encoding;
     if (encoding == "fisher") o.vocabulary = 16, o.features.pca_dims = 32;
     if (variant == "fisher-all") {
-      o.features.object_view = o.features.colour_statistics = o.features.spatial_coordinates = true;
       o.features.colour_pca_dims = 24;
       o.features.orientations = 8;
+    } else {  // the plain encodings, with colour histograms
+      o.features.object_view = o.features.colour_statistics = o.features.spatial_coordinates = false;
+      o.features.orientations = 1;
+      o.features.hue_bins = 12, o.features.saturation_bins = 4;
     }
     o.kernel = encoding == "bow" ? "chi2" : "linear";
     const ObjectModel model = ObjectModel::Train(dir / "train", o);

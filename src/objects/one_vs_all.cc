@@ -110,71 +110,6 @@ Fit TrainOne(const cv::Mat& gram, const std::vector<int>& rows, const std::vecto
   return f;
 }
 
-// The one-vs-all decision for one sample's class scores (after offsets): the best class, or
-// background (-2) when none is positive and the data has a background class.
-int Winner(const float* d, const std::vector<double>& offsets, const std::vector<int>& scored, bool with_background) {
-  int winner = -1;
-  double top = -std::numeric_limits<double>::infinity();
-  for (size_t s = 0; s < scored.size(); ++s)
-    if (d[s] + offsets[s] > top) {
-      top = d[s] + offsets[s];
-      winner = scored[s];
-    }
-  return with_background && top < 0 ? -2 : winner;
-}
-
-int Correct(const cv::Mat& held_out, const std::vector<int>& truth, const std::vector<double>& offsets,
-            const std::vector<int>& scored, bool with_background) {
-  int correct = 0;
-  for (int t = 0; t < held_out.rows; ++t)
-    correct += Winner(held_out.ptr<float>(t), offsets, scored, with_background) == truth[static_cast<size_t>(t)];
-  return correct;
-}
-
-// Per-class offsets to the decision values, fitted by coordinate ascent on the held-out
-// decisions of cross-validation: separately trained SVMs do not share a scale, and the small
-// classes' SVMs score lower. Each class's candidate offsets are those that flip one held-out
-// sample; an offset is only taken for a gain of two samples or more (ties keep the smaller).
-std::vector<double> FitOffsets(const cv::Mat& held_out, const std::vector<int>& truth, const std::vector<int>& scored,
-                               bool with_background) {
-  const int classes = held_out.cols;
-  std::vector<double> offsets(static_cast<size_t>(classes), 0.0);
-  int current = Correct(held_out, truth, offsets, scored, with_background);
-  for (int round = 0; round < 4; ++round) {
-    bool moved = false;
-    for (int s = 0; s < classes; ++s) {
-      std::vector<double> candidates;
-      for (int t = 0; t < held_out.rows; ++t) {
-        const float* d = held_out.ptr<float>(t);
-        double rival = with_background ? 0.0 : -std::numeric_limits<double>::infinity();
-        for (int o = 0; o < classes; ++o)
-          if (o != s) rival = std::max(rival, d[o] + offsets[static_cast<size_t>(o)]);
-        candidates.push_back(rival - d[s] + 1e-6);
-        candidates.push_back(rival - d[s] - 1e-6);
-      }
-      std::vector<double> trial = offsets;
-      int best = current;
-      double best_offset = offsets[static_cast<size_t>(s)];
-      for (double b : candidates) {
-        if (std::abs(b) > 2.0) continue;  // decisions are margins of about one: beyond, a class would vanish or take all
-        trial[static_cast<size_t>(s)] = b;
-        const int c = Correct(held_out, truth, trial, scored, with_background);
-        if (c > best || (c == best && std::abs(b) < std::abs(best_offset))) {
-          best = c;
-          best_offset = b;
-        }
-      }
-      if (best >= current + 2 || (best == current && std::abs(best_offset) < std::abs(offsets[static_cast<size_t>(s)]))) {
-        moved = moved || best > current;
-        offsets[static_cast<size_t>(s)] = best_offset;
-        current = best;
-      }
-    }
-    if (!moved) break;
-  }
-  return offsets;
-}
-
 double Decision(const Fit& f, const cv::Mat& gram, int sample) {
   double s = -f.rho;
   const float* row = gram.ptr<float>(sample);
@@ -225,10 +160,7 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
   for (int c = 0; c < classes; ++c)
     if (!negatives_only[static_cast<size_t>(c)]) scored.push_back(c);
   const bool with_background = static_cast<int>(scored.size()) < classes;
-  std::vector<int> truth(static_cast<size_t>(n));
-  for (int i = 0; i < n; ++i)
-    truth[static_cast<size_t>(i)] = negatives_only[static_cast<size_t>(labels[static_cast<size_t>(i)])] ? -2 : labels[static_cast<size_t>(i)];
-  cv::Mat gram(n, n, CV_32F), best_held_out;
+  cv::Mat gram(n, n, CV_32F);
   double best = -1;
   const int steps = static_cast<int>(gammas.size() * o.c_grid.size()) + 1;
   int step = 0;
@@ -237,8 +169,9 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
       for (int j = 0; j < n; ++j) gram.at<float>(i, j) = static_cast<float>(KernelValue(kernel_, pairwise.at<float>(i, j), gamma));
     for (double c : o.c_grid) {
       if (progress) progress(step++, steps);
-      // The one-vs-all decision on each held-out fold, from every class's held-out score.
-      cv::Mat held_out(n, static_cast<int>(scored.size()), CV_32F);
+      // The one-vs-all decision on each held-out fold: the class whose SVM scores highest
+      // (background when none is positive and the data has a background class).
+      int correct = 0;
       for (int k = 0; k < o.folds; ++k) {
         std::vector<int> train_rows, test_rows;
         for (int i = 0; i < n; ++i) (fold[static_cast<size_t>(i)] == k ? test_rows : train_rows).push_back(i);
@@ -246,25 +179,30 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
         cv::parallel_for_(cv::Range(0, static_cast<int>(scored.size())), [&](const cv::Range& r) {
           for (int s = r.start; s < r.end; ++s) fits[static_cast<size_t>(s)] = TrainOne(gram, train_rows, labels, scored[static_cast<size_t>(s)], c);
         });
-        for (int t : test_rows)
-          for (size_t s = 0; s < scored.size(); ++s) held_out.at<float>(t, static_cast<int>(s)) = static_cast<float>(Decision(fits[s], gram, t));
+        for (int t : test_rows) {
+          int winner = -1;
+          double top = -std::numeric_limits<double>::infinity();
+          for (size_t s = 0; s < scored.size(); ++s) {
+            const double d = Decision(fits[s], gram, t);
+            if (d > top) {
+              top = d;
+              winner = scored[s];
+            }
+          }
+          if (with_background && top < 0) winner = -2;  // background
+          const int truth = negatives_only[static_cast<size_t>(labels[static_cast<size_t>(t)])] ? -2 : labels[static_cast<size_t>(t)];
+          correct += winner == truth;
+        }
       }
-      const int correct = Correct(held_out, truth, std::vector<double>(scored.size(), 0.0), scored, with_background);
       const double accuracy = double(correct) / n;
       if (accuracy > best + 1e-12) {  // ties keep the smaller C, the earlier gamma
         best = accuracy;
         c_ = c;
         gamma_ = gamma;
-        best_held_out = held_out;
       }
     }
   }
   cv_accuracy_ = best;
-  std::vector<double> offsets(scored.size(), 0.0);
-  if (o.calibrate) {
-    offsets = FitOffsets(best_held_out, truth, scored, with_background);
-    calibrated_accuracy_ = double(Correct(best_held_out, truth, offsets, scored, with_background)) / n;
-  }
   // The final SVMs on every sample with the chosen C and gamma.
   for (int i = 0; i < n; ++i)
     for (int j = 0; j < n; ++j) gram.at<float>(i, j) = static_cast<float>(KernelValue(kernel_, pairwise.at<float>(i, j), gamma_));
@@ -292,8 +230,6 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
     rho_[static_cast<size_t>(c)] = f.rho;
     for (size_t k = 0; k < f.support.size(); ++k) coefficients_.at<double>(c, column[f.support[k]]) += f.alpha[k];
   }
-  offsets_.assign(static_cast<size_t>(classes), 0.0);
-  for (size_t s = 0; s < scored.size(); ++s) offsets_[static_cast<size_t>(scored[s])] = offsets[s];
   if (progress) progress(steps, steps);
 }
 
@@ -306,7 +242,7 @@ std::vector<double> OneVsAll::Scores(const cv::Mat& row) const {
   for (size_t c = 0; c < trained_.size(); ++c) {
     if (!trained_[c]) continue;
     const double* a = coefficients_.ptr<double>(static_cast<int>(c));
-    double s = offsets_[c] - rho_[c];
+    double s = -rho_[c];
     for (size_t j = 0; j < k.size(); ++j) s += a[j] * k[j];
     out[c] = s;
   }
@@ -323,13 +259,13 @@ nlohmann::json OneVsAll::Describe() const {
     per_class.push_back({{"support_vectors", cv::countNonZero(coefficients_.row(static_cast<int>(c)) != 0)}});
   }
   return {{"kernel", KernelName(kernel_)}, {"C", c_}, {"gamma", gamma_},
-          {"cv_accuracy", cv_accuracy_}, {"calibrated_cv_accuracy", calibrated_accuracy_}, {"offsets", offsets_}, {"support_vectors", support_.rows}, {"classes", per_class}};
+          {"cv_accuracy", cv_accuracy_}, {"support_vectors", support_.rows}, {"classes", per_class}};
 }
 
 void OneVsAll::Write(cv::FileStorage& fs) const {
   fs << "svm" << "{" << "kernel" << KernelName(kernel_) << "C" << c_ << "gamma" << gamma_
      << "cv_accuracy" << cv_accuracy_ << "support" << support_ << "coefficients" << coefficients_
-     << "rho" << rho_ << "offsets" << offsets_ << "calibrated_cv_accuracy" << calibrated_accuracy_;
+     << "rho" << rho_;
   std::vector<int> trained(trained_.begin(), trained_.end());
   fs << "trained" << trained << "}";
 }
@@ -344,17 +280,12 @@ void OneVsAll::Read(const cv::FileNode& root, const std::string& where) {
   n["support"] >> support_;
   n["coefficients"] >> coefficients_;
   n["rho"] >> rho_;
-  // Added after the first models: absent there, which means no offsets.
-  offsets_.clear();
-  if (!n["offsets"].empty()) n["offsets"] >> offsets_;
-  calibrated_accuracy_ = n["calibrated_cv_accuracy"].empty() ? 0.0 : static_cast<double>(n["calibrated_cv_accuracy"]);
   std::vector<int> trained;
   n["trained"] >> trained;
-  if (offsets_.empty()) offsets_.assign(trained.size(), 0.0);
   trained_.assign(trained.begin(), trained.end());
   if (support_.empty() || support_.type() != CV_32F || coefficients_.type() != CV_64F ||
       coefficients_.rows != static_cast<int>(trained_.size()) || coefficients_.cols != support_.rows ||
-      rho_.size() != trained_.size() || offsets_.size() != trained_.size())
+      rho_.size() != trained_.size())
     Fail(where, "holds SVMs whose sizes do not agree (damaged file)");
 }
 

@@ -21,8 +21,6 @@ struct OneVsAllOptions {
   std::vector<double> c_grid = {0.125, 0.5, 2, 8, 32, 128};
   std::vector<double> gamma_factors = {0.5, 1, 2};  // times 1 / mean pairwise distance
   unsigned seed = 1;
-  // Per-class offsets to the decision values, fitted on the cross-validation's held-out scores.
-  bool calibrate = true;
 };
 
 class OneVsAll {
@@ -48,8 +46,6 @@ class OneVsAll {
   cv::Mat support_;              // support vectors, one per row (CV_32F)
   cv::Mat coefficients_;         // classes x support (CV_64F); zero rows for negatives-only
   std::vector<double> rho_;      // per class
-  std::vector<double> offsets_;  // per class, added to the decision (calibration)
-  double calibrated_accuracy_ = 0;  // cross-validated, with the offsets
   std::vector<bool> trained_;
 };
 
