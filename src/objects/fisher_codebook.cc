@@ -3,6 +3,7 @@
 #include <cmath>
 
 #include "rolamos/error.hpp"
+#include "util/matrix_product.h"
 
 namespace rolamos {
 
@@ -15,10 +16,7 @@ constexpr float kMinVariance = 1e-4f;  // keeps a component from collapsing onto
 cv::Mat LogDensities(const cv::Mat& x, const cv::Mat& means, const cv::Mat& variances, const cv::Mat& weights) {
   cv::Mat inv_var = 1.0 / variances;
   cv::Mat x2 = x.mul(x);
-  cv::Mat a, b;
-  cv::gemm(x2, inv_var, -0.5, cv::noArray(), 0, a, cv::GEMM_2_T);
-  cv::gemm(x, means.mul(inv_var), 1.0, cv::noArray(), 0, b, cv::GEMM_2_T);
-  cv::Mat out = a + b;
+  cv::Mat out = MatrixProduct(x, means.mul(inv_var), cv::GEMM_2_T) - 0.5 * MatrixProduct(x2, inv_var, cv::GEMM_2_T);
   cv::Mat log_var;
   cv::log(variances, log_var);
   for (int k = 0; k < means.rows; ++k) {
@@ -54,9 +52,7 @@ bool FisherCodebook::IsValid(int descriptor_size, int appended) const {
 
 cv::Mat FisherCodebook::Project(const cv::Mat& descriptors) const {
   cv::Mat centred = descriptors - cv::repeat(pca.row(0), descriptors.rows, 1);
-  cv::Mat out;
-  cv::gemm(centred, pca.rowRange(1, pca.rows), 1.0, cv::noArray(), 0, out, cv::GEMM_2_T);
-  return out;
+  return MatrixProduct(centred, pca.rowRange(1, pca.rows), cv::GEMM_2_T);
 }
 
 cv::Mat FisherCodebook::Posteriors(const cv::Mat& projected) const {
@@ -111,9 +107,8 @@ FisherCodebook BuildFisherCodebook(const cv::Mat& samples, int components, int d
     const double ll = Softmax(post) / x.rows;
     cv::Mat nk;
     cv::reduce(post, nk, 0, cv::REDUCE_SUM, CV_32F);  // 1 x K
-    cv::Mat s1, s2;
-    cv::gemm(post, x, 1.0, cv::noArray(), 0, s1, cv::GEMM_1_T);   // K x D
-    cv::gemm(post, x2, 1.0, cv::noArray(), 0, s2, cv::GEMM_1_T);  // K x D
+    const cv::Mat s1 = MatrixProduct(post, x, cv::GEMM_1_T);   // K x D
+    const cv::Mat s2 = MatrixProduct(post, x2, cv::GEMM_1_T);  // K x D
     for (int k = 0; k < components; ++k) {
       const float n = std::max(nk.at<float>(k), 1e-3f);
       means.row(k) = s1.row(k) / n;

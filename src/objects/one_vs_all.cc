@@ -9,6 +9,7 @@
 #include <opencv2/ml.hpp>
 
 #include "rolamos/error.hpp"
+#include "util/matrix_product.h"
 
 namespace rolamos {
 
@@ -129,7 +130,7 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
   // Pairwise distances (or dot products), once, on every core.
   cv::Mat pairwise(n, n, CV_32F);
   if (kernel_ == cv::ml::SVM::LINEAR) {
-    cv::gemm(features, features, 1.0, cv::noArray(), 0.0, pairwise, cv::GEMM_2_T);
+    pairwise = MatrixProduct(features, features, cv::GEMM_2_T);
   } else cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& r) {
     for (int i = r.start; i < r.end; ++i)
       for (int j = 0; j <= i; ++j) {
@@ -230,6 +231,17 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
     rho_[static_cast<size_t>(c)] = f.rho;
     for (size_t k = 0; k < f.support.size(); ++k) coefficients_.at<double>(c, column[f.support[k]]) += f.alpha[k];
   }
+  support_counts_.assign(static_cast<size_t>(classes), 0);
+  for (int c = 0; c < classes; ++c) support_counts_[static_cast<size_t>(c)] = cv::countNonZero(coefficients_.row(c) != 0);
+  support_total_ = support_.rows;
+  // A linear SVM is one weight vector per class: keep those instead of the support vectors (the
+  // model shrinks from every support vector to a row per class, and a score is one dot product).
+  if (kernel_ == cv::ml::SVM::LINEAR) {
+    cv::Mat coefficients;
+    coefficients_.convertTo(coefficients, CV_32F);
+    support_ = MatrixProduct(coefficients, support_);
+    coefficients_ = cv::Mat::eye(classes, classes, CV_64F);
+  }
   if (progress) progress(steps, steps);
 }
 
@@ -256,15 +268,16 @@ nlohmann::json OneVsAll::Describe() const {
       per_class.push_back(nullptr);
       continue;
     }
-    per_class.push_back({{"support_vectors", cv::countNonZero(coefficients_.row(static_cast<int>(c)) != 0)}});
+    per_class.push_back({{"support_vectors", support_counts_[c]}});
   }
   return {{"kernel", KernelName(kernel_)}, {"C", c_}, {"gamma", gamma_},
-          {"cv_accuracy", cv_accuracy_}, {"support_vectors", support_.rows}, {"classes", per_class}};
+          {"cv_accuracy", cv_accuracy_}, {"support_vectors", support_total_}, {"classes", per_class}};
 }
 
 void OneVsAll::Write(cv::FileStorage& fs) const {
   fs << "svm" << "{" << "kernel" << KernelName(kernel_) << "C" << c_ << "gamma" << gamma_
      << "cv_accuracy" << cv_accuracy_ << "support" << support_ << "coefficients" << coefficients_
+     << "support_counts" << support_counts_ << "support_total" << support_total_
      << "rho" << rho_;
   std::vector<int> trained(trained_.begin(), trained_.end());
   fs << "trained" << trained << "}";
@@ -279,12 +292,22 @@ void OneVsAll::Read(const cv::FileNode& root, const std::string& where) {
   cv_accuracy_ = static_cast<double>(n["cv_accuracy"]);
   n["support"] >> support_;
   n["coefficients"] >> coefficients_;
+  // Added later (linear models keep weight vectors, not support vectors): absent, counted here.
+  if (!n["support_counts"].empty()) {
+    n["support_counts"] >> support_counts_;
+    support_total_ = static_cast<int>(n["support_total"]);
+  } else {
+    support_counts_.clear();
+    for (int c = 0; c < coefficients_.rows; ++c) support_counts_.push_back(cv::countNonZero(coefficients_.row(c) != 0));
+    support_total_ = support_.rows;
+  }
   n["rho"] >> rho_;
   std::vector<int> trained;
   n["trained"] >> trained;
   trained_.assign(trained.begin(), trained.end());
   if (support_.empty() || support_.type() != CV_32F || coefficients_.type() != CV_64F ||
       coefficients_.rows != static_cast<int>(trained_.size()) || coefficients_.cols != support_.rows ||
+      support_counts_.size() != trained_.size() ||
       rho_.size() != trained_.size())
     Fail(where, "holds SVMs whose sizes do not agree (damaged file)");
 }

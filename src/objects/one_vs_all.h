@@ -43,8 +43,10 @@ class OneVsAll {
   int kernel_ = 0;               // cv::ml::SVM kernel type
   double c_ = 1, gamma_ = 1;
   double cv_accuracy_ = 0;
-  cv::Mat support_;              // support vectors, one per row (CV_32F)
-  cv::Mat coefficients_;         // classes x support (CV_64F); zero rows for negatives-only
+  cv::Mat support_;              // support vectors, one per row (CV_32F); linear: one weight vector per class
+  cv::Mat coefficients_;         // classes x support (CV_64F); zero rows for negatives-only; linear: identity
+  std::vector<int> support_counts_;  // support vectors per class, as trained
+  int support_total_ = 0;
   std::vector<double> rho_;      // per class
   std::vector<bool> trained_;
 };
