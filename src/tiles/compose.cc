@@ -71,7 +71,7 @@ std::string PlacementProblem(const cv::Matx33d& G, const PatchSidecar& s, const 
   for (double v : G.val)
     if (!std::isfinite(v)) return "its placement is not finite";
   const double w = double(s.size[0]), h = double(s.size[1]);
-  for (const cv::Vec3d c : {cv::Vec3d(0, 0, 1), cv::Vec3d(w, 0, 1), cv::Vec3d(0, h, 1), cv::Vec3d(w, h, 1)})
+  for (const cv::Vec3d& c : {cv::Vec3d(0, 0, 1), cv::Vec3d(w, 0, 1), cv::Vec3d(0, h, 1), cv::Vec3d(w, h, 1)})
     if ((G * c)[2] <= 1e-9) return "its placement sends part of it to infinity (degenerate homography)";
   const double det = G(0, 0) * G(1, 1) - G(0, 1) * G(1, 0);
   if (!(std::abs(det) > 1e-6 && std::abs(det) < 1e6)) return "its placement is degenerate (scale " + std::to_string(det) + ")";
