@@ -17,7 +17,10 @@
 namespace rolamos {
 
 inline constexpr const char* kObjectModelFormat = "rolamos-object-model";
-inline constexpr int kObjectModelVersion = 1;
+// 2 added the colour statistics, places, orientations and linear weight vectors: a reader of
+// version 1 would misread such a model, so it is told to refuse it. Version 1 files still load.
+inline constexpr int kObjectModelVersion = 2;
+inline constexpr int kObjectModelOldestVersion = 1;
 // A class folder with this name holds negatives only: it teaches every SVM what is not an
 // object (bare seafloor) and is never reported.
 inline constexpr const char* kBackgroundClass = "background";

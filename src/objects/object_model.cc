@@ -287,9 +287,10 @@ ObjectModel ObjectModel::Load(const std::string& path) {
     if (static_cast<std::string>(fs["format"]) != kObjectModelFormat)
       Fail(path, "is not a rolamos object model (no \"format: " + std::string(kObjectModelFormat) + "\")");
     const int version = static_cast<int>(fs["version"]);
-    if (version != kObjectModelVersion)
-      Fail(path, "is an object model of format version " + std::to_string(version) + "; this rolamos reads version " +
-                     std::to_string(kObjectModelVersion) + " (train it again)");
+    if (version < kObjectModelOldestVersion || version > kObjectModelVersion)
+      Fail(path, "is an object model of format version " + std::to_string(version) + "; this rolamos reads versions " +
+                     std::to_string(kObjectModelOldestVersion) + " to " + std::to_string(kObjectModelVersion) +
+                     " (train it again)");
     fs["classes"] >> impl->all_classes;
     impl->features = ReadFeatureOptions(fs["features"]);
     std::string error;

@@ -117,7 +117,7 @@ TEST(ObjectModel, BadDataAndBadModelFilesAreClearErrors) {
   model.Save(dir / "m.yml");
   std::ifstream in(dir / "m.yml");
   std::string text((std::istreambuf_iterator<char>(in)), {});
-  const size_t at = text.find("version: 1");
+  const size_t at = text.find("version: " + std::to_string(kObjectModelVersion));
   ASSERT_NE(at, std::string::npos);
   text.replace(at, 10, "version: 7");
   std::ofstream(dir / "v7.yml") << text;
