@@ -9,6 +9,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "objects/colour_statistics.h"
 #include "objects/dihedral.h"
 #include "objects/fisher_codebook.h"
 #include "rolamos/objects.hpp"
@@ -32,9 +33,6 @@ std::vector<cv::KeyPoint> DenseKeypoints(cv::Size sample, const ObjectFeatureOpt
 cv::Mat DenseDescriptors(const cv::Mat& sample, const ObjectFeatureOptions& o,
                          std::vector<cv::Point2f>* positions = nullptr);
 
-// Local colour statistics (Perronnin et al.): the mean and standard deviation of L, a and b in
-// the 4 x 4 subregions of each keypoint's patch, 96 values per row (CV_32F).
-cv::Mat ColourStatistics(const cv::Mat& sample, const std::vector<cv::KeyPoint>& keypoints);
 
 // k-means over the rows of `samples` (k-means++ seeding, deterministic for a seed).
 cv::Mat BuildVocabulary(const cv::Mat& samples, int words, unsigned seed);
