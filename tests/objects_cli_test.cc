@@ -31,6 +31,11 @@ TEST(CliObjects, TrainEvalDetect) {
   r = RunCli("objects eval -q --json --data " + (dir / "validation") + " --model " + model);
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_GE(nlohmann::json::parse(r.output)["accuracy"].get<double>(), 0.85) << r.output;
+  // The paper's word histograms: the Fisher-only defaults step aside without being asked to.
+  r = RunCli("objects train -q --data " + (dir / "train") + " -o " + (dir / "bow.yml.gz") +
+             " --encoding bow --kernel chi2 --image-size 96 --vocabulary 40 --kmeans-samples 20000 --folds 3");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("chi2 kernel"), std::string::npos) << r.output;
 
   const std::string store = dir / "d.rolamos";
   r = RunCli("demo -q --size 1200 -o " + store);
@@ -61,6 +66,13 @@ TEST(CliObjects, BadInputIsAClearError) {
   r = RunCli("objects train -q --data " + (dir / "data") + " -o " + (dir / "m.yml.gz") + " --kernel sigmoid");
   EXPECT_NE(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("sigmoid"), std::string::npos) << r.output;
+  r = RunCli("objects train -q --data " + (dir / "data") + " -o " + (dir / "m.yml.gz") + " --orientations 3");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("orientations must be 1, 2, 4 or 8"), std::string::npos) << r.output;
+  r = RunCli("objects train -q --data " + (dir / "data") + " -o " + (dir / "m.yml.gz") + " --encoding vlad --colour-statistics");
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("colour statistics need the Fisher encoding"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "m.yml.gz"));
 }
 
 }  // namespace
