@@ -1,5 +1,6 @@
 #include "objects/one_vs_all.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <map>
@@ -213,34 +214,42 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
   cv::parallel_for_(cv::Range(0, static_cast<int>(scored.size())), [&](const cv::Range& r) {
     for (int s = r.start; s < r.end; ++s) fits[static_cast<size_t>(scored[static_cast<size_t>(s)])] = TrainOne(gram, all, labels, scored[static_cast<size_t>(s)], c_);
   });
-  // Support vectors once, shared by the classes.
-  std::map<int, int> column;
-  for (const auto& f : fits)
-    for (int s : f.support) column.emplace(s, 0);
-  int next = 0;
-  for (auto& [s, col] : column) col = next++;
-  support_.create(next, features.cols, CV_32F);
-  for (const auto& [s, col] : column) features.row(s).copyTo(support_.row(col));
-  coefficients_ = cv::Mat::zeros(classes, std::max(1, next), CV_64F);
+  // Each class's coefficients over the samples (zero off its support vectors).
+  cv::Mat alpha = cv::Mat::zeros(classes, n, CV_64F);
   rho_.assign(static_cast<size_t>(classes), 0);
   trained_.assign(static_cast<size_t>(classes), false);
+  support_counts_.assign(static_cast<size_t>(classes), 0);
+  std::vector<bool> is_support(static_cast<size_t>(n), false);
   for (int c = 0; c < classes; ++c) {
     const Fit& f = fits[static_cast<size_t>(c)];
     if (f.support.empty()) continue;
     trained_[static_cast<size_t>(c)] = true;
     rho_[static_cast<size_t>(c)] = f.rho;
-    for (size_t k = 0; k < f.support.size(); ++k) coefficients_.at<double>(c, column[f.support[k]]) += f.alpha[k];
+    for (size_t k = 0; k < f.support.size(); ++k) {
+      alpha.at<double>(c, f.support[k]) += f.alpha[k];
+      is_support[static_cast<size_t>(f.support[k])] = true;
+    }
+    support_counts_[static_cast<size_t>(c)] = static_cast<int>(f.support.size());
   }
-  support_counts_.assign(static_cast<size_t>(classes), 0);
-  for (int c = 0; c < classes; ++c) support_counts_[static_cast<size_t>(c)] = cv::countNonZero(coefficients_.row(c) != 0);
-  support_total_ = support_.rows;
-  // A linear SVM is one weight vector per class: keep those instead of the support vectors (the
-  // model shrinks from every support vector to a row per class, and a score is one dot product).
+  support_total_ = static_cast<int>(std::count(is_support.begin(), is_support.end(), true));
   if (kernel_ == cv::ml::SVM::LINEAR) {
-    cv::Mat coefficients;
-    coefficients_.convertTo(coefficients, CV_32F);
-    support_ = MatrixProduct(coefficients, support_);
+    // A linear SVM is one weight vector per class: keep those instead of the support vectors (the
+    // model shrinks from every support vector to a row per class, and a score is one dot product).
+    cv::Mat weights;
+    alpha.convertTo(weights, CV_32F);
+    support_ = MatrixProduct(weights, features);
     coefficients_ = cv::Mat::eye(classes, classes, CV_64F);
+  } else {
+    // The support vectors once, shared by the classes.
+    std::vector<int> rows;
+    for (int i = 0; i < n; ++i)
+      if (is_support[static_cast<size_t>(i)]) rows.push_back(i);
+    support_ = cv::Mat::zeros(std::max<int>(1, static_cast<int>(rows.size())), features.cols, CV_32F);
+    coefficients_ = cv::Mat::zeros(classes, support_.rows, CV_64F);
+    for (size_t k = 0; k < rows.size(); ++k) {
+      features.row(rows[k]).copyTo(support_.row(static_cast<int>(k)));
+      alpha.col(rows[k]).copyTo(coefficients_.col(static_cast<int>(k)));
+    }
   }
   if (progress) progress(steps, steps);
 }
