@@ -112,14 +112,14 @@ void AddObjectsCommand(CLI::App& app, Runner* run) {
   train->add_option("--saturation-bins", t->options.features.saturation_bins, "colour histogram saturation bins")->capture_default_str();
   train->add_option("--colour-weight", t->options.features.colour_weight, "weight of colour against words")->capture_default_str();
   train->add_flag("--object-view,!--no-object-view", t->options.features.object_view,
-                  "also describe the square around the object found near the centre");
+                  "also describe the square around the object found near the centre (on by default)");
   train->add_option("--pca-dims", t->options.features.pca_dims, "descriptor dimensions kept by PCA (fisher)")->capture_default_str();
   train->add_flag("--colour-statistics,!--no-colour-statistics", t->options.features.colour_statistics,
-                  "also describe each patch by the mean and spread of its colours (fisher)");
+                  "also describe each patch by the mean and spread of its colours (fisher; on by default)");
   train->add_option("--colour-pca-dims", t->options.features.colour_pca_dims, "colour statistics dimensions kept by PCA")
       ->capture_default_str();
   train->add_flag("--spatial-coordinates,!--no-spatial-coordinates", t->options.features.spatial_coordinates,
-                  "each descriptor's place joins it in the Gaussian mixture (fisher)");
+                  "each descriptor's place joins it in the Gaussian mixture (fisher; on by default)");
   train->add_option("--orientations", t->options.features.orientations,
                     "describe the image in 1, 2 (mirrored), 4 (turned) or 8 orientations, averaged")->capture_default_str();
   train->add_option("--kmeans-samples", t->options.kmeans_samples, "descriptors sampled for k-means")->capture_default_str();
