@@ -97,6 +97,8 @@ class ObjectModel {
 
   // The classes it reports (the background class is not one of them).
   const std::vector<std::string>& classes() const;
+  // How it describes an image (as trained).
+  const ObjectFeatureOptions& features() const;
   // Every reported class's score for one image (BGR or BGRA, any size), best first.
   std::vector<ClassScore> Classify(const cv::Mat& image) const;
   // The same for many images, on every core.

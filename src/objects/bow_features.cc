@@ -104,8 +104,7 @@ std::vector<cv::KeyPoint> DenseKeypoints(cv::Size sample, const ObjectFeatureOpt
   return keypoints;
 }
 
-cv::Mat DenseDescriptors(const cv::Mat& sample, const ObjectFeatureOptions& o,
-                         std::vector<cv::Point2f>* positions) {
+cv::Mat DenseDescriptors(const cv::Mat& sample, const ObjectFeatureOptions& o, const std::vector<cv::KeyPoint>& keypoints) {
   // The channels described: gray, or the three opponent colour channels (van de Sande et al.):
   // deep-sea biota differ by colour as much as by shape.
   std::vector<cv::Mat> channels;
@@ -131,7 +130,6 @@ cv::Mat DenseDescriptors(const cv::Mat& sample, const ObjectFeatureOptions& o,
   }
   // Dim, low-contrast ROV footage: normalise local contrast so the gradients carry the shape.
   for (auto& c : channels) cv::createCLAHE(2.0, cv::Size(4, 4))->apply(c, c);
-  const std::vector<cv::KeyPoint> keypoints = DenseKeypoints(sample.size(), o);
   std::vector<cv::Mat> parts;
   const auto sift = cv::SIFT::create();
   for (const auto& c : channels) {
@@ -153,11 +151,32 @@ cv::Mat DenseDescriptors(const cv::Mat& sample, const ObjectFeatureOptions& o,
       for (int k = 0; k < 128; ++k) d[k] = std::sqrt(d[k] * inv);
     }
   }
-  if (positions) {
-    positions->clear();
-    for (const auto& k : keypoints) positions->push_back(k.pt);
-  }
   return desc;
+}
+
+std::vector<SampleView> DescribeViews(const cv::Mat& image, const ObjectFeatureOptions& o) {
+  std::vector<cv::Mat> samples = {NormaliseSample(image, o.image_size)};
+  if (o.object_view) samples.push_back(NormaliseSample(ObjectCrop(ToBgr8(image)), o.image_size));
+  std::vector<SampleView> views;
+  for (const cv::Mat& sample : samples) {
+    SampleView v;
+    const std::vector<cv::KeyPoint> keypoints = DenseKeypoints(sample.size(), o);
+    v.descriptors = DenseDescriptors(sample, o, keypoints);
+    if (o.colour_statistics) v.colour = ColourStatistics(sample, keypoints);
+    if (o.hue_bins > 0) cv::cvtColor(sample, v.hsv, cv::COLOR_BGR2HSV);
+    for (const auto& k : keypoints) v.where.push_back(k.pt);
+    views.push_back(std::move(v));
+  }
+  return views;
+}
+
+cv::Mat PlaceColumns(const std::vector<cv::Point2f>& where, int image_size) {
+  cv::Mat out(static_cast<int>(where.size()), 2, CV_32F);
+  for (int i = 0; i < out.rows; ++i) {
+    out.at<float>(i, 0) = where[static_cast<size_t>(i)].x / image_size - 0.5f;
+    out.at<float>(i, 1) = where[static_cast<size_t>(i)].y / image_size - 0.5f;
+  }
+  return out;
 }
 
 cv::Mat BuildVocabulary(const cv::Mat& samples, int words, unsigned seed) {
@@ -296,28 +315,13 @@ std::vector<int> BowEncoder::Orientations() const {
 
 cv::Mat BowEncoder::Spatial(const cv::Mat& projected, const std::vector<cv::Point2f>& where) const {
   if (!options_.spatial_coordinates) return projected;
-  cv::Mat out(projected.rows, projected.cols + 2, CV_32F);
-  projected.copyTo(out.colRange(0, projected.cols));
-  const float side = static_cast<float>(options_.image_size);
-  for (int i = 0; i < out.rows; ++i) {
-    out.at<float>(i, projected.cols) = where[static_cast<size_t>(i)].x / side - 0.5f;
-    out.at<float>(i, projected.cols + 1) = where[static_cast<size_t>(i)].y / side - 0.5f;
-  }
+  cv::Mat out;
+  cv::hconcat(projected, PlaceColumns(where, options_.image_size), out);
   return out;
 }
 
 cv::Mat BowEncoder::Encode(const cv::Mat& image) const {
-  // The views described: the whole sample, and (object_view) the square around its object.
-  std::vector<View> views;
-  auto describe = [&](cv::Mat sample) {
-    View v;
-    v.descriptors = DenseDescriptors(sample, options_, &v.where);
-    if (options_.colour_statistics) v.colour = ColourStatistics(sample, DenseKeypoints(sample.size(), options_));
-    if (options_.hue_bins > 0) cv::cvtColor(sample, v.hsv, cv::COLOR_BGR2HSV);
-    views.push_back(std::move(v));
-  };
-  describe(NormaliseSample(image, options_.image_size));
-  if (options_.object_view) describe(NormaliseSample(ObjectCrop(ToBgr8(image)), options_.image_size));
+  const std::vector<SampleView> views = DescribeViews(image, options_);
   const std::vector<int> orientations = Orientations();
   cv::Mat out = cv::Mat::zeros(1, dims(), CV_32F);
   for (int t : orientations) {
@@ -339,7 +343,7 @@ cv::Mat BowEncoder::Encode(const cv::Mat& image) const {
   return out;
 }
 
-void BowEncoder::EncodeInto(const std::vector<View>& views, const DihedralTransform& turn, float* v) const {
+void BowEncoder::EncodeInto(const std::vector<SampleView>& views, const DihedralTransform& turn, float* v) const {
   const bool vlad = options_.encoding == "vlad", fisher = options_.encoding == "fisher";
   const int dim = vocabulary_.cols;
   const int words = WordDims(), cells = static_cast<int>(cells_.size()), colour = ColourFisherDims();
@@ -348,7 +352,7 @@ void BowEncoder::EncodeInto(const std::vector<View>& views, const DihedralTransf
   float* colour_v = v + cells * words;
   float* hist = colour_v + cells * colour;
   for (int view = 0; view < static_cast<int>(views.size()); ++view) {
-    const View& in = views[static_cast<size_t>(view)];
+    const SampleView& in = views[static_cast<size_t>(view)];
     // Positions are pixel indices; their centres turn with the sample.
     std::vector<cv::Point2f> where(in.where.size());
     for (size_t i = 0; i < where.size(); ++i)

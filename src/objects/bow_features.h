@@ -1,7 +1,9 @@
-// The image description of the object classifier: dense SIFT (as RootSIFT) quantised against a
-// visual vocabulary, counted in a spatial pyramid, plus a hue/saturation histogram per pyramid
-// cell (deep-sea biota differ as much by colour as by shape). Every part is L1-normalised, so
-// the vector suits a chi-square kernel.
+// The image description of the object classifier: dense SIFT (as RootSIFT) in one or two views
+// (the whole sample, the square around its object), encoded against a visual vocabulary (word
+// counts, VLAD or Fisher vectors) per spatial cell, with colour (local colour statistics in
+// their own Fisher vectors, or hue/saturation histograms), averaged over the sample's
+// orientations. Word counts and histograms are L1-normalised (chi-square kernel); VLAD and
+// Fisher parts are power- and L2-normalised (linear or RBF).
 #pragma once
 
 #include <random>
@@ -28,11 +30,22 @@ int DescriptorSize(const ObjectFeatureOptions& o);
 // OpenCV's SIFT convention).
 std::vector<cv::KeyPoint> DenseKeypoints(cv::Size sample, const ObjectFeatureOptions& o);
 
-// Dense RootSIFT descriptors (rows, CV_32F) of a normalised sample, with each descriptor's
-// position (pixels) in `positions` when given.
-cv::Mat DenseDescriptors(const cv::Mat& sample, const ObjectFeatureOptions& o,
-                         std::vector<cv::Point2f>* positions = nullptr);
+// Dense RootSIFT descriptors (rows, CV_32F) of a normalised sample at `keypoints`.
+cv::Mat DenseDescriptors(const cv::Mat& sample, const ObjectFeatureOptions& o, const std::vector<cv::KeyPoint>& keypoints);
 
+// One view of an image as the encoder reads it: its local descriptions on the dense grid.
+struct SampleView {
+  cv::Mat descriptors;              // RootSIFT, one row per grid point
+  cv::Mat colour;                   // colour statistics per grid point (colour_statistics only)
+  cv::Mat hsv;                      // the sample in HSV (hue_bins > 0 only)
+  std::vector<cv::Point2f> where;   // grid points, sample pixels
+};
+// The views described: the whole sample, and (object_view) the square around its object.
+std::vector<SampleView> DescribeViews(const cv::Mat& image, const ObjectFeatureOptions& o);
+
+// Grid points as the columns spatial_coordinates appends to projected descriptors: x and y in
+// -0.5..0.5 of the sample (rows x 2, CV_32F).
+cv::Mat PlaceColumns(const std::vector<cv::Point2f>& where, int image_size);
 
 // k-means over the rows of `samples` (k-means++ seeding, deterministic for a seed).
 cv::Mat BuildVocabulary(const cv::Mat& samples, int words, unsigned seed);
@@ -62,13 +75,9 @@ class BowEncoder {
   // cells of `view`; a cell's block is at v + cell * stride.
   void FisherStatistics(const FisherCodebook& book, const cv::Mat& projected, const std::vector<cv::Point2f>& where,
                         int view, float* v, int stride) const;
-  // One view's local descriptions, extracted once for every orientation.
-  struct View {
-    cv::Mat descriptors, colour, hsv;
-    std::vector<cv::Point2f> where;
-  };
-  // The description of `views` turned by `turn`, normalised, into v (zeroed, dims() long).
-  void EncodeInto(const std::vector<View>& views, const DihedralTransform& turn, float* v) const;
+  // The description of `views` (extracted once for every orientation) turned by `turn`,
+  // normalised, into v (zeroed, dims() long).
+  void EncodeInto(const std::vector<SampleView>& views, const DihedralTransform& turn, float* v) const;
   std::vector<int> Orientations() const;  // the dihedral transforms described
   // Projected descriptors with their positions appended (spatial_coordinates), else as given.
   cv::Mat Spatial(const cv::Mat& projected, const std::vector<cv::Point2f>& where) const;

@@ -9,9 +9,6 @@
 #include "rolamos/error.hpp"
 #include "rolamos/georef.hpp"
 #include "rolamos/objects.hpp"
-
-#include "objects/bow_features.h"
-#include "objects/object_crop.h"
 #include "rolamos/tile_cache.hpp"
 #include "rolamos/tiled_image.hpp"
 #include "util/files.h"
@@ -135,7 +132,7 @@ DetectSummary DetectObjects(const Store& store, const ObjectModel& model, const 
   DetectSummary summary;
   const long long total = static_cast<long long>(xs.size()) * static_cast<long long>(ys.size());
   std::vector<Detection> found;
-  const bool object_boxes = model.Describe()["features"]["object_view"].get<bool>();
+  const bool object_boxes = model.features().object_view;
   // A row of windows at a time: memory holds one row, the tile cache the rest.
   for (int y : ys) {
     std::vector<cv::Mat> windows;

@@ -68,14 +68,10 @@ TEST(DihedralTransform, EncoderWithEightOrientationsIgnoresTurnsAndMirrors) {
   o.colour_pca_dims = 16;
   o.spatial_coordinates = true;
   const cv::Mat image = Texture();
-  std::vector<cv::Point2f> where;
-  const cv::Mat sift = DenseDescriptors(image, o, &where);
-  const cv::Mat colour = ColourStatistics(image, DenseKeypoints(image.size(), o));
-  cv::Mat places(static_cast<int>(where.size()), 2, CV_32F);
-  for (int i = 0; i < places.rows; ++i)
-    places.at<float>(i, 0) = where[static_cast<size_t>(i)].x / 96 - 0.5f, places.at<float>(i, 1) = where[static_cast<size_t>(i)].y / 96 - 0.5f;
-  const FisherCodebook words = BuildFisherCodebook(sift, 4, 16, 1, places);
-  const FisherCodebook colours = BuildFisherCodebook(colour, 4, 16, 1, places);
+  const SampleView view = DescribeViews(image, o).front();
+  const cv::Mat places = PlaceColumns(view.where, o.image_size);
+  const FisherCodebook words = BuildFisherCodebook(view.descriptors, 4, 16, 1, places);
+  const FisherCodebook colours = BuildFisherCodebook(view.colour, 4, 16, 1, places);
   for (int orientations : {1, 8}) {
     o.orientations = orientations;
     const BowEncoder encoder(o, words.gmm, words.pca, colours);

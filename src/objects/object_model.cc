@@ -9,7 +9,6 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "objects/bow_features.h"
-#include "objects/object_crop.h"
 #include "objects/one_vs_all.h"
 #include "rolamos/error.hpp"
 #include "rolamos/objects.hpp"
@@ -175,17 +174,11 @@ ObjectModel ObjectModel::Train(const std::string& data_dir, const ObjectTrainOpt
   std::vector<cv::Mat> sampled(static_cast<size_t>(n)), sampled_colour(static_cast<size_t>(n)), sampled_where(static_cast<size_t>(n));
   std::atomic<int> done{0};
   ForEach(n, [&](int i) {
-    const cv::Mat image = ReadSample(data.files[static_cast<size_t>(i)]);
-    std::vector<cv::Mat> views = {NormaliseSample(image, f.image_size)};
-    if (f.object_view) views.push_back(NormaliseSample(ObjectCrop(image), f.image_size));
     cv::Mat desc, colour, where;
-    for (const cv::Mat& sample : views) {
-      std::vector<cv::Point2f> at;
-      desc.push_back(DenseDescriptors(sample, f, &at));
-      if (f.colour_statistics) colour.push_back(ColourStatistics(sample, DenseKeypoints(sample.size(), f)));
-      // The places as the encoder appends them (spatial_coordinates).
-      for (const cv::Point2f& p : at)
-        where.push_back(cv::Mat(cv::Matx12f(p.x / f.image_size - 0.5f, p.y / f.image_size - 0.5f)));
+    for (const SampleView& view : DescribeViews(ReadSample(data.files[static_cast<size_t>(i)]), f)) {
+      desc.push_back(view.descriptors);
+      colour.push_back(view.colour);
+      where.push_back(PlaceColumns(view.where, f.image_size));  // as spatial_coordinates appends them
     }
     std::vector<int> order(static_cast<size_t>(desc.rows));
     std::iota(order.begin(), order.end(), 0);
@@ -335,6 +328,8 @@ ObjectModel ObjectModel::Load(const std::string& path) {
 }
 
 const std::vector<std::string>& ObjectModel::classes() const { return impl_->reported; }
+
+const ObjectFeatureOptions& ObjectModel::features() const { return impl_->features; }
 
 std::vector<ClassScore> ObjectModel::Classify(const cv::Mat& image) const {
   if (image.empty()) Fail("classify", "empty image");
