@@ -14,3 +14,10 @@ def timed(cmd, timeout=None, check=False):
         raise SystemExit(f"{' '.join(cmd)} failed:\n{r.stdout}\n{r.stderr}")
     t, m = re.search(r"TIME ([\d.]+) (\d+)", r.stderr).groups()
     return r, float(t), int(m) / 1024
+
+
+def write_report(lines, path):
+    """Prints the report (lines joined) and writes it to `path`."""
+    report = "\n".join(lines)
+    print(report)
+    open(path, "w").write(report + "\n")

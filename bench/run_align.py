@@ -7,7 +7,7 @@ cv::Stitcher SCANS on the same frames (stopped after --peer-timeout seconds).
 
   bench/run_align.py [--frames 300] [--peer-timeout 300]
 """
-from bench_common import timed
+from bench_common import timed, write_report
 import argparse, glob, json, os, re, subprocess, sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -56,9 +56,7 @@ def main():
         j = json.loads(r.stdout) if r.returncode == 0 else {"status": f"exit {r.returncode}", "used": 0, "width": 0, "height": 0}
         lines.append(f"cv::Stitcher SCANS on the same {a.frames} frames: {j['status']}, used {j['used']} frames, "
                      f"{j['width']} x {j['height']}, {t:.0f} s, peak RSS {m:.0f} MB.")
-    report = "\n".join(lines)
-    print(report)
-    open(os.path.join(OUT, "align.md"), "w").write(report + "\n")
+    write_report(lines, os.path.join(OUT, "align.md"))
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ position on the georeferenced mosaic and its navigation position, in metres.
 
   bench/run_imos_georef.py [--weight W]
 """
+from bench_common import write_report
 import argparse, csv, glob, json, os, re, subprocess
 import numpy as np
 
@@ -77,9 +78,7 @@ def main():
     lines.append(f"\nmedian of the sequences' medians: {sorted(before_all)[4]:.3f} m vision only, "
                  f"{sorted(after_all)[4]:.3f} m after alignment with the navigation; {within} of 8 sequences within "
                  f"the navigation's own scatter")
-    report = "\n".join(lines)
-    print(report)
-    open(os.path.join(OUT, "imos_georef.md"), "w").write(report + "\n")
+    write_report(lines, os.path.join(OUT, "imos_georef.md"))
 
 
 if __name__ == "__main__":

@@ -184,9 +184,9 @@ std::vector<double> ErrorsAgainstTruth(const Store& store, const Survey& truth, 
   std::vector<cv::Point2d> ours, theirs;
   for (const auto& p : store.patches()) {
     const PatchSidecar s = store.ReadSidecar(p.id);
-    const Homography online = s.extra.value("patch_to_global_online", *s.patch_to_global);
+    const Homography online = s.patch_to_global_online.value_or(*s.patch_to_global);
     for (const auto& f : s.frames) {
-      const cv::Matx33d H = aligned ? ToMatx(f.extra.at("frame_to_global").get<Homography>())
+      const cv::Matx33d H = aligned ? ToMatx(f.frame_to_global.value())
                                     : ToMatx(online) * ToMatx(f.frame_to_patch);
       const cv::Matx33d T = gt.at(std::filesystem::path(f.source).filename().string());
       for (int i = 0; i < 3; ++i)

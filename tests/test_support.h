@@ -7,7 +7,7 @@
 #include <opencv2/core.hpp>
 
 #include "rolamos/store.hpp"
-#include "rolamos/synth.hpp"
+#include "rolamos/survey.hpp"
 
 namespace rolamos::test {
 

@@ -9,7 +9,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "rolamos/georef.hpp"
+#include "rolamos/georef_io.hpp"
 #include "rolamos/tiff_writer.hpp"
 #include "rolamos/tiled_image.hpp"
 #include "server/overlays.h"

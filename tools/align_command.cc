@@ -1,7 +1,7 @@
 #include <cstdio>
 
 #include "command.h"
-#include "rolamos/align.hpp"
+#include "rolamos/global_align.hpp"
 #include "rolamos/georeference.hpp"
 #include "util/progress.h"
 

@@ -42,6 +42,13 @@ TiffWriteOptions ToWriteOptions(const TiffSwitches& s);
 // "x,y,w,h" -> four numbers; throws rolamos::Error naming the text.
 std::array<double, 4> ParseRegion(const std::string& text);
 
+// A library error as the user of the CLI reads it: the library names values and options
+// ("max_pixels", "their CRS must be given"); this adds the flag that sets them.
+std::string WithFlagHints(const std::string& message);
+
+// The end of a one-line summary: "12.3 s (45.6 Mpx/s), peak memory 789 MiB".
+std::string TimeRateMemory(double seconds, double pixels);
+
 // Human-readable sizes for summaries.
 std::string FormatBytes(double bytes);
 

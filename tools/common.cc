@@ -1,8 +1,10 @@
+#include <algorithm>
 #include <cstdio>
 #include <sstream>
 
 #include "command.h"
 #include "rolamos/error.hpp"
+#include "util/memory.h"
 
 namespace rolamos::cli {
 
@@ -66,6 +68,32 @@ std::string FormatBytes(double bytes) {
   char buf[32];
   std::snprintf(buf, sizeof buf, u == 0 ? "%.0f %s" : "%.1f %s", bytes, units[u]);
   return buf;
+}
+
+std::string WithFlagHints(const std::string& message) {
+  static const std::pair<const char*, const char*> kHints[] = {
+      {"their CRS must be given", "--crs EPSG:XXXX"},
+      {"focal length in pixels is needed", "--focal"},
+      {"max_pixels", "--max-pixels"},
+      {"compose again from the start (restart)", "--restart"},
+      {"frames_dir", "--frames DIR"},
+      {"or choose a patch", "--patch N"},
+      {"choose a smaller scale", "--scale"},
+      {"lower the ground sample distance", "--gsd"},
+      {"encoding \"fisher\"", "--encoding fisher"},
+      {"encoding \"bow\"", "--encoding bow"},
+  };
+  std::string hints;
+  for (const auto& [phrase, flag] : kHints)
+    if (message.find(phrase) != std::string::npos) hints += std::string(hints.empty() ? "" : ", ") + flag;
+  return hints.empty() ? message : message + " [" + hints + "]";
+}
+
+std::string TimeRateMemory(double seconds, double pixels) {
+  char b[128];
+  std::snprintf(b, sizeof b, "%.1f s (%.1f Mpx/s), peak memory %.0f MiB", seconds,
+                pixels / 1e6 / std::max(seconds, 1e-9), PeakRssMb());
+  return b;
 }
 
 }  // namespace rolamos::cli

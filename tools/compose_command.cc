@@ -66,10 +66,8 @@ static int RunCompose(const ComposeSwitches& s) {
                 g.geotransform[1]);
   }
   const double seconds = progress.ElapsedSeconds();
-  std::printf("%s/mosaic.tif: %lld x %lld at scale %.4g from %d patches, %.1f s (%.1f Mpx/s), peak "
-              "memory %.0f MiB\n",
-              s.store.c_str(), r.width, r.height, r.scale, r.patches_used, seconds,
-              double(r.width) * double(r.height) / 1e6 / std::max(seconds, 1e-9), PeakRssMb());
+  std::printf("%s/mosaic.tif: %lld x %lld at scale %.4g from %d patches, %s\n", s.store.c_str(), r.width,
+              r.height, r.scale, r.patches_used, TimeRateMemory(seconds, double(r.width) * double(r.height)).c_str());
   return 0;
 }
 

@@ -24,11 +24,9 @@ static int RunConvert(const ConvertSwitches& s) {
   ConvertResult r = ConvertImage(o, [&](double f) { progress.Update(f); });
   progress.Done();
   const double seconds = progress.ElapsedSeconds();
-  std::printf("%s: %lld x %lld, %d channels -> %s: %d levels, %lld tiles, %s, %.1f s "
-              "(%.1f Mpx/s), peak memory %.0f MiB\n",
-              o.input.c_str(), r.width, r.height, r.channels, o.output.c_str(), r.stats.levels,
-              r.stats.tiles, FormatBytes(double(r.stats.bytes)).c_str(), seconds,
-              double(r.width) * double(r.height) / 1e6 / std::max(seconds, 1e-9), PeakRssMb());
+  std::printf("%s: %lld x %lld, %d channels -> %s: %d levels, %lld tiles, %s, %s\n", o.input.c_str(), r.width,
+              r.height, r.channels, o.output.c_str(), r.stats.levels, r.stats.tiles,
+              FormatBytes(double(r.stats.bytes)).c_str(), TimeRateMemory(seconds, double(r.width) * double(r.height)).c_str());
   return 0;
 }
 

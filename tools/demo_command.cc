@@ -1,7 +1,7 @@
 #include <cstdio>
 
 #include "command.h"
-#include "rolamos/demo.hpp"
+#include "rolamos/demo_store.hpp"
 #include "util/memory.h"
 #include "util/progress.h"
 
@@ -23,11 +23,9 @@ static int RunDemo(const DemoSwitches& s) {
   DemoResult r = WriteDemoStore(o, [&](double f) { progress.Update(f); });
   progress.Done();
   const double seconds = progress.ElapsedSeconds();
-  std::printf("%s: wrote a %lld x %lld generated seafloor as patch %d (%d levels, %s) in %.1f s "
-              "(%.0f Mpx/s), peak memory %.0f MiB\n",
-              o.store.c_str(), o.width, o.height, r.patch_id, r.stats.levels,
-              FormatBytes(double(r.stats.bytes)).c_str(), seconds,
-              double(o.width) * double(o.height) / 1e6 / std::max(seconds, 1e-9), PeakRssMb());
+  std::printf("%s: wrote a %lld x %lld generated seafloor as patch %d (%d levels, %s) in %s\n", o.store.c_str(),
+              o.width, o.height, r.patch_id, r.stats.levels, FormatBytes(double(r.stats.bytes)).c_str(),
+              TimeRateMemory(seconds, double(o.width) * double(o.height)).c_str());
   std::printf("Look at it:\n"
               "  build/rolamos info %s\n"
               "  build/rolamos export %s --scale 0.0625 -o overview.jpg\n"

@@ -3,7 +3,8 @@
 
 #include "command.h"
 #include "rolamos/error.hpp"
-#include "rolamos/export.hpp"
+#include "rolamos/cog_export.hpp"
+#include "rolamos/region_export.hpp"
 #include "rolamos/store.hpp"
 #include "util/memory.h"
 #include "util/progress.h"
@@ -28,15 +29,10 @@ static std::string ResolveSource(const ExportSwitches& s) {
     return s.input;
   }
   Store store = Store::Open(s.input);
-  if (s.patch > 0) {
-    for (const auto& p : store.patches())
-      if (p.id == s.patch) return (std::filesystem::path(s.input) / p.image).string();
-    Fail(s.input, "has no patch " + std::to_string(s.patch));
-  }
-  if (store.HasMosaic()) return store.MosaicPath();
+  // Without a mosaic, a store of one patch exports that patch.
   const auto patches = store.patches();
-  if (patches.size() == 1) return (std::filesystem::path(s.input) / patches[0].image).string();
-  Fail(s.input, "has no global mosaic yet; choose a patch with --patch N");
+  if (s.patch == 0 && !store.HasMosaic() && patches.size() == 1) return store.ImagePath(patches[0].id);
+  return store.ImagePath(s.patch);
 }
 
 static int RunExport(const ExportSwitches& s) {

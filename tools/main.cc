@@ -37,7 +37,7 @@ int main(int argc, char** argv) {
   try {
     return run ? run() : 2;
   } catch (const rolamos::Error& e) {
-    std::fprintf(stderr, "rolamos: error: %s\n", e.what());
+    std::fprintf(stderr, "rolamos: error: %s\n", rolamos::cli::WithFlagHints(e.what()).c_str());
     return 1;
   } catch (const std::exception& e) {
     std::fprintf(stderr, "rolamos: internal error: %s\n", e.what());

@@ -28,10 +28,10 @@ struct DetectSwitches {
 };
 
 // Library progress arrives from worker threads: one bar, redrawn under a lock.
-ObjectModel::Progress BarFor(Progress* bar, std::mutex* mutex) {
-  return [bar, mutex](const std::string& stage, int done, int total) {
+ProgressFn BarFor(Progress* bar, std::mutex* mutex) {
+  return [bar, mutex](double fraction) {
     std::lock_guard<std::mutex> lock(*mutex);
-    bar->Update(total > 0 ? double(done) / total : 0, stage);
+    bar->Update(fraction);
   };
 }
 
@@ -74,9 +74,8 @@ int RunDetect(const DetectSwitches& s) {
   if (!s.options.IsValid(&error)) Fail("objects detect", error);
   const ObjectModel model = ObjectModel::Load(s.model);
   Progress bar("detect", s.quiet);
-  const DetectSummary r = DetectObjects(Store::Open(s.store), model, s.options, [&](long long done, long long total) {
-    bar.Update(total > 0 ? double(done) / double(total) : 0);
-  });
+  std::mutex mutex;
+  const DetectSummary r = DetectObjects(Store::Open(s.store), model, s.options, BarFor(&bar, &mutex));
   bar.Done();
   std::printf("%s: %d detections from %lld windows (%lld without data), %.1f s (%.0f windows/s), %s coordinates\n",
               r.output.c_str(), r.detections, r.windows, r.skipped, r.seconds,

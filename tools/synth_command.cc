@@ -1,7 +1,7 @@
 #include <cstdio>
 
 #include "command.h"
-#include "rolamos/synth.hpp"
+#include "rolamos/survey.hpp"
 #include "util/progress.h"
 
 namespace rolamos::cli {

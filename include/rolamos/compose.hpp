@@ -15,7 +15,7 @@
 #include <utility>
 #include <vector>
 
-#include "rolamos/export.hpp"
+#include "rolamos/progress.hpp"
 #include "rolamos/store.hpp"
 #include "rolamos/tiff_writer.hpp"
 

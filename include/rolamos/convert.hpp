@@ -3,7 +3,7 @@
 
 #include <string>
 
-#include "rolamos/export.hpp"
+#include "rolamos/progress.hpp"
 #include "rolamos/tiff_writer.hpp"
 
 namespace rolamos {

@@ -10,7 +10,7 @@
 
 #include <opencv2/core.hpp>
 
-#include "rolamos/georef.hpp"
+#include "rolamos/georef_io.hpp"
 #include "rolamos/store.hpp"
 
 namespace rolamos {
@@ -51,20 +51,6 @@ std::map<std::string, FrameNavigation> ReadVehicleNavigationCsv(const std::strin
 // Either kind of CSV, told apart by its header (gt0..gt5 columns: per-frame affines).
 std::map<std::string, FrameNavigation> ReadNavigationCsv(const std::string& path, const NavigationCamera& camera,
                                                          const std::string& crs = "");
-
-// A frame's navigation, looked up by "sequence/name" (the frame's folder and file name), then by
-// its file name; nullptr when it has none.
-const FrameNavigation* FindFrameNavigation(const std::map<std::string, FrameNavigation>& nav,
-                                           const std::string& source);
-
-// Five points near a frame's centre (where lens distortion matters least), appended as their
-// place through `frame_to_global` and their place on the map by the frame's navigation.
-void AddNavigationPoints(const FrameNavigation& nav, const cv::Matx33d& frame_to_global, cv::Size frame,
-                         std::vector<cv::Point2d>* global, std::vector<cv::Point2d>* map);
-
-// The similarity from `from` to `to` that most points agree with (least median of squares),
-// fitted about the means because map coordinates are large numbers; none if nothing fits.
-std::optional<cv::Matx33d> FitSimilarity(const std::vector<cv::Point2d>& from, const std::vector<cv::Point2d>& to);
 
 struct GeoreferenceResult {
   Georef georef;

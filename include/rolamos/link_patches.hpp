@@ -10,6 +10,7 @@
 #include <utility>
 #include <vector>
 
+#include "rolamos/progress.hpp"
 #include "rolamos/store.hpp"
 
 namespace rolamos {
@@ -30,6 +31,6 @@ struct LinkSummary {
 };
 
 LinkSummary LinkPatches(Store store, const LinkOptions& options,
-                        const std::function<void(double)>& progress = {});
+                        const ProgressFn& progress = {});
 
 }  // namespace rolamos

@@ -12,6 +12,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
+#include "rolamos/progress.hpp"
 #include "rolamos/store.hpp"
 
 namespace rolamos {
@@ -87,10 +88,9 @@ LabelledImages ReadLabelledFolder(const std::string& dir);
 
 class ObjectModel {
  public:
-  using Progress = std::function<void(const std::string& stage, int done, int total)>;
   // Trains on `data_dir` (a folder per class). Unreadable images stop training with their name.
   static ObjectModel Train(const std::string& data_dir, const ObjectTrainOptions& options,
-                           const Progress& progress = {});
+                           const ProgressFn& progress = {});
   // Throws Error for a missing, truncated or foreign file, or another format version.
   static ObjectModel Load(const std::string& path);
   void Save(const std::string& path) const;  // .yml.gz (compressed) or .yml
@@ -123,7 +123,7 @@ struct ObjectEvaluation {
 // Classifies every image of `data_dir` (a folder per class; classes the model does not know
 // are an error) and compares with the folder labels.
 ObjectEvaluation EvaluateObjects(const ObjectModel& model, const std::string& data_dir,
-                                 const ObjectModel::Progress& progress = {});
+                                 const ProgressFn& progress = {});
 // "accuracy: NN.N %", then per-class precision/recall and the confusion matrix.
 std::string FormatEvaluation(const ObjectEvaluation& e);
 
@@ -148,8 +148,7 @@ struct DetectSummary {
   std::string output;
   bool georeferenced = false;
 };
-using DetectProgress = std::function<void(long long done, long long total)>;
 DetectSummary DetectObjects(const Store& store, const ObjectModel& model, const DetectOptions& options,
-                            const DetectProgress& progress = {});
+                            const ProgressFn& progress = {});
 
 }  // namespace rolamos

@@ -13,7 +13,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "rolamos/georef.hpp"
+#include "rolamos/georef_io.hpp"
 
 namespace rolamos {
 
@@ -38,6 +38,10 @@ struct FrameRecord {
   int inliers = 0;
   double ecc = 0.0;
   std::string status = "stitched";
+  // Optional fields (docs/store-format.md, "added fields"); absent when not written.
+  std::optional<double> bilateral_error;       // mean bilateral epipolar error, pixels
+  std::optional<double> ecc_shift_px;          // how far ECC moved the corners, pixels
+  std::optional<Homography> frame_to_global;   // the aligned placement (rolamos align)
   nlohmann::json extra = nlohmann::json::object();  // fields added by later versions, kept as read
 };
 
@@ -47,7 +51,16 @@ struct RejectedFrame {
   std::string reason;
 };
 
-// One patch's sidecar, after Table I of the paper.
+// How a patch joins an earlier one: the engine's link when the pixel budget closed the previous
+// patch, or compose's place recognition after tracking was lost.
+struct PatchLink {
+  int previous_patch = 0;
+  Homography to_previous = IdentityHomography();  // this patch's pixels -> previous patch's pixels
+  std::string method;                             // "" (the engine's) or "place_recognition"
+  std::optional<int> inliers;                     // homography inliers, for place recognition
+};
+
+// One patch's sidecar, after Table I of the paper, with the documented optional fields typed.
 struct PatchSidecar {
   int id = 0;
   std::array<long long, 2> size{0, 0};
@@ -58,7 +71,12 @@ struct PatchSidecar {
   std::optional<Homography> patch_to_global;
   std::vector<FrameRecord> frames;
   std::vector<RejectedFrame> rejected;
-  nlohmann::json extra = nlohmann::json::object();
+  std::optional<PatchLink> link;
+  std::optional<long long> pixel_budget;              // the budget it was built under, pixels
+  std::optional<std::array<int, 2>> frame_size;       // width, height of the rectified frames
+  std::optional<Homography> patch_to_global_online;   // the online placement, kept by align
+  std::optional<bool> aligned;                        // patch_to_global is the aligned placement
+  nlohmann::json extra = nlohmann::json::object();    // fields added by later versions, kept as read
 };
 
 // The global record of Table I.
@@ -114,6 +132,9 @@ class Store {
   void UpdateSidecar(const PatchSidecar& sidecar);
 
   std::vector<PatchEntry> patches() const;
+  // One image of the store, as readers name it: patch `patch` (> 0) or the global mosaic (0).
+  // Throws Error naming the store when it has no such patch, or no mosaic yet.
+  std::string ImagePath(int patch) const;
   PatchSidecar ReadSidecar(int id) const;
 
   GlobalRecord global() const;

@@ -12,7 +12,7 @@
 
 #include <opencv2/core.hpp>
 
-#include "rolamos/georef.hpp"
+#include "rolamos/georef_io.hpp"
 #include "rolamos/image_format.hpp"
 
 namespace rolamos {

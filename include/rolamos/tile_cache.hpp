@@ -26,11 +26,11 @@ class TileCache {
   void Invalidate(const std::string& path);
   // Cache statistics as OpenImageIO prints them (level 1..5).
   std::string Stats(int level = 1) const;
-  void* native() const { return cache_; }  // OIIO::ImageCache*, for src/tiles only
 
  private:
+  friend class TiledImage;  // reads through the OpenImageIO cache underneath
   TileCacheOptions options_;
-  void* cache_ = nullptr;
+  void* cache_ = nullptr;   // OIIO::ImageCache*; OpenImageIO stays out of the public headers
 };
 
 }  // namespace rolamos

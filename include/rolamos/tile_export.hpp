@@ -5,7 +5,7 @@
 
 #include <string>
 
-#include "rolamos/export.hpp"
+#include "rolamos/progress.hpp"
 #include "rolamos/store.hpp"
 
 namespace rolamos {

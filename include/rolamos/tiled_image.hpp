@@ -10,7 +10,7 @@
 
 #include <opencv2/core.hpp>
 
-#include "rolamos/georef.hpp"
+#include "rolamos/georef_io.hpp"
 #include "rolamos/tile_cache.hpp"
 
 namespace rolamos {

@@ -1,11 +1,8 @@
 #include "rolamos/mosaicker.hpp"
 
 #include <chrono>
-#include <condition_variable>
 #include <atomic>
-#include <map>
 #include <mutex>
-#include <thread>
 #include <cmath>
 
 #include <opencv2/imgproc.hpp>
@@ -14,12 +11,11 @@
 #include "engine/egomotion.h"
 #include "engine/feather.h"
 #include "engine/features.h"
-#include "engine/frame_source.h"
 #include "engine/motion_gate.h"
 #include "engine/patch_canvas.h"
 #include "engine/patch_writer.h"
+#include "engine/prepared_frame.h"
 #include "engine/preprocess.h"
-#include "engine/self_calibration.h"
 #include "engine/stage_options.h"
 #include "rolamos/error.hpp"
 #include "util/homography.h"
@@ -27,17 +23,6 @@
 
 namespace rolamos {
 
-struct PreparedFrame {
-  std::string source, error;
-  cv::Size size;
-  cv::Mat spatial, detect;
-  Features features;
-  // Matched in the prepare stage against the frame prepared just before (usually the one it
-  // will be registered to); `matched_to` identifies those features so Integrate can tell.
-  std::shared_ptr<const Features> own;
-  std::shared_ptr<const Features> matched_to;
-  Matches matches;
-};
 
 namespace {
 
@@ -111,7 +96,7 @@ struct Mosaicker::Impl {
   cv::Rect2d data_bounds;
   std::vector<FrameRecord> frames;       // frame_to_patch in first-frame coordinates until closed
   std::vector<RejectedFrame> rejected;
-  nlohmann::json link = nullptr;         // how this patch joins the one before
+  std::optional<PatchLink> link;         // how this patch joins the one before (first-frame coordinates)
   // The last stitched frame: what the next one is registered to.
   std::shared_ptr<const Features> prev_features;      // of the last stitched frame
   std::shared_ptr<const Features> last_prepared;      // Push: of the last frame with features
@@ -143,7 +128,7 @@ struct Mosaicker::Impl {
         writer(s, o.tiff) {}
 
   void StartPatch(const cv::Mat& filtered, const std::shared_ptr<const Features>& f,
-                  const nlohmann::json& join);
+                  const std::optional<PatchLink>& join);
   // Hands the patch to the writer; returns first-frame coordinates -> patch image pixels.
   cv::Matx33d ClosePatch();
   void Stitch(const cv::Mat& filtered, const cv::Matx33d& to_patch,
@@ -161,7 +146,7 @@ FrameReport Mosaicker::Impl::Reject(FrameReport r, const std::string& reason) {
 }
 
 void Mosaicker::Impl::StartPatch(const cv::Mat& filtered, const std::shared_ptr<const Features>& f,
-                                 const nlohmann::json& join) {
+                                 const std::optional<PatchLink>& join) {
   canvas = std::make_unique<PatchCanvas>(options.PixelBudget());
   patch_id = next_patch_id++;
   data_bounds = cv::Rect2d();
@@ -208,25 +193,7 @@ cv::Matx33d Mosaicker::Impl::ClosePatch() {
                           static_cast<int>(std::floor(data_bounds.y)));
   const cv::Matx33d T(1, 0, -rect.x, 0, 1, -rect.y, 0, 0, 1);
   PatchJob job;
-  job.sidecar.id = patch_id;
-  job.sidecar.size = {rect.width, rect.height};
-  job.sidecar.n_images = static_cast<int>(frames.size());
-  job.sidecar.offset = {double(-rect.x), double(-rect.y)};
-  for (auto& f : frames) {
-    f.frame_to_patch = ToArray9(T * ToMatx(f.frame_to_patch));
-  }
-  job.sidecar.first_homography = frames.front().frame_to_patch;
-  job.sidecar.last_homography = frames.back().frame_to_patch;
-  job.sidecar.frames = frames;
-  job.sidecar.rejected = rejected;
-  if (!link.is_null()) {
-    // The link was found in first-frame coordinates; the patch image's pixels are T of those.
-    nlohmann::json l = link;
-    l["to_previous"] = ToArray9(ToMatx(l["to_previous"].get<Homography>()) * T.inv());
-    job.sidecar.extra["link"] = l;
-  }
-  job.sidecar.extra["pixel_budget"] = canvas->pixel_budget();
-  job.sidecar.extra["frame_size"] = {frame_size.width, frame_size.height};
+  job.sidecar = AssemblePatchSidecar(patch_id, rect, frames, rejected, link, canvas->pixel_budget(), frame_size);
   job.canvas = std::move(canvas);
   job.data_rect = rect;
   writer.Submit(std::move(job));
@@ -326,7 +293,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
   if (static_cast<int>(features->points.size()) < m.options.min_inliers)
     return lost_one("featureless");
   if (!m.canvas) {
-    m.StartPatch(spatial, features, nullptr);
+    m.StartPatch(spatial, features, std::nullopt);
     r.started_patch = true;
     m.Stitch(spatial, cv::Matx33d::eye(), features, r);
     r.status = "stitched";
@@ -354,8 +321,10 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
     // remember how the two join (consecutive patches are linked by this frame's homography).
     const int old_id = m.patch_id;
     const cv::Matx33d T = m.ClosePatch();
-    m.StartPatch(spatial, features,
-                 {{"previous_patch", old_id}, {"to_previous", ToArray9(T * to_patch)}});
+    PatchLink join;
+    join.previous_patch = old_id;
+    join.to_previous = ToArray9(T * to_patch);
+    m.StartPatch(spatial, features, join);
     r.started_patch = true;
     m.Stitch(spatial, cv::Matx33d::eye(), features, r);
     r.status = "stitched";
@@ -386,8 +355,8 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
     }
     m.frames.back().egomotion = e;
   }
-  m.frames.back().extra["bilateral_error"] = ego.bilateral_error_mean;
-  m.frames.back().extra["ecc_shift_px"] = r.ecc_shift;
+  m.frames.back().bilateral_error = ego.bilateral_error_mean;
+  m.frames.back().ecc_shift_px = r.ecc_shift;
   r.status = "stitched";
   r.patch_id = m.patch_id;
   return done(r);
@@ -406,143 +375,6 @@ MosaicSummary Mosaicker::Finish() {
   for (int i = 0; i < Impl::kStages; ++i)
     m.summary.stage_seconds.emplace_back(names[i], 1e-9 * static_cast<double>(m.stage_ns[i].load()));
   return m.summary;
-}
-
-namespace {
-
-// --calibration auto: radial distortion from the first frames, written into the store so the
-// run can be repeated with it. Returns the options to use and a one-line account.
-MosaickerOptions AutoCalibrate(const std::string& input, const Store& store,
-                               MosaickerOptions options, std::string* note) {
-  auto source = FrameSource::Open(input);
-  std::vector<cv::Mat> gray;
-  InputFrame f;
-  while (gray.size() < 10 && source->Next(&f)) {
-    if (f.image.empty()) continue;
-    cv::Mat g;
-    cv::cvtColor(f.image, g, f.image.channels() == 3 ? cv::COLOR_BGR2GRAY : cv::COLOR_BGRA2GRAY);
-    if (!gray.empty() && g.size() != gray[0].size()) continue;
-    gray.push_back(g);
-  }
-  if (gray.size() < 2) Fail(input, "--calibration auto needs two readable frames");
-  SelfCalibrationResult r = EstimateRadialDistortion(gray, ToFeatureOptions(options));
-  const std::string path = store.dir() + "/calibration.yml";
-  WriteCalibration(path, r.calibration);
-  char buf[256];
-  std::snprintf(buf, sizeof buf,
-                "calibration auto: k1 = %.3f (f = 0.9 x width assumed), homography inliers %d -> %d "
-                "over %d frame pairs; written to %s",
-                r.k1, r.inliers_uncorrected, r.inliers_corrected, r.pairs, path.c_str());
-  *note = buf;
-  options.calibration = path;
-  return options;
-}
-
-}  // namespace
-
-MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& given,
-                          const std::function<void(const FrameReport&, int)>& on_frame) {
-  std::string note;
-  const MosaickerOptions options =
-      given.calibration == "auto" ? AutoCalibrate(input, store, given, &note) : given;
-  auto source = FrameSource::Open(input);
-  Mosaicker mosaicker(store, options);
-  // Frames are prepared (decoded, filtered, features found and matched to the frame before) by
-  // one worker per core, several frames at once, while this thread integrates them in order
-  // (registration, gate, ECC, blending); the writer compresses closed patches meanwhile. Only
-  // integration is sequential, so the cores share the per-frame work whatever its balance.
-  const int workers = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  const long ahead = workers + 2;  // frames prepared ahead of integration, at most
-  std::mutex source_mutex, mutex;
-  std::condition_variable changed;
-  std::map<long, std::shared_ptr<PreparedFrame>> ready;        // prepared, waiting in order
-  std::map<long, std::shared_ptr<const Features>> chain;       // last features up to frame i
-  long taken = 0, integrated = 0, total = -1;                  // total known at the end
-  bool stopping = false;
-  std::exception_ptr failure;
-  auto prepare_frames = [&] {
-    try {
-      for (;;) {
-        {
-          std::unique_lock<std::mutex> lock(mutex);
-          changed.wait(lock, [&] { return stopping || taken - integrated < ahead; });
-          if (stopping) return;
-        }
-        InputFrame f;
-        long index;
-        {
-          // Frames leave the source in order, numbered as they leave (video decodes in order).
-          std::lock_guard<std::mutex> source_lock(source_mutex);
-          const bool more = total < 0 && source->Next(&f);
-          std::lock_guard<std::mutex> lock(mutex);
-          if (!more) {
-            total = taken;
-            changed.notify_all();
-            return;
-          }
-          index = taken++;
-        }
-        auto prepared = mosaicker.Prepare(f.image, f.source, f.error);
-        const bool has_features = prepared->own && !prepared->own->empty();
-        std::shared_ptr<const Features> previous;
-        {
-          std::unique_lock<std::mutex> lock(mutex);
-          if (has_features) chain[index] = prepared->own;
-          changed.notify_all();
-          changed.wait(lock, [&] { return stopping || index == 0 || chain.count(index - 1); });
-          if (stopping) return;
-          if (index > 0) previous = chain[index - 1];
-          if (!has_features) chain[index] = previous;
-        }
-        mosaicker.MatchAhead(prepared.get(), previous);
-        std::lock_guard<std::mutex> lock(mutex);
-        ready[index] = std::move(prepared);
-        changed.notify_all();
-      }
-    } catch (...) {
-      std::lock_guard<std::mutex> lock(mutex);
-      if (!failure) failure = std::current_exception();
-      stopping = true;
-      changed.notify_all();
-    }
-  };
-  std::vector<std::thread> preparers;
-  for (int i = 0; i < workers; ++i) preparers.emplace_back(prepare_frames);
-  auto stop = [&] {
-    {
-      std::lock_guard<std::mutex> lock(mutex);
-      stopping = true;
-    }
-    changed.notify_all();
-    for (auto& t : preparers) t.join();
-  };
-  try {
-    for (;;) {
-      std::shared_ptr<PreparedFrame> next;
-      {
-        std::unique_lock<std::mutex> lock(mutex);
-        changed.wait(lock, [&] { return failure || ready.count(integrated) || integrated == total; });
-        if (failure || integrated == total) break;
-        next = std::move(ready[integrated]);
-        ready.erase(integrated);
-        // Workers still preparing frames after this one read chain[k - 1] with k > integrated:
-        // entries before integrated - 1 are no longer needed.
-        chain.erase(chain.begin(), chain.lower_bound(integrated - 1));
-        ++integrated;
-        changed.notify_all();
-      }
-      FrameReport r = mosaicker.Integrate(next);
-      if (on_frame) on_frame(r, source->count());
-    }
-  } catch (...) {
-    stop();
-    throw;
-  }
-  stop();
-  if (failure) std::rethrow_exception(failure);
-  MosaicSummary summary = mosaicker.Finish();
-  summary.calibration_note = note;
-  return summary;
 }
 
 }  // namespace rolamos

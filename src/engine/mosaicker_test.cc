@@ -11,7 +11,7 @@
 #include <opencv2/videoio.hpp>
 
 #include "rolamos/error.hpp"
-#include "rolamos/synth.hpp"
+#include "rolamos/survey.hpp"
 #include "rolamos/tiled_image.hpp"
 #include "test_support.h"
 #include "util/homography.h"
@@ -104,12 +104,11 @@ TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {
     EXPECT_LE(s.size[0] * s.size[1], 400000) << "patch " << p.id;
     images += s.n_images;
     if (p.id > 1) {
-      ASSERT_TRUE(s.extra.contains("link")) << "patch " << p.id;
-      EXPECT_EQ(s.extra["link"]["previous_patch"], p.id - 1);
+      ASSERT_TRUE(s.link.has_value()) << "patch " << p.id;
+      EXPECT_EQ(s.link->previous_patch, p.id - 1);
       // The link maps this patch's pixels to the previous patch's: this patch's first frame
       // lands where ground truth says it lies relative to the previous patch's last frame.
-      std::array<double, 9> l;
-      for (int i = 0; i < 9; ++i) l[static_cast<size_t>(i)] = s.extra["link"]["to_previous"][static_cast<size_t>(i)];
+      const std::array<double, 9> l = s.link->to_previous;
       const auto name = [](const FrameRecord& f) { return fs::path(f.source).filename().string(); };
       const cv::Matx33d first_to_last = gt[name(previous.frames.back())].inv() * gt[name(s.frames.front())];
       const cv::Matx33d ours = ToMatx(l) * ToMatx(s.first_homography);

@@ -1,6 +1,33 @@
 #include "engine/patch_writer.h"
 
+#include "util/homography.h"
+
 namespace rolamos {
+
+PatchSidecar AssemblePatchSidecar(int id, const cv::Rect& rect, std::vector<FrameRecord> frames,
+                                  std::vector<RejectedFrame> rejected, const std::optional<PatchLink>& link,
+                                  long long pixel_budget, cv::Size frame_size) {
+  const cv::Matx33d T(1, 0, -rect.x, 0, 1, -rect.y, 0, 0, 1);
+  PatchSidecar s;
+  s.id = id;
+  s.size = {rect.width, rect.height};
+  s.n_images = static_cast<int>(frames.size());
+  s.offset = {double(-rect.x), double(-rect.y)};
+  for (auto& f : frames) f.frame_to_patch = ToArray9(T * ToMatx(f.frame_to_patch));
+  if (!frames.empty()) {
+    s.first_homography = frames.front().frame_to_patch;
+    s.last_homography = frames.back().frame_to_patch;
+  }
+  s.frames = std::move(frames);
+  s.rejected = std::move(rejected);
+  if (link) {
+    s.link = *link;
+    s.link->to_previous = ToArray9(ToMatx(link->to_previous) * T.inv());
+  }
+  s.pixel_budget = pixel_budget;
+  s.frame_size = std::array<int, 2>{frame_size.width, frame_size.height};
+  return s;
+}
 
 PatchWriter::~PatchWriter() {
   try {

@@ -6,12 +6,21 @@
 #include <functional>
 #include <future>
 #include <memory>
+#include <optional>
+#include <vector>
 
 #include "engine/patch_canvas.h"
 #include "rolamos/store.hpp"
 #include "rolamos/tiff_writer.hpp"
 
 namespace rolamos {
+
+// The sidecar of a closed patch: the frames' placements (and the link to the previous patch),
+// given in the patch's first-frame coordinates, are moved to the pixel grid of the image, which
+// covers `rect` of those coordinates.
+PatchSidecar AssemblePatchSidecar(int id, const cv::Rect& rect, std::vector<FrameRecord> frames,
+                                  std::vector<RejectedFrame> rejected, const std::optional<PatchLink>& link,
+                                  long long pixel_budget, cv::Size frame_size);
 
 struct PatchJob {
   std::unique_ptr<PatchCanvas> canvas;

@@ -68,7 +68,7 @@ Preprocessor::Preprocessor(const PreprocessOptions& options) : options_(options)
   std::string error;
   if (!options.IsValid(&error)) Fail("preprocessing", error);
   if (options.calibration == "auto")
-    Fail("--calibration auto", "is estimated from the first frames by MosaicInput (rolamos mosaic)");
+    Fail("calibration \"auto\"", "is estimated from the first frames by MosaicInput, not by the pre-processor");
   if (!options.calibration.empty()) calibration_ = ReadCalibration(options.calibration);
 }
 

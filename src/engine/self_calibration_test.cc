@@ -5,7 +5,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "rolamos/synth.hpp"
+#include "rolamos/survey.hpp"
 #include "test_support.h"
 
 namespace rolamos {

@@ -51,11 +51,11 @@ bool ObjectFeatureOptions::IsValid(std::string* error) const {
     return false;
   }
   if (colour_statistics && encoding != "fisher") {
-    *error = "colour statistics need the Fisher encoding (--encoding fisher)";
+    *error = "colour statistics need the Fisher encoding (encoding \"fisher\")";
     return false;
   }
   if (spatial_coordinates && encoding != "fisher") {
-    *error = "spatial coordinates need the Fisher encoding (--encoding fisher)";
+    *error = "spatial coordinates need the Fisher encoding (encoding \"fisher\")";
     return false;
   }
   if (orientations != 1 && orientations != 2 && orientations != 4 && orientations != 8) {

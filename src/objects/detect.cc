@@ -7,7 +7,7 @@
 #include "objects/bow_features.h"
 #include "objects/object_crop.h"
 #include "rolamos/error.hpp"
-#include "rolamos/georef.hpp"
+#include "rolamos/georef_io.hpp"
 #include "rolamos/objects.hpp"
 #include "rolamos/tile_cache.hpp"
 #include "rolamos/tiled_image.hpp"
@@ -94,23 +94,13 @@ double EmptyShare(const cv::Mat& window) {
 }  // namespace
 
 DetectSummary DetectObjects(const Store& store, const ObjectModel& model, const DetectOptions& options,
-                            const DetectProgress& progress) {
+                            const ProgressFn& progress) {
   std::string error;
   if (!options.IsValid(&error)) Fail("detect options", error);
   const auto start = std::chrono::steady_clock::now();
   std::string path, image_name;
-  if (options.patch == 0) {
-    if (!store.HasMosaic())
-      Fail(store.dir(), "has no global mosaic: run `rolamos compose` first, or choose a patch with --patch N");
-    path = store.MosaicPath();
-    image_name = "mosaic";
-  } else {
-    bool found = false;
-    for (const auto& p : store.patches()) found |= p.id == options.patch;
-    if (!found) Fail(store.dir(), "has no patch " + std::to_string(options.patch));
-    path = store.PatchImagePath(options.patch);
-    image_name = "patch " + std::to_string(options.patch);
-  }
+  path = store.ImagePath(options.patch);
+  image_name = options.patch == 0 ? "mosaic" : "patch " + std::to_string(options.patch);
   TileCacheOptions cache_options;
   cache_options.max_memory_mb = options.cache_mb;
   const TiledImage image = TiledImage::Open(path, std::make_shared<TileCache>(cache_options));
@@ -169,7 +159,7 @@ DetectSummary DetectObjects(const Store& store, const ObjectModel& model, const 
       d.scores = scores[i];
       found.push_back(std::move(d));
     }
-    if (progress) progress(summary.windows, total);
+    if (progress) progress(total > 0 ? double(summary.windows) / double(total) : 1.0);
   }
   const std::vector<Detection> kept = Suppress(std::move(found), options.nms_iou);
 

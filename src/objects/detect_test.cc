@@ -6,7 +6,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "rolamos/error.hpp"
-#include "rolamos/georef.hpp"
+#include "rolamos/georef_io.hpp"
 #include "rolamos/objects.hpp"
 #include "rolamos/tiff_writer.hpp"
 #include "synth/seafloor_texture.h"

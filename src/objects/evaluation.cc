@@ -10,7 +10,7 @@
 namespace rolamos {
 
 ObjectEvaluation EvaluateObjects(const ObjectModel& model, const std::string& data_dir,
-                                 const ObjectModel::Progress& progress) {
+                                 const ProgressFn& progress) {
   const auto start = std::chrono::steady_clock::now();
   const LabelledImages data = ReadLabelledFolder(data_dir);
   ObjectEvaluation e;
@@ -48,7 +48,7 @@ ObjectEvaluation EvaluateObjects(const ObjectModel& model, const std::string& da
       const int predicted = background && s.front().score < 0 ? index[kBackgroundClass] : index[s.front().label];
       ++e.confusion[static_cast<size_t>(truth)][static_cast<size_t>(predicted)];
     }
-    if (progress) progress("classifying", static_cast<int>(last), static_cast<int>(data.files.size()));
+    if (progress) progress(double(last) / double(std::max<size_t>(1, data.files.size())));
   }
   int correct = 0;
   e.precision.assign(k, 0);

@@ -13,6 +13,7 @@
 #include "rolamos/error.hpp"
 #include "rolamos/objects.hpp"
 #include "util/files.h"
+#include "util/parallel_for.h"
 
 namespace rolamos {
 
@@ -31,7 +32,7 @@ bool ObjectTrainOptions::IsValid(std::string* error) const {
     return false;
   }
   if (kernel == "chi2" && features.encoding != "bow") {
-    *error = "the chi-square kernel needs histograms (--encoding bow); VLAD and Fisher vectors take rbf or linear";
+    *error = "the chi-square kernel needs histograms (encoding \"bow\"); VLAD and Fisher vectors take rbf or linear";
     return false;
   }
   if (folds < 2 || folds > 20) {
@@ -67,24 +68,6 @@ cv::Mat ReadSample(const std::string& file) {
   cv::Mat image = cv::imread(file, cv::IMREAD_COLOR);
   if (image.empty()) Fail(file, "cannot be read as an image (unreadable, truncated or not an image)");
   return image;
-}
-
-// Runs `work(i)` for i in [0, n) on every core; the first exception is rethrown here.
-void ForEach(int n, const std::function<void(int)>& work) {
-  std::exception_ptr failure;
-  std::mutex mutex;
-  cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& r) {
-    for (int i = r.start; i < r.end; ++i) {
-      try {
-        work(i);
-      } catch (...) {
-        std::lock_guard<std::mutex> lock(mutex);
-        if (!failure) failure = std::current_exception();
-        return;
-      }
-    }
-  });
-  if (failure) std::rethrow_exception(failure);
 }
 
 void WriteFeatureOptions(cv::FileStorage& fs, const ObjectFeatureOptions& o) {
@@ -147,7 +130,7 @@ nlohmann::json ReadJson(const cv::FileNode& n) {
 }  // namespace
 
 ObjectModel ObjectModel::Train(const std::string& data_dir, const ObjectTrainOptions& options,
-                               const Progress& progress) {
+                               const ProgressFn& progress) {
   std::string error;
   if (!options.IsValid(&error)) Fail("object training options", error);
   const auto start = std::chrono::steady_clock::now();
@@ -173,7 +156,8 @@ ObjectModel ObjectModel::Train(const std::string& data_dir, const ObjectTrainOpt
   const int per_image = std::max(1, options.kmeans_samples / n);
   std::vector<cv::Mat> sampled(static_cast<size_t>(n)), sampled_colour(static_cast<size_t>(n)), sampled_where(static_cast<size_t>(n));
   std::atomic<int> done{0};
-  ForEach(n, [&](int i) {
+  ParallelFor(n, [&](long long item, int) {
+    const int i = static_cast<int>(item);
     cv::Mat desc, colour, where;
     for (const SampleView& view : DescribeViews(ReadSample(data.files[static_cast<size_t>(i)]), f)) {
       desc.push_back(view.descriptors);
@@ -193,13 +177,13 @@ ObjectModel ObjectModel::Train(const std::string& data_dir, const ObjectTrainOpt
     sampled[static_cast<size_t>(i)] = pick(desc);
     sampled_where[static_cast<size_t>(i)] = pick(where);
     if (f.colour_statistics) sampled_colour[static_cast<size_t>(i)] = pick(colour);
-    if (progress) progress("descriptors", ++done, n);
+    if (progress) progress(0.4 * ++done / n);
   });
   cv::Mat all;
   cv::vconcat(sampled, all);
   sampled.clear();
   const int kmeans_samples = all.rows;
-  if (progress) progress("vocabulary", 0, 1);
+  if (progress) progress(0.4);
   if (f.encoding == "fisher") {
     cv::Mat appended;
     if (f.spatial_coordinates) cv::vconcat(sampled_where, appended);
@@ -215,14 +199,15 @@ ObjectModel ObjectModel::Train(const std::string& data_dir, const ObjectTrainOpt
     impl->encoder = std::make_unique<BowEncoder>(f, BuildVocabulary(all, options.vocabulary, options.seed));
   }
   all.release();
-  if (progress) progress("vocabulary", 1, 1);
+  if (progress) progress(0.5);
 
   // 2. Every training image as a bag of words, through the same Encode that classification uses.
   cv::Mat x(n, impl->encoder->dims(), CV_32F);
   done = 0;
-  ForEach(n, [&](int i) {
+  ParallelFor(n, [&](long long item, int) {
+    const int i = static_cast<int>(item);
     impl->encoder->Encode(ReadSample(data.files[static_cast<size_t>(i)])).copyTo(x.row(i));
-    if (progress) progress("encoding", ++done, n);
+    if (progress) progress(0.5 + 0.3 * ++done / n);
   });
 
   // 3. One SVM per class, parameters cross-validated on the training set.
@@ -234,7 +219,7 @@ ObjectModel ObjectModel::Train(const std::string& data_dir, const ObjectTrainOpt
   svm_options.seed = options.seed;
   impl->svms.Train(x, data.labels, static_cast<int>(data.classes.size()), negatives_only, svm_options,
                    [&](int step, int total) {
-                     if (progress) progress("svm", step, total);
+                     if (progress) progress(0.8 + 0.2 * step / std::max(1, total));
                    });
   std::vector<int> counts(data.classes.size(), 0);
   for (int l : data.labels) ++counts[static_cast<size_t>(l)];
@@ -338,7 +323,8 @@ std::vector<ClassScore> ObjectModel::Classify(const cv::Mat& image) const {
 
 std::vector<std::vector<ClassScore>> ObjectModel::ClassifyAll(const std::vector<cv::Mat>& images) const {
   std::vector<std::vector<ClassScore>> out(images.size());
-  ForEach(static_cast<int>(images.size()), [&](int i) { out[static_cast<size_t>(i)] = Classify(images[static_cast<size_t>(i)]); });
+  ParallelFor(static_cast<long long>(images.size()),
+              [&](long long i, int) { out[static_cast<size_t>(i)] = Classify(images[static_cast<size_t>(i)]); });
   return out;
 }
 

@@ -6,7 +6,7 @@
 #include <opencv2/core.hpp>
 
 #include "rolamos/error.hpp"
-#include "rolamos/georef.hpp"
+#include "rolamos/georef_io.hpp"
 #include "util/homography.h"
 
 namespace rolamos {
@@ -54,9 +54,8 @@ nlohmann::json ImageOverlays(const Store& store, const std::string& name, const 
     }
     out["outlines"].push_back({{"patch", s.id},
                                {"points", Quad(to_image, double(s.size[0]), double(s.size[1]))}});
-    auto frame_size = s.extra.value("frame_size", nlohmann::json());
-    const double fw = frame_size.is_array() ? frame_size[0].get<double>() : 0;
-    const double fh = frame_size.is_array() ? frame_size[1].get<double>() : 0;
+    const double fw = s.frame_size ? (*s.frame_size)[0] : 0;
+    const double fh = s.frame_size ? (*s.frame_size)[1] : 0;
     for (const auto& f : s.frames) {
       const cv::Matx33d H = to_image * ToMatx(f.frame_to_patch);
       const std::string source = std::filesystem::path(f.source).filename().string();

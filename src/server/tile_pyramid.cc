@@ -59,10 +59,18 @@ std::string TilePyramid::DziDescriptor(const std::string& ext) const {
 std::vector<std::pair<std::string, std::string>> StoreImages(const Store& store) {
   std::vector<std::pair<std::string, std::string>> images;
   if (store.HasMosaic()) images.emplace_back("mosaic", store.MosaicPath());
-  for (const auto& p : store.patches())
-    images.emplace_back("patch-" + std::to_string(p.id),
-                        (std::filesystem::path(store.dir()) / p.image).string());
+  for (const auto& p : store.patches()) images.emplace_back("patch-" + std::to_string(p.id), store.ImagePath(p.id));
   return images;
+}
+
+bool TileEncodingIsValid(int jpeg_quality, double cache_mb, std::string* error) {
+  if (jpeg_quality < 1 || jpeg_quality > 100) {
+    *error = "JPEG quality " + std::to_string(jpeg_quality) + " is outside 1..100";
+    return false;
+  }
+  TileCacheOptions c;
+  c.max_memory_mb = cache_mb;
+  return c.IsValid(error);
 }
 
 }  // namespace rolamos

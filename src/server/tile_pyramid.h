@@ -15,6 +15,9 @@
 
 namespace rolamos {
 
+// The checks the tile server and the static tile export share: JPEG quality and the cache bound.
+bool TileEncodingIsValid(int jpeg_quality, double cache_mb, std::string* error);
+
 class TilePyramid {
  public:
   static constexpr int kTile = 256;

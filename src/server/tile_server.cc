@@ -16,7 +16,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "rolamos/error.hpp"
-#include "rolamos/export.hpp"
+#include "rolamos/region_export.hpp"
 #include "rolamos/tiled_image.hpp"
 #include "server/overlays.h"
 #include "server/tile_pyramid.h"
@@ -38,13 +38,7 @@ bool TileServerOptions::IsValid(std::string* error) const {
     *error = "the export limit must be positive";
     return false;
   }
-  if (jpeg_quality < 1 || jpeg_quality > 100) {
-    *error = "JPEG quality must be 1..100";
-    return false;
-  }
-  TileCacheOptions c;
-  c.max_memory_mb = cache_mb;
-  return c.IsValid(error);
+  return TileEncodingIsValid(jpeg_quality, cache_mb, error);
 }
 
 namespace {

@@ -6,7 +6,7 @@
 
 #include <opencv2/core.hpp>
 
-#include "rolamos/synth.hpp"
+#include "rolamos/survey.hpp"
 
 namespace rolamos {
 

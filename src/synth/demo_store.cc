@@ -1,4 +1,4 @@
-#include "rolamos/demo.hpp"
+#include "rolamos/demo_store.hpp"
 
 #include "rolamos/error.hpp"
 #include "rolamos/store.hpp"

@@ -8,7 +8,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "rolamos/error.hpp"
-#include "rolamos/synth.hpp"
+#include "rolamos/survey.hpp"
 #include "synth/camera_path.h"
 #include "synth/seafloor_texture.h"
 #include "util/files.h"
@@ -125,7 +125,7 @@ nlohmann::json Mat33(const cv::Matx33d& m) {
 }  // namespace
 
 Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
-                   const std::function<void(double)>& progress) {
+                   const ProgressFn& progress) {
   std::string error;
   if (!o.IsValid(&error)) Fail("synth", error);
   TextureSource texture(o);
@@ -141,7 +141,7 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
     Fail(o.texture.empty() ? "procedural texture" : o.texture,
          "is too small for frames of " + std::to_string(o.frame_width) + "x" +
              std::to_string(o.frame_height) + " at gsd " + std::to_string(o.gsd) +
-             " (lower --gsd or use a larger texture)");
+             " (lower the ground sample distance or use a larger texture)");
   auto poses = PlanCameraPath(o, area);
 
   std::error_code ec;

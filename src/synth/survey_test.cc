@@ -1,4 +1,4 @@
-#include "rolamos/synth.hpp"
+#include "rolamos/survey.hpp"
 
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>

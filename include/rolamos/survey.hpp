@@ -1,0 +1,63 @@
+// Synthetic surveys: a simulated downward camera flown over a large image (or the procedural
+// seafloor), rendered with underwater degradations, with the ground-truth homography of every
+// frame. Tests, benchmarks and the README's main job use it: truth is known exactly.
+#pragma once
+
+#include <array>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "rolamos/progress.hpp"
+
+namespace rolamos {
+
+struct SurveyOptions {
+  std::string texture;       // image to fly over; "" = procedural seafloor
+  int frame_width = 1292;    // the paper's camera
+  int frame_height = 964;
+  double focal_px = 1100.0;
+  double gsd = 1.0;          // texture pixels per frame pixel at the nominal altitude
+  std::string path = "lawnmower";  // lawnmower | spiral | random
+  int frames = 60;
+  double forward_overlap = 0.8;  // between consecutive frames
+  double side_overlap = 0.3;     // between lawnmower lanes
+  double altitude_jitter = 0.05;  // relative altitude change (smooth)
+  double tilt_deg = 2.0;          // roll/pitch amplitude (smooth)
+  // Degradations, each 0 to switch it off.
+  double attenuation = 1.0;   // red/green loss with altitude
+  double vignetting = 0.35;   // darkening at the corners
+  double backscatter = 0.08;  // blue-green haze
+  double noise = 2.0;         // sensor noise sigma, grey levels
+  int particles = 40;         // marine snow per frame
+  int jpeg_quality = 92;      // 0 = write PNG
+  uint32_t seed = 1;
+
+  bool IsValid(std::string* error) const;
+};
+
+struct SurveyFrame {
+  int index = 0;
+  std::string file;  // relative to the survey directory
+  std::array<double, 9> frame_to_world{};  // frame pixel -> texture pixel
+  std::array<double, 3> camera_position{};  // texture pixels; z is the altitude
+  double yaw_deg = 0.0;
+};
+
+struct Survey {
+  std::string texture;
+  cv::Size texture_size;
+  cv::Size frame_size;
+  cv::Matx33d camera_matrix;
+  std::vector<SurveyFrame> frames;
+};
+
+// Renders the survey into `dir` (frames/frame_NNNNN.{jpg,png} and ground_truth.json).
+Survey WriteSurvey(const SurveyOptions& options, const std::string& dir,
+                   const ProgressFn& progress = nullptr);
+// Reads ground_truth.json of a survey directory.
+Survey ReadSurvey(const std::string& dir);
+
+}  // namespace rolamos

@@ -1,0 +1,41 @@
+#include "align/stored_frames.h"
+
+#include <filesystem>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "engine/preprocess.h"
+#include "rolamos/error.hpp"
+#include "engine/stage_options.h"
+
+namespace rolamos {
+
+FeatureOptions StoredFrameFeatureOptions() { return ToFeatureOptions(MosaickerOptions{}); }
+
+std::string StoredFramePath(const std::string& source, const std::string& frames_dir) {
+  if (frames_dir.empty()) return source;
+  return (std::filesystem::path(frames_dir) / std::filesystem::path(source).filename()).string();
+}
+
+Features DescribeStoredFrame(const std::string& path, const FeatureExtractor& extractor) {
+  const cv::Mat image = cv::imread(path, cv::IMREAD_COLOR);
+  if (image.empty()) Fail(path, "cannot be read (is the frames' folder where the store says? it can be given as frames_dir)");
+  static const Preprocessor pre{PreprocessOptions{}};  // CLAHE only: DetectionImage is const
+  return extractor.Extract(pre.DetectionImage(image));
+}
+
+VerifiedMatch MatchVerified(const Features& a, const Features& b, const FeatureOptions& options, int min_inliers) {
+  VerifiedMatch v;
+  v.matches = MatchFeatures(a, b, options);
+  if (static_cast<int>(v.matches.from.size()) < min_inliers) return v;
+  const cv::Mat H = cv::findHomography(v.matches.from, v.matches.to, cv::RANSAC, 3.0, v.inlier, 2000, 0.999);
+  int count = 0;
+  for (uchar x : v.inlier) count += x;
+  if (H.empty() || count < min_inliers) return v;
+  v.inliers = count;
+  v.H = cv::Matx33d(H);
+  return v;
+}
+
+}  // namespace rolamos

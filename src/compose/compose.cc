@@ -1,0 +1,201 @@
+#include "rolamos/compose.hpp"
+
+#include <cmath>
+#include <filesystem>
+#include <map>
+#include <sstream>
+
+#include <opencv2/imgproc.hpp>
+
+#include "rolamos/error.hpp"
+#include "rolamos/tiled_image.hpp"
+#include "compose/patch_blender.h"
+#include "compose/quadtree_pyramid.h"
+#include "compose/tile_journal.h"
+#include "util/homography.h"
+
+namespace rolamos {
+
+bool ComposeOptions::IsValid(std::string* error) const {
+  if (max_pixels < 0) {
+    *error = "the pixel limit (max_pixels) cannot be negative";
+    return false;
+  }
+  if (feather_px < 1 || feather_px > 1024) {
+    *error = "feather width must be 1..1024 pixels";
+    return false;
+  }
+  if (chunk_px < tiff.tile_size || chunk_px > 65536 || (chunk_px & (chunk_px - 1)) != 0) {
+    *error = "chunk size " + std::to_string(chunk_px) + " must be a power of two from the tile size (" +
+             std::to_string(tiff.tile_size) + ") to 65536";
+    return false;
+  }
+  if (threads < 0) {
+    *error = "thread count cannot be negative";
+    return false;
+  }
+  TileCacheOptions cache;
+  cache.max_memory_mb = cache_mb;
+  if (!cache.IsValid(error)) return false;
+  PixelLayout rgba;
+  rgba.width = rgba.height = 1024;
+  rgba.channels = 4;
+  return tiff.IsValid(rgba, error);
+}
+
+namespace {
+
+// Everything the pixels depend on: a journal written for other inputs is not resumed.
+std::string Fingerprint(const std::vector<PlacedPatch>& placed, const ComposeResult& r,
+                        const ComposeOptions& o) {
+  std::ostringstream f;
+  f.precision(17);
+  f << r.width << 'x' << r.height << " scale " << r.scale << " feather " << o.feather_px << " codec "
+    << CompressionName(o.tiff.compression) << ' ' << o.tiff.quality << ' ' << o.tiff.tile_size << ' '
+    << o.tiff.pyramid << ' ' << o.tiff.zstd_level << ' ' << o.tiff.deflate_level << ' ' << o.tiff.webp_method;
+  for (const auto& p : placed) {
+    std::error_code ec;
+    const auto bytes = std::filesystem::file_size(p.path, ec);
+    const auto time = std::filesystem::last_write_time(p.path, ec).time_since_epoch().count();
+    f << '\n' << p.id << ' ' << p.path << ' ' << bytes << ' ' << time;
+    for (int k = 0; k < 9; ++k) f << ' ' << p.to_mosaic.val[k];
+  }
+  return FingerprintHex(f.str());
+}
+
+// Why a patch cannot be drawn ("" when it can): an image that does not open or disagrees with its
+// sidecar, or a placement that is not finite, folds the patch, or sends part of it to infinity.
+// On success the patch's image is left open in `image`.
+std::string PlacementProblem(const cv::Matx33d& G, const PatchSidecar& s, const std::string& path,
+                             const std::shared_ptr<TileCache>& cache, std::shared_ptr<const TiledImage>* image) {
+  for (double v : G.val)
+    if (!std::isfinite(v)) return "its placement is not finite";
+  const double w = double(s.size[0]), h = double(s.size[1]);
+  for (const cv::Vec3d& c : {cv::Vec3d(0, 0, 1), cv::Vec3d(w, 0, 1), cv::Vec3d(0, h, 1), cv::Vec3d(w, h, 1)})
+    if ((G * c)[2] <= 1e-9) return "its placement sends part of it to infinity (degenerate homography)";
+  const double det = G(0, 0) * G(1, 1) - G(0, 1) * G(1, 0);
+  if (!(std::abs(det) > 1e-6 && std::abs(det) < 1e6)) return "its placement is degenerate (scale " + std::to_string(det) + ")";
+  try {
+    *image = std::make_shared<const TiledImage>(TiledImage::Open(path, cache));
+    if ((*image)->width() != s.size[0] || (*image)->height() != s.size[1])
+      return "its image is " + std::to_string((*image)->width()) + " x " + std::to_string((*image)->height()) +
+             " but its sidecar says " + std::to_string(s.size[0]) + " x " + std::to_string(s.size[1]);
+  } catch (const Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+}  // namespace
+
+ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const ProgressFn& progress) {
+  std::string error;
+  if (!options.IsValid(&error)) Fail("compose", error);
+  TileCacheOptions co;
+  co.max_memory_mb = options.cache_mb;
+  auto cache = std::make_shared<TileCache>(co);
+  ComposeResult result;
+
+  // 1. Place the patches.
+  std::vector<PlacedPatch> placed;
+  std::map<int, cv::Matx33d> to_global;
+  for (const auto& entry : store.patches()) {
+    PatchSidecar s;
+    try {
+      s = store.ReadSidecar(entry.id);
+    } catch (const Error& e) {
+      result.left_out.emplace_back(entry.id, e.what());
+      continue;
+    }
+    cv::Matx33d G;
+    if (s.patch_to_global) {
+      G = ToMatx(*s.patch_to_global);
+    } else if (s.link && to_global.count(s.link->previous_patch)) {
+      G = to_global[s.link->previous_patch] * ToMatx(s.link->to_previous);
+    } else if (to_global.empty()) {
+      G = cv::Matx33d::eye();  // the first patch defines the global frame
+    } else {
+      result.left_out.emplace_back(entry.id, "not linked to the patches before it (tracking was "
+                                             "lost before it started); left out, not guessed");
+      continue;
+    }
+    PlacedPatch p;
+    p.id = entry.id;
+    p.path = (std::filesystem::path(store.dir()) / entry.image).string();
+    const std::string problem = PlacementProblem(G, s, p.path, cache, &p.image);
+    if (!problem.empty()) {
+      result.left_out.emplace_back(entry.id, problem + "; left out");
+      continue;
+    }
+    p.to_mosaic = G;  // global for now; the mosaic's offset and scale come next
+    p.size = cv::Size(static_cast<int>(s.size[0]), static_cast<int>(s.size[1]));
+    to_global[entry.id] = G;
+    placed.push_back(p);
+  }
+  if (placed.empty()) Fail(store.dir(), "has no patch that can be placed");
+
+  // 2. The global frame: offset to the union of the patches, scale to fit max_pixels.
+  double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
+  for (const auto& p : placed) {
+    const cv::Rect2d b = WarpedBounds(p.to_mosaic, p.size);
+    x0 = std::min(x0, b.x), y0 = std::min(y0, b.y);
+    x1 = std::max(x1, b.x + b.width), y1 = std::max(y1, b.y + b.height);
+  }
+  double scale = 1.0;
+  const double full = (x1 - x0) * (y1 - y0);
+  if (options.max_pixels > 0 && full > options.max_pixels) scale = std::sqrt(options.max_pixels / full);
+  result.scale = scale;
+  result.width = std::max(1LL, static_cast<long long>(std::floor((x1 - x0) * scale)));
+  result.height = std::max(1LL, static_cast<long long>(std::floor((y1 - y0) * scale)));
+  if (result.width > (1LL << 31) - 1 || result.height > (1LL << 31) - 1)
+    Fail(store.dir(), "the patches span " + std::to_string(result.width) + " x " + std::to_string(result.height) +
+                          " pixels, beyond a TIFF's 2^31; is a homography degenerate? (a pixel limit, max_pixels, scales it down)");
+  // global -> mosaic pixel: shift the union to the origin, then scale about pixel centres.
+  const cv::Matx33d O(1, 0, -x0 - 0.5, 0, 1, -y0 - 0.5, 0, 0, 1);
+  const cv::Matx33d S(scale, 0, 0.5 * scale - 0.5, 0, scale, 0.5 * scale - 0.5, 0, 0, 1);
+  for (auto& p : placed) {
+    p.to_mosaic = S * O * p.to_mosaic;
+    p.bounds = WarpedBounds(p.to_mosaic, p.size);
+  }
+
+  // 3. Chunk by chunk on all cores, journaled so that an interrupted run resumes.
+  PixelLayout layout;
+  layout.width = result.width;
+  layout.height = result.height;
+  layout.channels = 4;
+  {
+    const std::string partial = store.MosaicPath() + ".partial";
+    TileJournal journal(partial, Fingerprint(placed, result, options), options.restart);
+    result.discarded = journal.discarded();
+    const PatchBlender blender(placed, scale, options.feather_px);
+    QuadtreeOptions qo;
+    qo.threads = options.threads;
+    qo.chunk_px = options.chunk_px;
+    qo.block_px = std::min(qo.block_px, options.chunk_px);
+    const QuadtreeStats q = BuildQuadtreePyramid(
+        store.MosaicPath(), layout, options.tiff, qo, [&](const cv::Rect& r) { return blender.Render(r); },
+        journal, progress);
+    result.chunks = q.chunks;
+    result.chunks_resumed = q.chunks_resumed;
+    journal.Remove();
+  }
+  cache->Invalidate(store.MosaicPath());
+
+  // 4. Record where the patches went and the global record of Table I.
+  for (const auto& p : placed) {
+    PatchSidecar s = store.ReadSidecar(p.id);
+    s.patch_to_global = ToArray9(O * to_global[p.id]);  // full-resolution global pixels
+    store.UpdateSidecar(s);
+  }
+  GlobalRecord global = store.global();
+  global.size = {result.width, result.height};
+  global.scale = scale;
+  const PatchSidecar first = store.ReadSidecar(placed.front().id);
+  const cv::Vec3d origin = placed.front().to_mosaic * ToMatx(first.first_homography) * cv::Vec3d(0, 0, 1);
+  global.offset = {origin[0] / origin[2], origin[1] / origin[2]};
+  store.SetGlobal(global);
+  result.patches_used = static_cast<int>(placed.size());
+  return result;
+}
+
+}  // namespace rolamos

@@ -1,0 +1,144 @@
+// MosaicInput: a frame source run through the engine on every core. Frames are prepared
+// (decoded, filtered, features found and matched to the frame before) by one worker per core,
+// several at once, while the calling thread integrates them in order.
+#include <condition_variable>
+#include <cstdio>
+#include <map>
+#include <mutex>
+#include <thread>
+
+#include "engine/frame_source.h"
+#include "engine/prepared_frame.h"
+#include "engine/self_calibration.h"
+#include "engine/stage_options.h"
+#include "rolamos/error.hpp"
+#include "rolamos/mosaicker.hpp"
+
+namespace rolamos {
+
+namespace {
+
+// Automatic calibration: radial distortion from the first frames, written into the store so the
+// run can be repeated with it. Returns the options to use and a one-line account.
+MosaickerOptions AutoCalibrate(const std::string& input, const Store& store,
+                               MosaickerOptions options, std::string* note) {
+  const std::string path = store.dir() + "/calibration.yml";
+  const SelfCalibrationResult r = CalibrateFromInput(input, path, ToFeatureOptions(options));
+  char buf[256];
+  std::snprintf(buf, sizeof buf,
+                "calibration auto: k1 = %.3f (f = 0.9 x width assumed), homography inliers %d -> %d "
+                "over %d frame pairs; written to %s",
+                r.k1, r.inliers_uncorrected, r.inliers_corrected, r.pairs, path.c_str());
+  *note = buf;
+  options.calibration = path;
+  return options;
+}
+
+}  // namespace
+
+MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& given,
+                          const std::function<void(const FrameReport&, int)>& on_frame) {
+  std::string note;
+  const MosaickerOptions options =
+      given.calibration == "auto" ? AutoCalibrate(input, store, given, &note) : given;
+  auto source = FrameSource::Open(input);
+  Mosaicker mosaicker(store, options);
+  // Frames are prepared (decoded, filtered, features found and matched to the frame before) by
+  // one worker per core, several frames at once, while this thread integrates them in order
+  // (registration, gate, ECC, blending); the writer compresses closed patches meanwhile. Only
+  // integration is sequential, so the cores share the per-frame work whatever its balance.
+  const int workers = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  const long ahead = workers + 2;  // frames prepared ahead of integration, at most
+  std::mutex source_mutex, mutex;
+  std::condition_variable changed;
+  std::map<long, std::shared_ptr<PreparedFrame>> ready;        // prepared, waiting in order
+  std::map<long, std::shared_ptr<const Features>> chain;       // last features up to frame i
+  long taken = 0, integrated = 0, total = -1;                  // total known at the end
+  bool stopping = false;
+  std::exception_ptr failure;
+  auto prepare_frames = [&] {
+    try {
+      for (;;) {
+        {
+          std::unique_lock<std::mutex> lock(mutex);
+          changed.wait(lock, [&] { return stopping || taken - integrated < ahead; });
+          if (stopping) return;
+        }
+        InputFrame f;
+        long index;
+        {
+          // Frames leave the source in order, numbered as they leave (video decodes in order).
+          std::lock_guard<std::mutex> source_lock(source_mutex);
+          const bool more = total < 0 && source->Next(&f);
+          std::lock_guard<std::mutex> lock(mutex);
+          if (!more) {
+            total = taken;
+            changed.notify_all();
+            return;
+          }
+          index = taken++;
+        }
+        auto prepared = mosaicker.Prepare(f.image, f.source, f.error);
+        const bool has_features = prepared->own && !prepared->own->empty();
+        std::shared_ptr<const Features> previous;
+        {
+          std::unique_lock<std::mutex> lock(mutex);
+          if (has_features) chain[index] = prepared->own;
+          changed.notify_all();
+          changed.wait(lock, [&] { return stopping || index == 0 || chain.count(index - 1); });
+          if (stopping) return;
+          if (index > 0) previous = chain[index - 1];
+          if (!has_features) chain[index] = previous;
+        }
+        mosaicker.MatchAhead(prepared.get(), previous);
+        std::lock_guard<std::mutex> lock(mutex);
+        ready[index] = std::move(prepared);
+        changed.notify_all();
+      }
+    } catch (...) {
+      std::lock_guard<std::mutex> lock(mutex);
+      if (!failure) failure = std::current_exception();
+      stopping = true;
+      changed.notify_all();
+    }
+  };
+  std::vector<std::thread> preparers;
+  for (int i = 0; i < workers; ++i) preparers.emplace_back(prepare_frames);
+  auto stop = [&] {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      stopping = true;
+    }
+    changed.notify_all();
+    for (auto& t : preparers) t.join();
+  };
+  try {
+    for (;;) {
+      std::shared_ptr<PreparedFrame> next;
+      {
+        std::unique_lock<std::mutex> lock(mutex);
+        changed.wait(lock, [&] { return failure || ready.count(integrated) || integrated == total; });
+        if (failure || integrated == total) break;
+        next = std::move(ready[integrated]);
+        ready.erase(integrated);
+        // Workers still preparing frames after this one read chain[k - 1] with k > integrated:
+        // entries before integrated - 1 are no longer needed.
+        chain.erase(chain.begin(), chain.lower_bound(integrated - 1));
+        ++integrated;
+        changed.notify_all();
+      }
+      FrameReport r = mosaicker.Integrate(next);
+      if (on_frame) on_frame(r, source->count());
+    }
+  } catch (...) {
+    stop();
+    throw;
+  }
+  stop();
+  if (failure) std::rethrow_exception(failure);
+  MosaicSummary summary = mosaicker.Finish();
+  summary.calibration_note = note;
+  return summary;
+}
+
+}  // namespace rolamos
