@@ -36,10 +36,20 @@ void AddSynthCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--width", o.frame_width, "frame width")->capture_default_str();
   cmd->add_option("--height", o.frame_height, "frame height")->capture_default_str();
   cmd->add_option("--focal", o.focal_px, "focal length in pixels")->capture_default_str();
+  cmd->add_option("--fov", o.fov_deg, "horizontal field of view, degrees (sets the focal length)");
   cmd->add_option("--gsd", o.gsd, "texture pixels per frame pixel")->capture_default_str();
   cmd->add_option("--overlap", o.forward_overlap, "forward overlap 0..0.98")->capture_default_str();
   cmd->add_option("--side-overlap", o.side_overlap, "lane overlap")->capture_default_str();
   cmd->add_option("--tilt", o.tilt_deg, "roll/pitch amplitude, degrees")->capture_default_str();
+  cmd->add_option("--attitude-jitter", o.attitude_jitter_deg,
+                  "roll and pitch drawn independently for every frame, standard deviation in degrees")
+      ->capture_default_str();
+  cmd->add_flag("!--no-turns", o.lane_turns, "lawnmower lanes join without turn frames (the next lane starts turned 180 degrees)");
+  cmd->add_option("--lanes", o.lanes, "lawnmower: number of lanes (0 = as many as the texture holds)")
+      ->capture_default_str();
+  cmd->add_option("--max-turn", o.max_turn_deg, "random walk: sharpest turn per frame, degrees")
+      ->capture_default_str();
+  cmd->add_flag("--overlay", o.overlay, "burn a timestamp and two laser dots into every frame, as TV surveys do");
   cmd->add_option("--altitude-jitter", o.altitude_jitter, "relative altitude change")
       ->capture_default_str();
   cmd->add_option("--attenuation", o.attenuation, "colour loss with depth (0 = off)")

@@ -19,6 +19,7 @@ struct SurveyOptions {
   int frame_width = 1292;    // the paper's camera
   int frame_height = 964;
   double focal_px = 1100.0;
+  double fov_deg = 0;        // horizontal field of view; > 0 sets the focal length instead
   double gsd = 1.0;          // texture pixels per frame pixel at the nominal altitude
   std::string path = "lawnmower";  // lawnmower | spiral | random
   int frames = 60;
@@ -26,6 +27,12 @@ struct SurveyOptions {
   double side_overlap = 0.3;     // between lawnmower lanes
   double altitude_jitter = 0.05;  // relative altitude change (smooth)
   double tilt_deg = 2.0;          // roll/pitch amplitude (smooth)
+  double attitude_jitter_deg = 0; // roll and pitch drawn independently for every frame (sd)
+  bool lane_turns = true;         // lawnmower: false = the next lane starts turned 180 degrees
+  int lanes = 0;                  // lawnmower: 0 = as many as the texture holds; N = N lanes of
+                                  // frames / N frames (the procedural seafloor grows to hold them)
+  double max_turn_deg = 15.0;     // random walk: the sharpest turn from one frame to the next
+  bool overlay = false;           // a burned-in timestamp and two laser dots, fixed in the image
   // Degradations, each 0 to switch it off.
   double attenuation = 1.0;   // red/green loss with altitude
   double vignetting = 0.35;   // darkening at the corners
@@ -36,6 +43,10 @@ struct SurveyOptions {
   uint32_t seed = 1;
 
   bool IsValid(std::string* error) const;
+  double Focal() const;  // pixels: from fov_deg when given, else focal_px
+  // The rectangle the camera centre needs (texture pixels) when the path fixes it (lawnmower
+  // with `lanes`), else 0 x 0: the path adapts to the texture.
+  cv::Size2d PathExtent() const;
 };
 
 struct SurveyFrame {

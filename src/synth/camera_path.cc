@@ -50,7 +50,7 @@ cv::Matx33d WorldToFrame(const CameraPose& pose, const cv::Matx33d& K) {
 
 std::vector<CameraPose> PlanCameraPath(const SurveyOptions& o, const cv::Rect2d& area) {
   std::mt19937 rng(o.seed * 7919u + 13u);
-  const double altitude = o.focal_px * o.gsd;
+  const double altitude = o.Focal() * o.gsd;
   // Footprint on the texture at nominal altitude; the camera moves along its own y axis.
   const double foot_w = o.frame_width * o.gsd, foot_h = o.frame_height * o.gsd;
   const double step = foot_h * (1.0 - o.forward_overlap);
@@ -59,11 +59,13 @@ std::vector<CameraPose> PlanCameraPath(const SurveyOptions& o, const cv::Rect2d&
   if (o.path == "lawnmower") {
     // Lanes run along x (the frame's "forward" is its -y axis, so yaw = -90 deg for +x).
     const double lane_gap = foot_w * (1.0 - o.side_overlap);
-    const int lanes = std::max(1, static_cast<int>(std::floor(area.height / lane_gap)) + 1);
+    const int lanes = o.lanes > 0 ? o.lanes : std::max(1, static_cast<int>(std::floor(area.height / lane_gap)) + 1);
     // Room for the half-circle turns inside the area.
-    const double r = lanes > 1 ? lane_gap / 2 : 0;
-    const double lane_start = area.x + r, lane_len = std::max(step, area.width - 2 * r);
-    const int per_lane = std::max(2, static_cast<int>(lane_len / step));
+    const double r = lanes > 1 && o.lane_turns ? lane_gap / 2 : 0;
+    const int per_lane = o.lanes > 0 ? (o.frames + o.lanes - 1) / o.lanes
+                                     : std::max(2, static_cast<int>(std::max(step, area.width - 2 * r) / step));
+    const double lane_start = area.x + r;
+    const double lane_len = o.lanes > 0 ? (per_lane - 1) * step : std::max(step, area.width - 2 * r);
     // Lanes 0, 1, ..., L-1, then back L-2, ..., 0 and so on: every turn goes to the next lane,
     // and later passes fly over earlier ones again (revisits).
     auto lane_of = [&](int k) {
@@ -82,7 +84,7 @@ std::vector<CameraPose> PlanCameraPath(const SurveyOptions& o, const cv::Rect2d&
         const double s = i * lane_len / (per_lane - 1);
         xy_yaw.emplace_back(forward ? lane_start + s : lane_start + lane_len - s, y, yaw);
       }
-      if (lanes == 1) continue;
+      if (lanes == 1 || !o.lane_turns) continue;  // without turns: the next lane starts turned
       // A half-circle to the next lane at half speed, heading along the arc, as a vehicle turns.
       const double dir = next > lane ? 1.0 : -1.0;
       const int turn_frames = std::max(2, static_cast<int>(std::ceil(CV_PI * r / (0.5 * step))));
@@ -108,7 +110,7 @@ std::vector<CameraPose> PlanCameraPath(const SurveyOptions& o, const cv::Rect2d&
     }
   } else {  // a random walk that wanders and, near the edges, turns back inwards (revisits)
     std::normal_distribution<double> turn(0.0, 0.12);
-    const double max_turn = 15.0 * CV_PI / 180;  // a vehicle's turn rate per frame
+    const double max_turn = o.max_turn_deg * CV_PI / 180;  // a vehicle's turn rate per frame
     const cv::Point2d centre(area.x + area.width / 2, area.y + area.height / 2);
     cv::Point2d p = centre;
     double heading = 0;
@@ -128,14 +130,15 @@ std::vector<CameraPose> PlanCameraPath(const SurveyOptions& o, const cv::Rect2d&
   }
 
   Wobble alt(rng), roll(rng), pitch(rng);
+  std::normal_distribution<double> jitter(0.0, o.attitude_jitter_deg * CV_PI / 180);
   std::vector<CameraPose> poses;
   for (size_t i = 0; i < xy_yaw.size(); ++i) {
     CameraPose pose;
     const double t = double(i);
     pose.position = cv::Vec3d(xy_yaw[i][0], xy_yaw[i][1], altitude * (1.0 + o.altitude_jitter * alt(t)));
     pose.yaw = WrapAngle(xy_yaw[i][2]);
-    pose.roll = o.tilt_deg * CV_PI / 180 * roll(t);
-    pose.pitch = o.tilt_deg * CV_PI / 180 * pitch(t);
+    pose.roll = o.tilt_deg * CV_PI / 180 * roll(t) + (o.attitude_jitter_deg > 0 ? jitter(rng) : 0.0);
+    pose.pitch = o.tilt_deg * CV_PI / 180 * pitch(t) + (o.attitude_jitter_deg > 0 ? jitter(rng) : 0.0);
     poses.push_back(pose);
   }
   return poses;

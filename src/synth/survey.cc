@@ -26,12 +26,20 @@ bool SurveyOptions::IsValid(std::string* error) const {
     return bad("frame size " + std::to_string(frame_width) + "x" + std::to_string(frame_height) +
                " is outside 64..8192");
   if (!(focal_px > 10)) return bad("focal length must be more than 10 pixels");
+  if (fov_deg != 0 && !(fov_deg >= 10 && fov_deg <= 150))
+    return bad("field of view " + std::to_string(fov_deg) + " degrees is outside 10..150");
+  if (!(attitude_jitter_deg >= 0 && attitude_jitter_deg <= 10))
+    return bad("attitude jitter " + std::to_string(attitude_jitter_deg) + " degrees is outside 0..10");
   if (!(gsd > 0.05 && gsd < 20)) return bad("gsd " + std::to_string(gsd) + " is outside 0.05..20");
   if (path != "lawnmower" && path != "spiral" && path != "random")
     return bad("path \"" + path + "\" is not lawnmower, spiral or random");
   if (frames < 2 || frames > 1000000) return bad("frame count must be 2..1000000");
   if (!(forward_overlap >= 0 && forward_overlap < 0.98)) return bad("forward overlap must be in [0, 0.98)");
   if (!(side_overlap >= 0 && side_overlap < 0.95)) return bad("side overlap must be in [0, 0.95)");
+  if (lanes < 0 || (lanes > 0 && frames < 2 * lanes))
+    return bad("lanes " + std::to_string(lanes) + " need at least two frames each");
+  if (!(max_turn_deg > 0 && max_turn_deg <= 180))
+    return bad("max turn " + std::to_string(max_turn_deg) + " degrees is outside (0, 180]");
   if (jpeg_quality < 0 || jpeg_quality > 100) return bad("JPEG quality must be 0 (PNG) or 1..100");
   if (noise < 0 || particles < 0 || vignetting < 0 || vignetting > 1 || backscatter < 0 ||
       attenuation < 0 || altitude_jitter < 0 || altitude_jitter > 0.5 || tilt_deg < 0 || tilt_deg > 30)
@@ -39,7 +47,38 @@ bool SurveyOptions::IsValid(std::string* error) const {
   return true;
 }
 
+double SurveyOptions::Focal() const {
+  return fov_deg > 0 ? 0.5 * frame_width / std::tan(0.5 * fov_deg * CV_PI / 180) : focal_px;
+}
+
+cv::Size2d SurveyOptions::PathExtent() const {
+  if (path != "lawnmower" || lanes <= 0) return {0, 0};
+  const double step = frame_height * gsd * (1.0 - forward_overlap);
+  const double lane_gap = frame_width * gsd * (1.0 - side_overlap);
+  const int per_lane = (frames + lanes - 1) / lanes;
+  const double r = lanes > 1 && lane_turns ? lane_gap / 2 : 0;
+  return {(per_lane - 1) * step + 2 * r, (lanes - 1) * lane_gap};
+}
+
 namespace {
+
+// What a TV survey burns into its frames: a timestamp that changes with the frame and two laser
+// dots fixed in the image (they do not move with the seafloor).
+void BurnOverlay(cv::Mat& frame, int index) {
+  char text[64];
+  std::snprintf(text, sizeof text, "2026-11-23 10:%02d:%02d.%d  #%05d", (index / 600) % 60, (index / 10) % 60,
+                index % 10, index);
+  const double scale = frame.cols / 900.0;
+  const cv::Point at(frame.cols / 40, frame.rows / 14);
+  cv::putText(frame, text, at, cv::FONT_HERSHEY_SIMPLEX, scale, cv::Scalar(0, 0, 0), std::max(3, int(5 * scale)), cv::LINE_AA);
+  cv::putText(frame, text, at, cv::FONT_HERSHEY_SIMPLEX, scale, cv::Scalar(255, 255, 255), std::max(1, int(2 * scale)), cv::LINE_AA);
+  const int r = std::max(3, frame.cols / 160);
+  for (const double fx : {0.42, 0.58}) {
+    const cv::Point dot(static_cast<int>(fx * frame.cols), static_cast<int>(0.55 * frame.rows));
+    cv::circle(frame, dot, 2 * r, cv::Scalar(60, 60, 255), cv::FILLED, cv::LINE_AA);
+    cv::circle(frame, dot, r, cv::Scalar(220, 220, 255), cv::FILLED, cv::LINE_AA);
+  }
+}
 
 class TextureSource {
  public:
@@ -48,9 +87,26 @@ class TextureSource {
       image_ = cv::imread(o.texture, cv::IMREAD_COLOR);
       if (image_.empty()) Fail(o.texture, "cannot be read as an image");
       size_ = image_.size();
+      // A path of fixed size (lawnmower with lanes) larger than the image flies over the image
+      // mirrored about its edges, as often as needed: no seam, and a mirrored view does not
+      // match the original in SIFT, so no false loops.
+      const cv::Size2d extent = o.PathExtent();
+      if (extent.width > 0) {
+        const double margin = 2 * std::max(o.frame_width, o.frame_height) * o.gsd +
+                              2 * o.Focal() * o.gsd * std::tan(3 * o.attitude_jitter_deg * CV_PI / 180);
+        size_.width = std::max(size_.width, static_cast<int>(std::ceil(extent.width + margin)));
+        size_.height = std::max(size_.height, static_cast<int>(std::ceil(extent.height + margin)));
+      }
     } else {
       // The procedural seafloor is endless: give it room for the path.
       const double foot = std::max(o.frame_width, o.frame_height) * o.gsd;
+      const cv::Size2d extent = o.PathExtent();
+      if (extent.width > 0) {  // the path fixes its size: the margin holds the tilted footprint
+        const double margin = 2 * foot + 2 * o.Focal() * o.gsd * std::tan(3 * o.attitude_jitter_deg * CV_PI / 180);
+        size_ = cv::Size(static_cast<int>(std::ceil(extent.width + margin)),
+                         static_cast<int>(std::ceil(extent.height + margin)));
+        return;
+      }
       const int side = static_cast<int>(std::ceil(
           std::max(8.0 * foot, foot * std::sqrt(double(o.frames)) * (1.0 - o.forward_overlap) * 3.0)));
       size_ = cv::Size(side, side);
@@ -62,7 +118,21 @@ class TextureSource {
     if (image_.empty()) return RenderSeafloor(r.x, r.y, r.width, r.height);
     cv::Mat out = cv::Mat::zeros(r.size(), CV_8UC3);
     cv::Rect inside = r & cv::Rect(cv::Point(), size_);
-    if (!inside.empty()) image_(inside).copyTo(out(inside - r.tl()));
+    if (inside.empty()) return out;
+    if (size_ == image_.size()) {
+      image_(inside).copyTo(out(inside - r.tl()));
+      return out;
+    }
+    // Mirrored tiling: texture x -> image column by reflection with period 2 * width.
+    auto mirror = [](int v, int n) {
+      const int m = v % (2 * n);
+      return m < n ? m : 2 * n - 1 - m;
+    };
+    for (int y = inside.y; y < inside.y + inside.height; ++y) {
+      const cv::Vec3b* src = image_.ptr<cv::Vec3b>(mirror(y, image_.rows));
+      cv::Vec3b* dst = out.ptr<cv::Vec3b>(y - r.y);
+      for (int x = inside.x; x < inside.x + inside.width; ++x) dst[x - r.x] = src[mirror(x, image_.cols)];
+    }
     return out;
   }
 
@@ -129,12 +199,13 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
   std::string error;
   if (!o.IsValid(&error)) Fail("synth", error);
   TextureSource texture(o);
-  const double altitude = o.focal_px * o.gsd;
-  const cv::Matx33d K(o.focal_px, 0, (o.frame_width - 1) / 2.0, 0, o.focal_px,
+  const double altitude = o.Focal() * o.gsd;
+  const cv::Matx33d K(o.Focal(), 0, (o.frame_width - 1) / 2.0, 0, o.Focal(),
                       (o.frame_height - 1) / 2.0, 0, 0, 1);
   // The camera centre keeps the whole (tilted, higher) footprint on the texture.
+  const double jitter_tilt = 3 * o.attitude_jitter_deg * CV_PI / 180;  // room for the jitter's extremes
   const double half_diag = 0.5 * std::hypot(o.frame_width, o.frame_height) * o.gsd *
-                           (1.0 + o.altitude_jitter) * 1.1;
+                               (1.0 + o.altitude_jitter) * 1.1 + altitude * std::tan(jitter_tilt);
   cv::Rect2d area(half_diag, half_diag, texture.size().width - 2 * half_diag,
                   texture.size().height - 2 * half_diag);
   if (area.width < 1 || area.height < 1)
@@ -142,6 +213,13 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
          "is too small for frames of " + std::to_string(o.frame_width) + "x" +
              std::to_string(o.frame_height) + " at gsd " + std::to_string(o.gsd) +
              " (lower the ground sample distance or use a larger texture)");
+  const cv::Size2d extent = o.PathExtent();
+  if (extent.width > area.width + 1 || extent.height > area.height + 1)
+    Fail(o.texture, std::to_string(o.lanes) + " lanes of " + std::to_string((o.frames + o.lanes - 1) / o.lanes) +
+                        " frames need " + std::to_string(int(extent.width)) + "x" + std::to_string(int(extent.height)) +
+                        " texture pixels for the camera centre, the texture leaves " +
+                        std::to_string(int(area.width)) + "x" + std::to_string(int(area.height)) +
+                        " (lower the ground sample distance, or fewer frames)");
   auto poses = PlanCameraPath(o, area);
 
   std::error_code ec;
@@ -174,6 +252,7 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
     cv::warpPerspective(window, clean, cv::Mat(world_to_frame * shift), survey.frame_size,
                         cv::INTER_LINEAR, cv::BORDER_CONSTANT);
     cv::Mat frame = Degrade(clean, o, poses[i], altitude, static_cast<int>(i));
+    if (o.overlay) BurnOverlay(frame, static_cast<int>(i));
     char name[64];
     std::snprintf(name, sizeof name, "frames/frame_%05zu%s", i, ext.c_str());
     std::vector<int> params;
@@ -201,7 +280,10 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
                    {"options",
                     {{"path", o.path}, {"gsd", o.gsd}, {"frames", o.frames}, {"seed", o.seed},
                      {"forward_overlap", o.forward_overlap}, {"side_overlap", o.side_overlap},
-                     {"tilt_deg", o.tilt_deg}, {"altitude_jitter", o.altitude_jitter}}},
+                     {"tilt_deg", o.tilt_deg}, {"altitude_jitter", o.altitude_jitter},
+                     {"attitude_jitter_deg", o.attitude_jitter_deg}, {"lane_turns", o.lane_turns},
+                     {"lanes", o.lanes}, {"max_turn_deg", o.max_turn_deg}, {"overlay", o.overlay},
+                     {"focal_px", o.Focal()}}},
                    {"frames", frames}};
   WriteFileAtomic((fs::path(dir) / "ground_truth.json").string(), j.dump(1) + "\n");
   return survey;

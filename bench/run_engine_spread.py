@@ -1,0 +1,120 @@
+#!/usr/bin/env python3
+"""The online engine on a spread of survey kinds it was not tuned for (issue 13): frame sizes from
+640 x 480 to 1920 x 1080, fields of view from 40 to 90 degrees, roll and pitch jittered per frame,
+lawnmowers with and without turn frames, dozens of lanes, a spiral, a random walk with sharp
+turns, strong degradations and a burned-in overlay, over real seafloor photos
+(../shared/data/seattle_rov_gopro_large) and the procedural seafloor.
+
+For each kind: frames registered, patches and how each closed (pixel budget, lost tracking),
+per-patch accuracy against ground truth (bench/eval_mosaic.py: RMS, p95, max), frames/s, peak RSS.
+
+  bench/run_engine_spread.py [--kinds a,b] [--runs 1] [--out bench/out/spread] [-- extra mosaic flags]
+"""
+import argparse, glob, json, os, re, statistics, subprocess, sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_common import timed, write_report  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+CLI = os.path.join(ROOT, "build", "rolamos")
+PHOTOS = sorted(glob.glob(os.path.join(ROOT, "..", "shared", "data", "seattle_rov_gopro_large", "*.JPG")))
+
+JITTER = ["--attitude-jitter", "1", "--altitude-jitter", "0.05", "--tilt", "1"]
+# name: (description, synth arguments; PHOTO k = the k-th real photo as the texture)
+KINDS = {
+    "lawn-noturn": ("lawnmower 800 x 600, 60 deg, 6 lanes joined without turns (180 deg), 150 frames",
+                    ["PHOTO0", "--width", "800", "--height", "600", "--fov", "60", "--frames", "150", "--lanes", "6",
+                     "--no-turns", "--overlap", "0.7", "--side-overlap", "0.4", "--gsd", "0.9"] + JITTER),
+    "lawn-984": ("lawnmower 800 x 600, 60 deg, 24 lanes of 41 frames without turns, 984 frames",
+                 ["PHOTO1", "--width", "800", "--height", "600", "--fov", "60", "--frames", "984", "--lanes", "24",
+                  "--no-turns", "--overlap", "0.7", "--side-overlap", "0.4", "--gsd", "0.9"] + JITTER),
+    "random": ("random walk 800 x 600, 60 deg, sharp turns (up to 40 deg a frame), 300 frames",
+               ["PHOTO2", "--width", "800", "--height", "600", "--fov", "60", "--frames", "300", "--path", "random",
+                "--max-turn", "40", "--overlap", "0.7", "--gsd", "0.9"] + JITTER),
+    "spiral": ("spiral 1024 x 768, 75 deg, 200 frames",
+               ["PHOTO3", "--width", "1024", "--height", "768", "--fov", "75", "--frames", "200", "--path", "spiral",
+                "--overlap", "0.75", "--side-overlap", "0.3", "--gsd", "0.7", "--attitude-jitter", "0.7"]),
+    "hd-turns": ("lawnmower 1920 x 1080, 90 deg, with turn frames, 120 frames",
+                 ["PHOTO4", "--width", "1920", "--height", "1080", "--fov", "90", "--frames", "120", "--lanes", "3",
+                  "--overlap", "0.75", "--gsd", "0.6", "--attitude-jitter", "0.5"]),
+    "small-degraded": ("lawnmower 640 x 480, 40 deg, strong degradations, no turns, 150 frames",
+                       ["PHOTO5", "--width", "640", "--height", "480", "--fov", "40", "--frames", "150", "--lanes", "5",
+                        "--no-turns", "--overlap", "0.7", "--side-overlap", "0.4", "--gsd", "1.0", "--noise", "6",
+                        "--particles", "150", "--backscatter", "0.2", "--vignetting", "0.6", "--jpeg", "75"] + JITTER),
+    "overlay": ("lawnmower 800 x 600, 60 deg, burned-in timestamp and laser dots, 120 frames",
+                ["PHOTO6", "--width", "800", "--height", "600", "--fov", "60", "--frames", "120", "--lanes", "4",
+                 "--no-turns", "--overlap", "0.7", "--side-overlap", "0.4", "--gsd", "0.9", "--overlay"] + JITTER),
+    "paper": ("lawnmower at the paper's 1292 x 964, procedural seafloor, 60 frames",
+              ["--frames", "60"]),
+    "paper-jitter": ("lawnmower 1292 x 964, 60 deg, jitter, no turns, 120 frames, real photo",
+                     ["PHOTO0", "--frames", "120", "--fov", "60", "--lanes", "4", "--no-turns", "--overlap", "0.7",
+                      "--side-overlap", "0.4", "--gsd", "0.7"] + JITTER),
+}
+
+
+def synth_args(args):
+    out = []
+    for a in args:
+        if a.startswith("PHOTO"):
+            out.append(PHOTOS[int(a[5:]) % len(PHOTOS)])
+        else:
+            out.append(a)
+    return out
+
+
+def closures(store):
+    """How the patches closed, from their sidecars."""
+    counts = {}
+    for side in sorted(glob.glob(os.path.join(store, "patches", "*.json"))):
+        s = json.load(open(side))
+        why = s.get("closed_by", "?")
+        counts[why] = counts.get(why, 0) + 1
+    return counts
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--kinds", default=",".join(KINDS))
+    ap.add_argument("--runs", type=int, default=1)
+    ap.add_argument("--out", default=os.path.join(ROOT, "bench", "out", "spread"))
+    ap.add_argument("extra", nargs="*", help="flags for rolamos mosaic")
+    a = ap.parse_args()
+    if not PHOTOS:
+        sys.exit("../shared/data/seattle_rov_gopro_large is absent")
+    os.makedirs(a.out, exist_ok=True)
+    lines = ["| kind | frames registered | patches (closed by) | RMS px | p95 px | max px | frames/s | peak RSS MB |",
+             "|---|---|---|---|---|---|---|---|"]
+    results = {}
+    for kind in a.kinds.split(","):
+        desc, args = KINDS[kind]
+        survey = os.path.join(a.out, kind)
+        stamp = os.path.join(survey, "args.json")
+        if not os.path.exists(stamp) or json.load(open(stamp)) != args:
+            subprocess.run(["rm", "-rf", survey])
+            timed([CLI, "synth"] + synth_args(args) + ["-o", survey, "-q"], check=True)
+            json.dump(args, open(stamp, "w"))
+        fps, rss = [], []
+        for _ in range(a.runs):
+            store = os.path.join(a.out, kind + ".rolamos")
+            subprocess.run(["rm", "-rf", store])
+            r, t, m = timed([CLI, "mosaic", os.path.join(survey, "frames"), "-o", store, "-q"] + a.extra, check=True)
+            fps.append(float(re.search(r"\(([\d.]+) frames/s\)", r.stdout).group(1)))
+            rss.append(m)
+            stages = re.search(r"per frame: (.*)", r.stdout).group(1)
+        e = json.loads(subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "bench", "eval_mosaic.py"), survey, store],
+                                      capture_output=True, text=True, check=True).stdout)
+        c = closures(store)
+        results[kind] = dict(e, fps=statistics.median(fps), rss=statistics.median(rss), closed=c, stages=stages)
+        fmt = lambda v: "—" if v is None else f"{v:.2f}"
+        closed = ", ".join(f"{k} {v}" for k, v in sorted(c.items()))
+        lines.append(f"| {kind}: {desc} | {e['stitched']} / {e['frames']} | {sum(c.values())} ({closed}) | "
+                     f"{fmt(e['rms_px'])} | {fmt(e['p95_px'])} | {fmt(e['max_px'])} | "
+                     f"{statistics.median(fps):.1f} | {statistics.median(rss):.0f} |")
+        print(lines[-1], flush=True)
+        print(f"    per frame: {stages}", flush=True)
+    json.dump(results, open(os.path.join(a.out, "results.json"), "w"), indent=1)
+    write_report(lines, os.path.join(a.out, "spread.md"))
+
+
+if __name__ == "__main__":
+    main()
