@@ -26,7 +26,7 @@ KINDS = {
                     ["PHOTO0", "--width", "800", "--height", "600", "--fov", "60", "--frames", "150", "--lanes", "6",
                      "--no-turns", "--overlap", "0.7", "--side-overlap", "0.4", "--gsd", "0.9"] + JITTER),
     "lawn-984": ("lawnmower 800 x 600, 60 deg, 24 lanes of 41 frames without turns, 984 frames",
-                 ["PHOTO1", "--width", "800", "--height", "600", "--fov", "60", "--frames", "984", "--lanes", "24",
+                 ["PHOTO1,PHOTO2,PHOTO3", "--width", "800", "--height", "600", "--fov", "60", "--frames", "984", "--lanes", "24",
                   "--no-turns", "--overlap", "0.7", "--side-overlap", "0.4", "--gsd", "0.9"] + JITTER),
     "random": ("random walk 800 x 600, 60 deg, sharp turns (up to 40 deg a frame), 300 frames",
                ["PHOTO2", "--width", "800", "--height", "600", "--fov", "60", "--frames", "300", "--path", "random",
@@ -53,10 +53,11 @@ KINDS = {
 
 
 def synth_args(args):
+    """PHOTOk (or PHOTOj,PHOTOk: bands of several) -> the real photos' paths."""
     out = []
     for a in args:
         if a.startswith("PHOTO"):
-            out.append(PHOTOS[int(a[5:]) % len(PHOTOS)])
+            out.append(",".join(PHOTOS[int(p[5:]) % len(PHOTOS)] for p in a.split(",")))
         else:
             out.append(a)
     return out

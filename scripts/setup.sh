@@ -6,7 +6,7 @@ cd "$(dirname "$0")/.."
 
 PACKAGES=(
   build-essential cmake ninja-build pkg-config clang-14 libclang-rt-14-dev
-  libopencv-dev libeigen3-dev libtiff-dev libtiff-tools libgdal-dev gdal-bin python3-gdal
+  libopencv-dev libeigen3-dev libceres-dev libtiff-dev libtiff-tools libgdal-dev gdal-bin python3-gdal
   libopenimageio-dev openimageio-tools libvips-tools
   libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev nlohmann-json3-dev libcpp-httplib-dev
   libzstd-dev libwebp-dev libjpeg-dev time wrk curl

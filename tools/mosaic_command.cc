@@ -15,7 +15,7 @@ struct MosaicSwitches {
   // from costing frames per second.
   TiffSwitches tiff{"webp", 90, 256, 0, 9, 0};
   bool no_bilateral = false, no_temporal = false, no_clahe = false, no_fundamental = false,
-       no_kalman = false, no_ecc = false, no_cross_check = false;
+       no_kalman = false, no_ecc = false, no_cross_check = false, no_recover = false, no_patch_fit = false, no_adjust = false;
   bool quiet = false;
 };
 
@@ -26,6 +26,9 @@ static int RunMosaic(MosaicSwitches s) {
   o.clahe = !s.no_clahe;
   o.fundamental = !s.no_fundamental;
   o.kalman = !s.no_kalman;
+  o.recover = !s.no_recover;
+  o.patch_fit = !s.no_patch_fit;
+  o.adjust_patches = !s.no_adjust;
   o.ecc = !s.no_ecc;
   o.cross_check = !s.no_cross_check;
   o.tiff = ToWriteOptions(s.tiff);
@@ -44,9 +47,9 @@ static int RunMosaic(MosaicSwitches s) {
   });
   progress.Done();
   if (!sum.calibration_note.empty()) std::printf("%s\n", sum.calibration_note.c_str());
-  std::printf("%s: %d frames, %d stitched, %d rejected, %d patches, %.1f s (%.1f frames/s), "
+  std::printf("%s: %d frames, %d stitched (%d on a second chance), %d rejected, %d patches, %.1f s (%.1f frames/s), "
               "peak memory %.0f MiB\n",
-              s.output.c_str(), sum.frames, sum.stitched, sum.rejected, sum.patches, sum.seconds,
+              s.output.c_str(), sum.frames, sum.stitched, sum.recovered, sum.rejected, sum.patches, sum.seconds,
               sum.frames / std::max(sum.seconds, 1e-9), sum.peak_rss_mb);
   std::string stages;
   for (const auto& [name, sec] : sum.stage_seconds) {
@@ -75,7 +78,9 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
   cmd->add_flag("--no-clahe", s->no_clahe, "no contrast normalisation of the detection image");
   cmd->add_option("--features", o.features, "sift, orb or akaze")->capture_default_str();
   cmd->add_option("--max-features", o.max_features, "features per frame")->capture_default_str();
-  cmd->add_option("--detect-scale", o.detect_scale, "resize before detection")->capture_default_str();
+  cmd->add_option("--detect-scale", o.detect_scale, "resize before detection (0 = by frame size)")->capture_default_str();
+  cmd->add_option("--detect-pixels", o.detect_pixels, "detection image size when --detect-scale is 0")
+      ->capture_default_str();
   cmd->add_option("--ratio", o.ratio, "ratio test")->capture_default_str();
   cmd->add_flag("--no-cross-check", s->no_cross_check, "keep one-way matches");
   cmd->add_flag("--no-fundamental", s->no_fundamental, "skip F-RANSAC / bilateral epipolar stage");
@@ -83,6 +88,17 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--homography-threshold", o.homography_threshold, "pixels")->capture_default_str();
   cmd->add_option("--min-inliers", o.min_inliers, "fewer means tracking lost")->capture_default_str();
   cmd->add_flag("--no-kalman", s->no_kalman, "no consistency gate");
+  cmd->add_flag("--no-recover", s->no_recover,
+                "no recovery: a frame is registered to the previous one only, never against the patch's other "
+                "frames or image, and rejected frames get no second chance");
+  cmd->add_flag("--no-adjust", s->no_adjust,
+                "keep the online placements: no adjustment of each patch's frames as cameras over the seafloor plane "
+                "when it closes");
+  cmd->add_option("--patch-frames-mb", o.patch_frames_mb,
+                  "memory for a patch's frames until it is adjusted (a patch closes when full)")
+      ->capture_default_str();
+  cmd->add_flag("--no-patch-fit", s->no_patch_fit,
+                "place each frame from its previous frame alone, not fitted against every patch frame it overlaps");
   cmd->add_flag("--no-ecc", s->no_ecc, "no ECC refinement");
   cmd->add_option("--ecc-scale", o.ecc_scale, "ECC resolution")->capture_default_str();
   cmd->add_option("--ecc-motion", o.ecc_motion, "translation, euclidean, affine or homography")

@@ -29,7 +29,7 @@ void AddSynthCommand(CLI::App& app, Runner* run) {
   auto& o = s->survey;
   auto* cmd = app.add_subcommand(
       "synth", "A synthetic survey over an image (or a procedural seafloor) with ground truth");
-  cmd->add_option("texture", o.texture, "image to fly over (default: procedural seafloor)");
+  cmd->add_option("texture", o.texture, "image to fly over, or several separated by commas (bands from top to bottom); default: a procedural seafloor");
   cmd->add_option("-o,--output", s->output, "survey directory to write")->required();
   cmd->add_option("--frames", o.frames, "number of frames")->capture_default_str();
   cmd->add_option("--path", o.path, "lawnmower, spiral or random")->capture_default_str();

@@ -32,15 +32,28 @@ struct MosaickerOptions {
   // 2. Egomotion
   std::string features = "sift";  // sift | orb | akaze
   int max_features = 1000;
-  double detect_scale = 0.4;
+  double detect_scale = 0;        // 0 = by frame size (about detect_pixels)
+  double detect_pixels = 0.16e6;
   double ratio = 0.8;
   bool cross_check = true;
   bool fundamental = true;        // the F-RANSAC / bilateral epipolar stage
   double epipolar_threshold = 1.5;
   double homography_threshold = 3.0;
   int min_inliers = 25;
-  // 3. Consistency
+  // 3. Consistency: the Kalman gate arbitrates between candidate registrations; a frame that
+  // fails against the previous one is tried against the patch's other frames and its image, and
+  // rejected frames get a second chance against later ones.
   bool kalman = true;
+  bool recover = true;
+  // 3b. Each frame's placement fitted against every patch frame it overlaps (not only the
+  // previous one), so that error does not accumulate along a lane.
+  bool patch_fit = true;
+  // 3c. When a patch closes, its frames are adjusted together as cameras over the seafloor plane
+  // (Ceres), so that the patch does not bend along a lane, and it is blended from those
+  // placements. Its frames are kept in memory until then, at most patch_frames_mb (a patch closes
+  // when the next frame would pass it, as at the pixel budget).
+  bool adjust_patches = true;
+  double patch_frames_mb = 1024;
   // 4. ECC
   bool ecc = true;
   double ecc_scale = 0.25;
@@ -81,6 +94,8 @@ struct FrameReport {
 
 struct MosaicSummary {
   int frames = 0, stitched = 0, rejected = 0, patches = 0;
+  int recovered = 0;  // of the stitched: rejected at first, registered against a later frame
+  int adjusted = 0, unadjusted = 0;  // patches whose placements the adjustment replaced, or not
   double seconds = 0;
   double peak_rss_mb = 0;
   // Time spent in each stage, summed over frames (seconds): where the time goes.

@@ -42,6 +42,12 @@ struct FrameRecord {
   std::optional<double> bilateral_error;       // mean bilateral epipolar error, pixels
   std::optional<double> ecc_shift_px;          // how far ECC moved the corners, pixels
   std::optional<Homography> frame_to_global;   // the aligned placement (rolamos align)
+  // How the engine placed it when not simply against the frame before: "keyframe" (an earlier
+  // frame of the patch), "patch_mosaic" (the patch image around the predicted place) or
+  // "second_chance" (after being rejected, against a later frame).
+  std::optional<std::string> registered_by;
+  std::optional<bool> doubtful;        // weakly supported, kept because the motion model agreed
+  std::optional<int> patch_frames;     // frames of the patch it was fitted against (with previous)
   nlohmann::json extra = nlohmann::json::object();  // fields added by later versions, kept as read
 };
 
@@ -76,6 +82,7 @@ struct PatchSidecar {
   std::optional<std::array<int, 2>> frame_size;       // width, height of the rectified frames
   std::optional<Homography> patch_to_global_online;   // the online placement, kept by align
   std::optional<bool> aligned;                        // patch_to_global is the aligned placement
+  std::optional<std::string> closed_by;               // "pixel_budget", "lost_tracking" or "end"
   nlohmann::json extra = nlohmann::json::object();    // fields added by later versions, kept as read
 };
 

@@ -15,7 +15,7 @@
 namespace rolamos {
 
 struct SurveyOptions {
-  std::string texture;       // image to fly over; "" = procedural seafloor
+  std::string texture;       // image to fly over, or several (a,b,c: bands top to bottom); "" = procedural seafloor
   int frame_width = 1292;    // the paper's camera
   int frame_height = 964;
   double focal_px = 1100.0;

@@ -22,7 +22,8 @@ Features DescribeStoredFrame(const std::string& path, const FeatureExtractor& ex
   const cv::Mat image = cv::imread(path, cv::IMREAD_COLOR);
   if (image.empty()) Fail(path, "cannot be read (is the frames' folder where the store says? it can be given as frames_dir)");
   static const Preprocessor pre{PreprocessOptions{}};  // CLAHE only: DetectionImage is const
-  return extractor.Extract(pre.DetectionImage(image));
+  const double scale = extractor.options().ScaleFor(image.size());
+  return extractor.ExtractScaled(pre.DetectionImage(image, scale), scale);
 }
 
 VerifiedMatch MatchVerified(const Features& a, const Features& b, const FeatureOptions& options, int min_inliers) {

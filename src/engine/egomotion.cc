@@ -122,6 +122,8 @@ EgomotionResult EstimateEgomotion(const std::vector<cv::Point2f>& from,
   r.H *= 1.0 / r.H(2, 2);
   if (r.epipolar_inliers > 0) r.bilateral_error_mean = r.bilateral_error_sum / r.epipolar_inliers;
   r.motion = DecomposeHomography(r.H, K, ia, ib);
+  r.inlier_from = std::move(ia);
+  r.inlier_to = std::move(ib);
   r.ok = true;
   return r;
 }

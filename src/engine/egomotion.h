@@ -38,6 +38,7 @@ struct EgomotionResult {
   double bilateral_error_sum = 0;     // equation (1) summed over the survivors, pixels
   double bilateral_error_mean = 0;
   cv::Matx33d H = cv::Matx33d::eye(); // maps `from` pixels to `to` pixels
+  std::vector<cv::Point2f> inlier_from, inlier_to;  // the homography's inliers
   std::optional<PlaneMotion> motion;  // from the decomposition, when K is known
 };
 

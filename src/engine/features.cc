@@ -1,5 +1,6 @@
 #include "engine/features.h"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 
@@ -18,8 +19,16 @@ bool FeatureOptions::IsValid(std::string* error) const {
     *error = "at least 50 features are needed";
     return false;
   }
-  if (!(detect_scale > 0.1 && detect_scale <= 1.0)) {
-    *error = "detection scale must be in (0.1, 1]";
+  if (!(detect_scale == 0 || (detect_scale > 0.1 && detect_scale <= 1.0))) {
+    *error = "detection scale " + std::to_string(detect_scale) + " is not 0 (by frame size) or in (0.1, 1]";
+    return false;
+  }
+  if (!(detect_pixels >= 1e4 && detect_pixels <= 1e8)) {
+    *error = "detection image size " + std::to_string(detect_pixels) + " pixels is outside 1e4..1e8";
+    return false;
+  }
+  if (!(contrast_threshold > 0 && contrast_threshold < 0.5)) {
+    *error = "SIFT contrast threshold " + std::to_string(contrast_threshold) + " is outside (0, 0.5)";
     return false;
   }
   if (!(ratio > 0.3 && ratio < 1.0)) {
@@ -27,6 +36,12 @@ bool FeatureOptions::IsValid(std::string* error) const {
     return false;
   }
   return true;
+}
+
+double FeatureOptions::ScaleFor(cv::Size frame) const {
+  if (detect_scale > 0) return detect_scale;
+  const double area = std::max(1.0, double(frame.area()));
+  return std::clamp(std::sqrt(detect_pixels / area), 0.1, 1.0);
 }
 
 FeatureExtractor::FeatureExtractor(const FeatureOptions& options) : options_(options) {
@@ -40,7 +55,7 @@ namespace {
 // once, and creating one costs microseconds.
 cv::Ptr<cv::Feature2D> CreateDetector(const FeatureOptions& options) {
   // SIFT's float descriptors: OpenCV's brute-force L2 is vectorised for float, not for 8-bit.
-  if (options.type == "sift") return cv::SIFT::create(options.max_features, 3, 0.02);
+  if (options.type == "sift") return cv::SIFT::create(options.max_features, 3, options.contrast_threshold);
   if (options.type == "orb")
     return cv::ORB::create(options.max_features, 1.2f, 8, 31, 0, 2, cv::ORB::HARRIS_SCORE, 31, 10);
   return cv::AKAZE::create(cv::AKAZE::DESCRIPTOR_MLDB, 0, 3, 0.0008f);
@@ -50,13 +65,22 @@ cv::Ptr<cv::Feature2D> CreateDetector(const FeatureOptions& options) {
 
 Features FeatureExtractor::Extract(const cv::Mat& gray) const {
   CV_Assert(gray.type() == CV_8UC1);
+  const double scale = options_.ScaleFor(gray.size());
   cv::Mat small = gray;
-  if (options_.detect_scale < 1.0)
-    cv::resize(gray, small, cv::Size(), options_.detect_scale, options_.detect_scale, cv::INTER_AREA);
+  if (scale < 1.0) cv::resize(gray, small, cv::Size(), scale, scale, cv::INTER_AREA);
+  return ExtractScaled(small, scale);
+}
+
+Features FeatureExtractor::ExtractScaled(const cv::Mat& small, double scale, const cv::Mat& mask) const {
+  CV_Assert(small.type() == CV_8UC1 && scale > 0);
+  CV_Assert(mask.empty() || (mask.type() == CV_8UC1 && mask.size() == small.size()));
   std::vector<cv::KeyPoint> keypoints;
   Features f;
   f.norm = options_.type == "sift" ? cv::NORM_L2 : cv::NORM_HAMMING;
-  CreateDetector(options_)->detectAndCompute(small, cv::noArray(), keypoints, f.descriptors);
+  if (mask.empty())
+    CreateDetector(options_)->detectAndCompute(small, cv::noArray(), keypoints, f.descriptors);
+  else
+    CreateDetector(options_)->detectAndCompute(small, mask, keypoints, f.descriptors);
   if (options_.type == "akaze" && static_cast<int>(keypoints.size()) > options_.max_features) {
     // AKAZE has no count limit: keep the strongest.
     std::vector<int> order(keypoints.size());
@@ -74,7 +98,7 @@ Features FeatureExtractor::Extract(const cv::Mat& gray) const {
     f.descriptors = d;
   }
   // Keypoint centres at the reduced scale back to full-resolution pixel coordinates.
-  const float s = static_cast<float>(1.0 / options_.detect_scale);
+  const float s = static_cast<float>(1.0 / scale);
   const float shift = 0.5f * (s - 1.0f);
   f.points.reserve(keypoints.size());
   for (const auto& k : keypoints) f.points.emplace_back(k.pt.x * s + shift, k.pt.y * s + shift);

@@ -13,12 +13,21 @@ namespace rolamos {
 
 struct FeatureOptions {
   std::string type = "sift";  // sift | orb | akaze
-  int max_features = 1500;
-  double detect_scale = 0.5;  // features are found on the frame resized by this
+  int max_features = 1000;
+  // Features are found on the frame resized by this; 0 = by frame size, so that the detection
+  // image holds about `detect_pixels` (small frames are not shrunk into uselessness, large ones
+  // do not cost more than they bring).
+  double detect_scale = 0;
+  double detect_pixels = 0.16e6;
+  // SIFT's contrast threshold: low, so that dark and hazy seafloor still yields features; the
+  // strongest `max_features` are kept.
+  double contrast_threshold = 0.005;
   double ratio = 0.8;         // Lowe's ratio test
   bool cross_check = true;
 
   bool IsValid(std::string* error) const;
+  // The scale of the detection image for frames of `frame`.
+  double ScaleFor(cv::Size frame) const;
 };
 
 struct Features {
@@ -31,8 +40,11 @@ struct Features {
 class FeatureExtractor {
  public:
   explicit FeatureExtractor(const FeatureOptions& options);
-  // `gray` is the detection image (8-bit, contrast-normalised), full resolution.
+  // `gray` is a frame's detection image (8-bit, contrast-normalised) at full resolution.
   Features Extract(const cv::Mat& gray) const;
+  // The same, from a detection image already reduced to `scale` of the frame (ScaleFor), with
+  // an optional mask of the pixels to use (same size, 0 = left out: static overlays).
+  Features ExtractScaled(const cv::Mat& small, double scale, const cv::Mat& mask = cv::Mat()) const;
   const FeatureOptions& options() const { return options_; }
 
  private:

@@ -1,6 +1,8 @@
 #include "rolamos/mosaicker.hpp"
 
+#include <algorithm>
 #include <chrono>
+#include <deque>
 #include <atomic>
 #include <mutex>
 #include <cmath>
@@ -16,6 +18,8 @@
 #include "engine/patch_writer.h"
 #include "engine/prepared_frame.h"
 #include "engine/preprocess.h"
+#include "engine/patch_adjustment.h"
+#include "engine/registration.h"
 #include "engine/stage_options.h"
 #include "rolamos/error.hpp"
 #include "util/homography.h"
@@ -52,6 +56,10 @@ bool MosaickerOptions::IsValid(std::string* error) const {
     *error = "patch budget " + std::to_string(patch_megapixels) + " megapixels is outside 0.1..2000";
     return false;
   }
+  if (!(patch_frames_mb >= 16)) {
+    *error = "the memory for a patch's frames must be at least 16 MB, not " + std::to_string(patch_frames_mb);
+    return false;
+  }
   if (patch_memory_mb < 0) {
     *error = "patch memory budget cannot be negative";
     return false;
@@ -80,13 +88,15 @@ struct Mosaicker::Impl {
   FeatureExtractor extractor;
   EgomotionOptions ego_options;
   EccOptions ecc_options;
+  SupportOptions support_options;
+  PatchFitOptions fit_options;
   PatchWriter writer;
   std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
 
   // The first frame fixes the size and the camera.
   cv::Size frame_size;
   cv::Matx33d K = cv::Matx33d::eye();
-  std::unique_ptr<FeatherCode> weights;
+  std::shared_ptr<const FeatherCode> weights;
   std::unique_ptr<MotionGate> gate;
 
   // The patch in progress.
@@ -97,15 +107,28 @@ struct Mosaicker::Impl {
   std::vector<FrameRecord> frames;       // frame_to_patch in first-frame coordinates until closed
   std::vector<RejectedFrame> rejected;
   std::optional<PatchLink> link;         // how this patch joins the one before (first-frame coordinates)
+  std::vector<PatchFrame> patch_frames;  // the stitched frames with their features
+  // For the adjustment at closing: each stitched frame's image (as blended, aligned with
+  // `frames`) and the matches found between the patch's frames.
+  std::vector<cv::Mat> images;
+  size_t image_bytes = 0;
+  std::vector<FrameLink> links;
+  PatchAdjustmentOptions adjust_options;
   // The last stitched frame: what the next one is registered to.
-  std::shared_ptr<const Features> prev_features;      // of the last stitched frame
+  PatchFrame prev;
   std::shared_ptr<const Features> last_prepared;      // Push: of the last frame with features
-  cv::Matx33d prev_to_patch = cv::Matx33d::eye();
   cv::Mat prev_filtered;
   int lost = 0;
+  // Frames rejected while this patch is open, kept for a second chance against later frames.
+  struct Pending {
+    std::shared_ptr<PreparedFrame> frame;
+    FrameReport report;
+  };
+  std::deque<Pending> pending;
   MosaicSummary summary;
   // Stage timers, in the order of the pipeline.
-  enum Stage { kPreprocess, kDetectImage, kFeatures, kMatching, kEgomotion, kTemporal, kEcc, kBlend, kStages };
+  enum Stage { kPreprocess, kDetectImage, kFeatures, kMatching, kEgomotion, kRecovery, kPatchFit,
+               kTemporal, kEcc, kBlend, kStages };
   // Prepare runs on several threads at once: nanoseconds, added atomically.
   std::atomic<long long> stage_ns[kStages] = {};
   struct Laps {
@@ -125,15 +148,50 @@ struct Mosaicker::Impl {
         extractor(ToFeatureOptions(o)),
         ego_options(ToEgomotionOptions(o)),
         ecc_options(ToEccOptions(o)),
-        writer(s, o.tiff) {}
+        writer(s, o.tiff) {
+    adjust_options.enabled = o.adjust_patches;
+    adjust_options.solver.refine_focal = getenv("ROLAMOS_REFINE_FOCAL") != nullptr;
+  }
 
-  void StartPatch(const cv::Mat& filtered, const std::shared_ptr<const Features>& f,
-                  const std::optional<PatchLink>& join);
+  // A candidate placement of the frame in the patch, and what supports it.
+  struct Candidate {
+    EgomotionResult ego;          // from the frame to what it was registered against
+    cv::Matx33d to_patch = cv::Matx33d::eye();
+    Support support;
+    GateVerdict verdict;
+    std::string registered_by;    // "" = the previous frame
+    int target = -1;              // the frame it was registered against (-1: the patch image)
+    bool from_previous() const { return registered_by.empty(); }
+    // The link with the frame it was registered against, if any.
+    std::vector<FrameLink> Links(int index) const {
+      if (target < 0 || !ego.ok) return {};
+      return {FrameLink{index, target, ego.inlier_from, ego.inlier_to}};
+    }
+  };
+  // The frame that opens the next patch when the pixel budget closes this one: adjusted with
+  // this patch's frames (not blended) to tie the two patches together.
+  struct Closing {
+    int index = 0;
+    cv::Matx33d to_patch;
+    std::vector<FrameLink> links;
+  };
+
+  void StartPatch(const PreparedFrame& p, const cv::Mat& filtered, const std::optional<PatchLink>& join);
   // Hands the patch to the writer; returns first-frame coordinates -> patch image pixels.
-  cv::Matx33d ClosePatch();
+  // Returns the closing frame's pixels -> the patch image's pixels (when `closing` is given).
+  cv::Matx33d ClosePatch(const std::string& why, const std::optional<Closing>& closing = std::nullopt);
   void Stitch(const cv::Mat& filtered, const cv::Matx33d& to_patch,
-              const std::shared_ptr<const Features>& f, const FrameReport& report);
+              const std::shared_ptr<const Features>& f, const FrameReport& report,
+              std::vector<FrameLink> found = {});
   FrameReport Reject(FrameReport r, const std::string& reason);
+  Candidate Register(const Matches& matches, const cv::Matx33d& target_to_patch, const std::string& by,
+                     int target);
+  // The frame against the patch's other frames and the patch image, when the previous one failed.
+  std::vector<Candidate> Recover(const PreparedFrame& p, Laps& lap);
+  void SecondChance(Laps& lap);
+  FrameMotion MotionFromPrevious(const cv::Matx33d& to_patch) const {
+    return MotionOf(prev.to_patch.inv() * to_patch, frame_size);
+  }
 };
 
 FrameReport Mosaicker::Impl::Reject(FrameReport r, const std::string& reason) {
@@ -145,22 +203,33 @@ FrameReport Mosaicker::Impl::Reject(FrameReport r, const std::string& reason) {
   return r;
 }
 
-void Mosaicker::Impl::StartPatch(const cv::Mat& filtered, const std::shared_ptr<const Features>& f,
+void Mosaicker::Impl::StartPatch(const PreparedFrame& p, const cv::Mat& filtered,
                                  const std::optional<PatchLink>& join) {
   canvas = std::make_unique<PatchCanvas>(options.PixelBudget());
   patch_id = next_patch_id++;
   data_bounds = cv::Rect2d();
   frames.clear();
+  patch_frames.clear();
+  images.clear();
+  image_bytes = 0;
+  links.clear();
+  pending.clear();
   link = join;
   gate->Reset();
-  prev_features = f;
-  prev_to_patch = cv::Matx33d::eye();
+  prev = PatchFrame{};
+  prev.features = p.own;
   prev_filtered = filtered;
 }
 
 void Mosaicker::Impl::Stitch(const cv::Mat& filtered, const cv::Matx33d& to_patch,
-                             const std::shared_ptr<const Features>& f, const FrameReport& report) {
+                             const std::shared_ptr<const Features>& f, const FrameReport& report,
+                             std::vector<FrameLink> found) {
   canvas->Add(filtered, *weights, to_patch);
+  if (adjust_options.enabled) {
+    images.push_back(filtered);
+    image_bytes += filtered.total() * filtered.elemSize();
+    for (auto& l : found) links.push_back(Thin(std::move(l), adjust_options.max_pairs_per_link, frame_size));
+  }
   const cv::Rect2d b = PatchCanvas::FrameBounds(to_patch, frame_size);
   data_bounds = data_bounds.area() > 0 ? (data_bounds | b) : b;
   FrameRecord rec;
@@ -172,35 +241,182 @@ void Mosaicker::Impl::Stitch(const cv::Mat& filtered, const cv::Matx33d& to_patc
   rec.ecc = report.ecc;
   rec.status = "stitched";
   frames.push_back(rec);
-  prev_features = f;
-  prev_to_patch = to_patch;
-  prev_filtered = filtered;
-  lost = 0;
+  PatchFrame pf;
+  pf.index = report.index;
+  pf.features = f;
+  pf.to_patch = to_patch;
+  patch_frames.push_back(pf);
+  // Features of frames far behind are dropped beyond a bound: memory stays flat on long patches.
+  constexpr size_t kKeptFeatures = 400;
+  if (patch_frames.size() > kKeptFeatures) patch_frames[patch_frames.size() - kKeptFeatures - 1].features.reset();
   ++summary.stitched;
 }
 
-cv::Matx33d Mosaicker::Impl::ClosePatch() {
+cv::Matx33d Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Closing>& closing) {
+  pending.clear();
   if (!canvas || frames.empty()) {
     canvas.reset();
     return cv::Matx33d::eye();
   }
+  // The frames placed once more, together, as cameras over the seafloor plane; the closing
+  // frame (the next patch's first) comes along, unblended, to tie the patches.
+  std::vector<int> indices;
+  std::vector<cv::Matx33d> online;
+  for (const auto& f : frames) {
+    indices.push_back(f.index);
+    online.push_back(ToMatx(f.frame_to_patch));
+  }
+  std::vector<FrameLink> all = links;
+  if (closing) {
+    indices.push_back(closing->index);
+    online.push_back(closing->to_patch);
+    for (const auto& l : closing->links) all.push_back(Thin(l, adjust_options.max_pairs_per_link, frame_size));
+  }
+  PatchAdjustment adjusted;
+  if (adjust_options.enabled && images.size() == frames.size())
+    adjusted = AdjustPatch(indices, online, all, K(0, 0), frame_size, adjust_options);
+  ++(adjusted.used ? summary.adjusted : summary.unadjusted);
+  cv::Rect2d bounds = data_bounds;
+  if (adjusted.used) {
+    bounds = cv::Rect2d();
+    for (size_t i = 0; i < frames.size(); ++i) {
+      frames[i].frame_to_patch = ToArray9(adjusted.frame_to_patch[i]);
+      const cv::Rect2d b = PatchCanvas::FrameBounds(adjusted.frame_to_patch[i], frame_size);
+      bounds = bounds.area() > 0 ? (bounds | b) : b;
+    }
+    // This patch's coordinates are now the plane's: the link to the previous patch goes through
+    // the first frame's adjusted pose.
+    if (link) link->to_previous = ToArray9(ToMatx(link->to_previous) * adjusted.frame_to_patch[0].inv());
+  }
   // The image covers the frames' union; frame_to_patch moves to the image's pixel grid.
-  const cv::Rect rect(static_cast<int>(std::floor(data_bounds.x)),
-                      static_cast<int>(std::floor(data_bounds.y)),
-                      static_cast<int>(std::ceil(data_bounds.x + data_bounds.width)) -
-                          static_cast<int>(std::floor(data_bounds.x)),
-                      static_cast<int>(std::ceil(data_bounds.y + data_bounds.height)) -
-                          static_cast<int>(std::floor(data_bounds.y)));
+  const cv::Rect rect(static_cast<int>(std::floor(bounds.x)), static_cast<int>(std::floor(bounds.y)),
+                      static_cast<int>(std::ceil(bounds.x + bounds.width)) - static_cast<int>(std::floor(bounds.x)),
+                      static_cast<int>(std::ceil(bounds.y + bounds.height)) - static_cast<int>(std::floor(bounds.y)));
   const cv::Matx33d T(1, 0, -rect.x, 0, 1, -rect.y, 0, 0, 1);
+  cv::Matx33d closing_to_image = cv::Matx33d::eye();
+  if (closing) closing_to_image = T * (adjusted.used ? adjusted.frame_to_patch.back() : closing->to_patch);
   PatchJob job;
-  job.sidecar = AssemblePatchSidecar(patch_id, rect, frames, rejected, link, canvas->pixel_budget(), frame_size);
-  job.canvas = std::move(canvas);
+  if (adjusted.used) {
+    job.images = std::move(images);
+    for (size_t i = 0; i < frames.size(); ++i) job.placements.push_back(adjusted.frame_to_patch[i]);
+    job.weights = weights;
+  } else {
+    job.canvas = std::move(canvas);
+  }
+  // Frames registered late (second chance) go back to input order.
+  std::stable_sort(frames.begin(), frames.end(), [](const FrameRecord& a, const FrameRecord& b) { return a.index < b.index; });
+  job.sidecar = AssemblePatchSidecar(patch_id, rect, frames, rejected, link, options.PixelBudget(), frame_size);
+  job.sidecar.closed_by = why;
+  if (adjusted.used) {
+    job.sidecar.extra["adjustment"] = {{"rms_px", adjusted.stats.final_rms_px},
+                                       {"online_rms_px", adjusted.stats.initial_rms_px},
+                                       {"links", static_cast<int>(all.size())},
+                                       {"focal_px", adjusted.focal}};
+  } else if (adjust_options.enabled) {
+    job.sidecar.extra["adjustment"] = {{"skipped", adjusted.note}};
+  }
   job.data_rect = rect;
+  canvas.reset();
   writer.Submit(std::move(job));
   ++summary.patches;
   frames.clear();
   rejected.clear();
-  return T;
+  patch_frames.clear();
+  images.clear();
+  image_bytes = 0;
+  links.clear();
+  return closing_to_image;
+}
+
+Mosaicker::Impl::Candidate Mosaicker::Impl::Register(const Matches& matches, const cv::Matx33d& target_to_patch,
+                                                     const std::string& by, int target) {
+  Candidate c;
+  c.target = target;
+  c.ego = EstimateEgomotion(matches.from, matches.to, K, ego_options);
+  c.support = AssessSupport(c.ego, frame_size, support_options);
+  c.registered_by = by;
+  if (c.ego.ok) {
+    c.to_patch = target_to_patch * c.ego.H;
+    c.verdict = gate->Evaluate(MotionFromPrevious(c.to_patch));
+  }
+  return c;
+}
+
+std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const PreparedFrame& p, Laps& lap) {
+  std::vector<Candidate> found;
+  const Features& f = *p.own;
+  // 1. The patch's recent frames before the previous one (the previous frame may be the bad one:
+  //    blurred, a fish across it), newest first.
+  int tried = 0;
+  for (auto it = patch_frames.rbegin(); it != patch_frames.rend() && tried < 4; ++it) {
+    if (it->index == prev.index || !it->features) continue;
+    ++tried;
+    Candidate c = Register(MatchFeatures(f, *it->features, extractor.options()), it->to_patch, "keyframe", it->index);
+    if (c.ego.ok) found.push_back(std::move(c));
+    if (!found.empty() && found.back().support.strong && found.back().verdict.consistent) break;
+  }
+  lap(kRecovery);
+  for (const auto& c : found)
+    if (c.support.strong && c.verdict.consistent) return found;
+  // 2. The patch image around the last frame, a frame's size each way: the frame may have turned
+  //    any way (features are rotation invariant) and need not overlap the previous frame.
+  const cv::Rect2d around = PatchCanvas::FrameBounds(prev.to_patch, frame_size);
+  const double grow = std::max(frame_size.width, frame_size.height);
+  const cv::Rect wanted(static_cast<int>(std::floor(around.x - grow)), static_cast<int>(std::floor(around.y - grow)),
+                        static_cast<int>(std::ceil(around.width + 2 * grow)), static_cast<int>(std::ceil(around.height + 2 * grow)));
+  const double scale = extractor.options().ScaleFor(frame_size);
+  cv::Mat gray, mask;
+  const cv::Rect used = canvas->RenderGray(wanted, scale, &gray, &mask);
+  if (!used.empty() && gray.cols >= 16 && gray.rows >= 16) {
+    FeatureOptions more = extractor.options();
+    more.max_features = 3 * more.max_features;  // the view is several frames large
+    const FeatureExtractor wide(more);
+    cv::Mat eroded;
+    cv::erode(mask, eroded, cv::Mat(), cv::Point(-1, -1), 2);
+    const Features mosaic = wide.ExtractScaled(pre.DetectionImage(gray, 1.0), scale, eroded);
+    const cv::Matx33d crop_to_patch(1, 0, used.x, 0, 1, used.y, 0, 0, 1);
+    Candidate c = Register(MatchFeatures(f, mosaic, extractor.options()), crop_to_patch, "patch_mosaic", -1);
+    if (c.ego.ok) found.push_back(std::move(c));
+  }
+  lap(kRecovery);
+  return found;
+}
+
+// Frames rejected earlier in this patch, tried again against the frame just stitched: a frame
+// that failed against its predecessor (blur, a passing fish) often matches its successor.
+void Mosaicker::Impl::SecondChance(Laps& lap) {
+  for (auto it = pending.begin(); it != pending.end();) {
+    const PreparedFrame& p = *it->frame;
+    Candidate c = Register(MatchFeatures(*p.own, *prev.features, extractor.options()), prev.to_patch, "second_chance",
+                           prev.index);
+    if (!c.support.strong) {
+      ++it;
+      continue;
+    }
+    cv::Matx33d to_patch = c.to_patch;
+    PatchFit fit = FitToPatch(it->report.index, *p.own, frame_size, to_patch, prev, c.ego.inlier_from,
+                              c.ego.inlier_to, patch_frames, fit_options);
+    if (fit.ok) to_patch = fit.to_patch;
+    if (!canvas->Fits(PatchCanvas::FrameBounds(to_patch, frame_size))) {
+      ++it;
+      continue;
+    }
+    FrameReport r = it->report;
+    r.status = "stitched";
+    r.reason.clear();
+    r.matches = c.ego.matches;
+    r.inliers = c.ego.inliers;
+    Stitch(p.spatial, to_patch, p.own, r, fit.ok ? fit.links : c.Links(r.index));  // the chain goes on from the newest
+    frames.back().registered_by = "second_chance";
+    frames.back().patch_frames = fit.ok ? fit.frames : 1;
+    rejected.erase(std::remove_if(rejected.begin(), rejected.end(),
+                                  [&](const RejectedFrame& x) { return x.index == r.index; }),
+                   rejected.end());
+    --summary.rejected;
+    ++summary.recovered;
+    it = pending.erase(it);
+  }
+  lap(kRecovery);
 }
 
 Mosaicker::Mosaicker(Store store, const MosaickerOptions& options) {
@@ -232,9 +448,10 @@ std::shared_ptr<PreparedFrame> Mosaicker::Prepare(const cv::Mat& input, const st
   // A frame of another size than the survey's is rejected by Integrate, which knows the survey.
   p->spatial = m.pre.Spatial(frame);
   lap(Impl::kPreprocess);
-  p->detect = m.pre.DetectionImage(p->spatial);
+  const double scale = m.extractor.options().ScaleFor(p->size);
+  p->detect = m.pre.DetectionImage(p->spatial, scale);
   lap(Impl::kDetectImage);
-  p->own = std::make_shared<const Features>(m.extractor.Extract(p->detect));
+  p->own = std::make_shared<const Features>(m.extractor.ExtractScaled(p->detect, scale));
   lap(Impl::kFeatures);
   return p;
 }
@@ -270,7 +487,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
   if (m.frame_size.area() == 0) {
     m.frame_size = p.size;
     m.K = m.pre.CameraMatrix(p.size);
-    m.weights = std::make_unique<FeatherCode>(FeatherWeights(p.size, m.options.feather_sigma));
+    m.weights = std::make_shared<const FeatherCode>(FeatherWeights(p.size, m.options.feather_sigma));
     MotionGateOptions g;
     g.enabled = m.options.kalman;
     m.gate = std::make_unique<MotionGate>(g, p.size);
@@ -282,10 +499,17 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
                                 std::to_string(m.frame_size.height)));
   const cv::Mat& spatial = p.spatial;
   const auto& features = p.own;
+  // A frame that cannot be registered: kept for a second chance against the frames after it;
+  // the patch closes only after several in a row failed against every frame of it and its image.
   auto lost_one = [&](const std::string& reason) {
     FrameReport rep = m.Reject(r, reason);
+    if (m.gate) m.gate->Skip();
+    if (m.canvas && m.options.recover && features && !features->empty()) {
+      m.pending.push_back({prepared, rep});
+      if (m.pending.size() > 6) m.pending.pop_front();
+    }
     if (++m.lost >= m.options.max_lost_frames && m.canvas) {
-      m.ClosePatch();  // tracking lost: the next good frame starts a new patch
+      m.ClosePatch("lost_tracking");  // the next good frame starts a new patch
       m.lost = 0;
     }
     return done(rep);
@@ -293,45 +517,122 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
   if (static_cast<int>(features->points.size()) < m.options.min_inliers)
     return lost_one("featureless");
   if (!m.canvas) {
-    m.StartPatch(spatial, features, std::nullopt);
+    m.StartPatch(p, spatial, std::nullopt);
     r.started_patch = true;
     m.Stitch(spatial, cv::Matx33d::eye(), features, r);
+    m.prev = m.patch_frames.back();
     r.status = "stitched";
     r.patch_id = m.patch_id;
+    m.lost = 0;
     return done(r);
   }
-  // Usually Prepare matched against the right frame already; after a rejected frame, match again.
-  Matches matches = p.matched_to == m.prev_features
+  m.gate->Predict(r.index - m.prev.index);
+  // 1. Against the previous frame (usually matched by Prepare already).
+  Matches matches = p.matched_to == m.prev.features
                         ? p.matches
-                        : MatchFeatures(*features, *m.prev_features, m.extractor.options());
+                        : MatchFeatures(*features, *m.prev.features, m.extractor.options());
   lap(Impl::kMatching);
-  EgomotionResult ego = EstimateEgomotion(matches.from, matches.to, m.K, m.ego_options);
+  Impl::Candidate best = m.Register(matches, m.prev.to_patch, "", m.prev.index);
   lap(Impl::kEgomotion);
-  r.matches = ego.matches;
-  r.inliers = ego.inliers;
-  r.bilateral_error = ego.bilateral_error_mean;
-  if (!ego.ok) return lost_one(ego.failure);
-  const std::string gate =
-      m.gate->Check(MotionOf(ego.H, m.frame_size), r.index - m.frames.back().index);
-  if (!gate.empty()) return lost_one(gate);
-
-  cv::Matx33d to_patch = m.prev_to_patch * ego.H;
-  if (!m.canvas->Fits(PatchCanvas::FrameBounds(to_patch, m.frame_size))) {
+  r.matches = best.ego.matches;
+  r.inliers = best.ego.inliers;
+  r.bilateral_error = best.ego.bilateral_error_mean;
+  // The same view again (a repeated frame, a vehicle holding still): nothing to add.
+  if (best.ego.ok && best.support.strong &&
+      MaxCornerShift(best.ego.H, cv::Matx33d::eye(), m.frame_size) < 0.25) {
+    m.gate->Skip();
+    return done(m.Reject(r, "duplicate of frame " + std::to_string(m.prev.index)));
+  }
+  // 2. The motion model arbitrates: a strong registration stands even when unpredicted (a real
+  //    change of course); a weak one stands only when predicted. Otherwise the frame is tried
+  //    against the patch's other frames and its image, and the best candidate is chosen: strong
+  //    ones first, closest to the prediction among them.
+  // Without the gate (or while it learns) nothing vouches for a weak registration.
+  auto usable = [&](const Impl::Candidate& c) {
+    return c.ego.ok && (c.support.strong || (m.options.kalman && c.verdict.informed && c.verdict.consistent));
+  };
+  bool accept = usable(best);
+  // Strong and predicted beats strong alone (a course change, or a texture that repeats turned
+  // about), which beats weak but predicted.
+  auto rank = [](const Impl::Candidate& c) {
+    return c.support.strong ? (c.verdict.consistent ? 3 : 2) : 1;
+  };
+  if (!accept || !best.support.strong || !best.verdict.consistent) {
+    if (m.options.recover) {
+      std::vector<Impl::Candidate> more = m.Recover(p, lap);
+      if (best.ego.ok) more.push_back(best);
+      const Impl::Candidate* pick = nullptr;
+      for (const auto& c : more) {
+        if (!usable(c)) continue;
+        if (!pick || rank(c) > rank(*pick) ||
+            (rank(c) == rank(*pick) && c.verdict.distance2 < pick->verdict.distance2))
+          pick = &c;
+      }
+      if (pick) {
+        best = *pick;
+        accept = true;
+      }
+    }
+  }
+  if (!accept) {
+    std::string reason = best.ego.ok ? (best.verdict.consistent ? best.support.weakness : "kalman_gate")
+                                     : best.ego.failure;
+    return lost_one(reason);
+  }
+  const bool doubtful = !best.support.strong;
+  if (!best.from_previous()) {
+    r.matches = best.ego.matches;
+    r.inliers = best.ego.inliers;
+    r.bilateral_error = best.ego.bilateral_error_mean;
+  }
+  cv::Matx33d to_patch = best.to_patch;
+  // 3. The placement fitted against every patch frame under it, so that errors do not add up
+  //    from pair to pair.
+  int fitted = 1;
+  std::vector<FrameLink> fitted_links;
+  if (m.options.patch_fit) {
+    const PatchFrame& anchor = m.prev;
+    std::vector<cv::Point2f> from, to;
+    if (best.from_previous()) {
+      from = best.ego.inlier_from;
+      to = best.ego.inlier_to;
+    }
+    PatchFit fit = FitToPatch(r.index, *features, m.frame_size, to_patch, anchor, from, to, m.patch_frames,
+                              m.fit_options);
+    if (!best.from_previous() && fit.ok) fit.frames = std::max(fit.frames, 1);
+    if (fit.ok) {
+      to_patch = fit.to_patch;
+      fitted = fit.frames;
+      fitted_links = std::move(fit.links);
+    }
+  }
+  lap(Impl::kPatchFit);
+  const FrameMotion motion = m.MotionFromPrevious(to_patch);
+  const size_t frame_bytes = spatial.total() * spatial.elemSize();
+  const bool memory_full = m.adjust_options.enabled &&
+                           m.image_bytes + frame_bytes > static_cast<size_t>(m.options.patch_frames_mb * 1024 * 1024);
+  if (memory_full || !m.canvas->Fits(PatchCanvas::FrameBounds(to_patch, m.frame_size))) {
     // The pixel budget is reached: close the patch, start the next one with this frame, and
     // remember how the two join (consecutive patches are linked by this frame's homography).
     const int old_id = m.patch_id;
-    const cv::Matx33d T = m.ClosePatch();
+    Impl::Closing closing;
+    closing.index = r.index;
+    closing.to_patch = to_patch;
+    closing.links = fitted_links.empty() ? best.Links(r.index) : fitted_links;
     PatchLink join;
     join.previous_patch = old_id;
-    join.to_previous = ToArray9(T * to_patch);
-    m.StartPatch(spatial, features, join);
+    join.to_previous = ToArray9(m.ClosePatch(memory_full ? "frame_memory" : "pixel_budget", closing));
+    m.StartPatch(p, spatial, join);
     r.started_patch = true;
     m.Stitch(spatial, cv::Matx33d::eye(), features, r);
+    m.prev = m.patch_frames.back();
+    m.lost = 0;
     r.status = "stitched";
     r.patch_id = m.patch_id;
     return done(r);
   }
-  cv::Mat filtered = m.pre.Temporal(spatial, m.prev_filtered, ego.H);
+  const cv::Matx33d to_prev = m.prev.to_patch.inv() * to_patch;
+  cv::Mat filtered = m.pre.Temporal(spatial, m.prev_filtered, to_prev);
   lap(Impl::kTemporal);
   if (m.options.ecc) {
     cv::Mat gray;
@@ -344,19 +645,28 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
     }
   }
   lap(Impl::kEcc);
-  m.Stitch(filtered, to_patch, features, r);
+  m.gate->Accept(motion);
+  m.Stitch(filtered, to_patch, features, r, fitted_links.empty() ? best.Links(r.index) : std::move(fitted_links));
+  m.prev = m.patch_frames.back();
+  m.prev_filtered = filtered;
+  m.lost = 0;
   lap(Impl::kBlend);
-  if (ego.motion) {
+  FrameRecord& rec = m.frames.back();
+  if (best.ego.motion && best.from_previous()) {
     Egomotion e;
-    for (int i = 0; i < 9; ++i) e.R[static_cast<size_t>(i)] = ego.motion->R.val[i];
+    for (int i = 0; i < 9; ++i) e.R[static_cast<size_t>(i)] = best.ego.motion->R.val[i];
     for (int i = 0; i < 3; ++i) {
-      e.t[static_cast<size_t>(i)] = ego.motion->t[i];
-      e.n[static_cast<size_t>(i)] = ego.motion->n[i];
+      e.t[static_cast<size_t>(i)] = best.ego.motion->t[i];
+      e.n[static_cast<size_t>(i)] = best.ego.motion->n[i];
     }
-    m.frames.back().egomotion = e;
+    rec.egomotion = e;
   }
-  m.frames.back().bilateral_error = ego.bilateral_error_mean;
-  m.frames.back().ecc_shift_px = r.ecc_shift;
+  rec.bilateral_error = best.ego.bilateral_error_mean;
+  rec.ecc_shift_px = r.ecc_shift;
+  if (!best.from_previous()) rec.registered_by = best.registered_by;
+  if (doubtful) rec.doubtful = true;
+  if (m.options.patch_fit) rec.patch_frames = fitted;
+  if (m.options.recover && !m.pending.empty()) m.SecondChance(lap);
   r.status = "stitched";
   r.patch_id = m.patch_id;
   return done(r);
@@ -364,13 +674,13 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
 
 MosaicSummary Mosaicker::Finish() {
   Impl& m = *impl_;
-  m.ClosePatch();
+  m.ClosePatch("end");
   m.writer.Wait();
   m.summary.seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - m.start).count();
   m.summary.peak_rss_mb = PeakRssMb();
-  static const char* names[] = {"preprocess", "detection image", "features", "matching",
-                                "egomotion", "temporal", "ecc", "blend"};
+  static const char* names[] = {"preprocess", "detection image", "features", "matching", "egomotion",
+                                "recovery", "patch fit", "temporal", "ecc", "blend"};
   m.summary.stage_seconds.clear();
   for (int i = 0; i < Impl::kStages; ++i)
     m.summary.stage_seconds.emplace_back(names[i], 1e-9 * static_cast<double>(m.stage_ns[i].load()));

@@ -6,8 +6,8 @@ namespace rolamos {
 
 bool MotionGateOptions::IsValid(std::string* error) const {
   if (!(gate_chi2 > 0) || min_jump_fraction < 0 || min_jump_degrees < 0 || min_jump_scale < 0 ||
-      warmup_frames < 1) {
-    *error = "Kalman gate settings must be positive";
+      warmup_frames < 1 || !(noise_memory > 0 && noise_memory <= 1)) {
+    *error = "Kalman gate settings must be positive (noise memory in (0, 1])";
     return false;
   }
   return true;
@@ -49,70 +49,98 @@ void MotionGate::Reset() {
   const double q[4] = {px * px, px * px, 0.02 * 0.02, 0.01 * 0.01};
   kf_.processNoiseCov = cv::Mat::zeros(12, 12, CV_64F);
   kf_.measurementNoiseCov = cv::Mat::zeros(4, 4, CV_64F);
+  base_noise_ = cv::Mat(4, 1, CV_64F);
   for (int i = 0; i < 4; ++i) {
     kf_.processNoiseCov.at<double>(8 + i, 8 + i) = q[i];
     kf_.processNoiseCov.at<double>(4 + i, 4 + i) = q[i] * 0.25;
     kf_.processNoiseCov.at<double>(i, i) = q[i] * 0.1;
     kf_.measurementNoiseCov.at<double>(i, i) = q[i];
+    base_noise_.at<double>(i) = q[i];
   }
+  observed_ = base_noise_.clone();
   kf_.errorCovPost = cv::Mat::eye(12, 12, CV_64F) * 1e4;
   kf_.statePost = cv::Mat::zeros(12, 1, CV_64F);
   seen_ = 0;
-  rejected_in_row_ = 0;
-  last_rejected_.release();
+  predicted_ = false;
 }
 
 void MotionGate::Restart(const cv::Mat& z) {
+  // The motion changed for real: start from it, keep what was learnt about the jitter.
+  const cv::Mat observed = observed_.clone();
   Reset();
+  observed_ = observed;
+  for (int i = 0; i < 4; ++i)
+    kf_.measurementNoiseCov.at<double>(i, i) = std::max(base_noise_.at<double>(i), observed_.at<double>(i));
   z.copyTo(kf_.statePost.rowRange(0, 4));
   kf_.errorCovPost = cv::Mat::eye(12, 12, CV_64F) * 1e2;
   seen_ = options_.warmup_frames;
 }
 
-std::string MotionGate::Check(const FrameMotion& m, int gap) {
-  const double k = 1.0 / std::max(1, gap);
-  const cv::Mat z = (cv::Mat_<double>(4, 1) << m.dx * k, m.dy * k, m.rotation * k, m.log_scale * k);
-  if (!options_.enabled) return "";
-  cv::Mat predicted = kf_.predict();
-  if (seen_ < options_.warmup_frames) {
-    kf_.correct(z);
-    ++seen_;
-    return "";
-  }
-  const cv::Mat H = kf_.measurementMatrix;
+cv::Mat MotionGate::Measurement(const FrameMotion& m) const {
+  const double k = 1.0 / std::max(1, gap_);
+  return (cv::Mat_<double>(4, 1) << m.dx * k, m.dy * k, m.rotation * k, m.log_scale * k);
+}
+
+void MotionGate::Predict(int gap) {
+  gap_ = std::max(1, gap);
+  if (!options_.enabled) return;
+  kf_.predict();
+  predicted_ = true;
+}
+
+GateVerdict MotionGate::Evaluate(const FrameMotion& m) const {
+  GateVerdict v;
+  if (!options_.enabled || !predicted_ || seen_ < options_.warmup_frames) return v;
+  v.informed = true;
+  const cv::Mat z = Measurement(m);
+  const cv::Mat& H = kf_.measurementMatrix;
   const cv::Mat S = H * kf_.errorCovPre * H.t() + kf_.measurementNoiseCov;
-  cv::Mat y = z - H * predicted;
+  cv::Mat y = z - H * kf_.statePre;
   y.at<double>(2) = std::remainder(y.at<double>(2), 2 * CV_PI);
-  last_d2_ = cv::Mat(y.t() * S.inv() * y).at<double>(0);
+  v.distance2 = cv::Mat(y.t() * S.inv() * y).at<double>(0);
   const double size = std::max(frame_.width, frame_.height);
   const bool big_jump = std::hypot(y.at<double>(0), y.at<double>(1)) > options_.min_jump_fraction * size ||
                         std::abs(y.at<double>(2)) > options_.min_jump_degrees * CV_PI / 180 ||
                         std::abs(y.at<double>(3)) > options_.min_jump_scale;
-  if (last_d2_ > options_.gate_chi2 && big_jump) {
-    // Consecutive rejected frames that move alike: a real change of motion, not an outlier.
-    const bool agrees_with_last =
-        !last_rejected_.empty() &&
-        std::hypot(z.at<double>(0) - last_rejected_.at<double>(0),
-                   z.at<double>(1) - last_rejected_.at<double>(1)) < options_.min_jump_fraction * size &&
-        std::abs(std::remainder(z.at<double>(2) - last_rejected_.at<double>(2), 2 * CV_PI)) <
-            options_.min_jump_degrees * CV_PI / 180 &&
-        std::abs(z.at<double>(3) - last_rejected_.at<double>(3)) < options_.min_jump_scale;
-    ++rejected_in_row_;
-    if (agrees_with_last && rejected_in_row_ >= options_.reacquire_after) {
-      Restart(z);
-      return "";
-    }
-    last_rejected_ = z.clone();
-    // Not stitched: the filter keeps its prediction (errorCovPost grows with the next predict).
-    kf_.statePost = kf_.statePre.clone();
-    kf_.errorCovPost = kf_.errorCovPre.clone();
-    return "kalman_gate";
+  v.consistent = !(v.distance2 > options_.gate_chi2 && big_jump);
+  return v;
+}
+
+void MotionGate::Accept(const FrameMotion& m) {
+  if (!options_.enabled) return;
+  if (!predicted_) Predict(gap_);
+  const cv::Mat z = Measurement(m);
+  if (!Evaluate(m).consistent) {
+    Restart(z);
+    predicted_ = false;
+    return;
   }
-  rejected_in_row_ = 0;
-  last_rejected_.release();
+  // The observed jitter: squared innovations of accepted frames, remembered with a short memory;
+  // the measurement noise never falls below its floor.
+  if (seen_ >= options_.warmup_frames) {
+    cv::Mat y = z - kf_.measurementMatrix * kf_.statePre;
+    y.at<double>(2) = std::remainder(y.at<double>(2), 2 * CV_PI);
+    for (int i = 0; i < 4; ++i) {
+      double& o = observed_.at<double>(i);
+      o = (1 - options_.noise_memory) * o + options_.noise_memory * y.at<double>(i) * y.at<double>(i);
+      kf_.measurementNoiseCov.at<double>(i, i) = std::max(base_noise_.at<double>(i), o);
+    }
+  }
   kf_.correct(z);
   ++seen_;
-  return "";
+  predicted_ = false;
+}
+
+void MotionGate::Skip() {
+  if (!options_.enabled || !predicted_) return;
+  // Not stitched: the filter keeps its prediction (errorCovPost grows with the next predict).
+  kf_.statePost = kf_.statePre.clone();
+  kf_.errorCovPost = kf_.errorCovPre.clone();
+  predicted_ = false;
+}
+
+double MotionGate::jitter_px() const {
+  return std::sqrt(0.5 * (kf_.measurementNoiseCov.at<double>(0, 0) + kf_.measurementNoiseCov.at<double>(1, 1)));
 }
 
 }  // namespace rolamos

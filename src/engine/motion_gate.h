@@ -1,8 +1,12 @@
-// Stage 3: consistency check. A Kalman filter with a constant-acceleration model follows the
-// frame-to-frame motion (translation x, y, rotation, log scale, from the similarity closest to
-// the homography). A frame whose motion leaves the gate (Mahalanobis distance of the innovation,
-// and a jump larger than a physical floor: e.g. a 180-degree turn or a leap across the frame) is
-// not stitched; "aliasing constraint" of the paper: consecutive frames are close in time.
+// Stage 3: consistency check (section 3.2 of the paper). A Kalman filter with a
+// constant-acceleration model follows the frame-to-frame motion (translation x, y, rotation, log
+// scale, from the similarity closest to the homography). It arbitrates rather than vetoes: the
+// engine asks how far each candidate registration of a frame is from the prediction (Mahalanobis
+// distance of the innovation, and a jump larger than a physical floor) and prefers the consistent
+// one; a well-supported registration the model did not predict is a real change of course (a lane
+// join turned 180 degrees) and restarts the filter from it. The measurement noise follows the
+// jitter the filter observes, so a vehicle that rolls and pitches from frame to frame widens the
+// gate instead of being rejected by it.
 #pragma once
 
 #include <string>
@@ -19,9 +23,7 @@ struct MotionGateOptions {
   double min_jump_degrees = 25.0;     // and below this rotation
   double min_jump_scale = 0.08;       // and below this relative scale change
   int warmup_frames = 3;              // accepted while the filter learns
-  // After this many rejections in a row whose motions agree with each other, the vehicle has
-  // changed its motion for real: the filter restarts from it instead of rejecting the rest.
-  int reacquire_after = 2;
+  double noise_memory = 0.1;          // weight of each new innovation in the observed jitter
 
   bool IsValid(std::string* error) const;
 };
@@ -32,25 +34,41 @@ struct FrameMotion {
 };
 FrameMotion MotionOf(const cv::Matx33d& H, cv::Size frame);
 
+struct GateVerdict {
+  double distance2 = 0;    // squared Mahalanobis distance of the innovation
+  bool consistent = true;  // within the gate (or below the physical floor, or still learning)
+  bool informed = false;   // the filter has learnt the motion: `consistent` vouches for something
+};
+
 class MotionGate {
  public:
   MotionGate(const MotionGateOptions& options, cv::Size frame);
-  // Checks the motion measured over `gap` input frames (rejected frames in between make gaps);
-  // the filter follows motion per frame. Accepted ones update it. Returns "" or the reason.
-  std::string Check(const FrameMotion& m, int gap = 1);
+  // Once per frame that is to be registered, before Evaluate: the prediction `gap` input frames
+  // after the last accepted one (rejected frames in between make gaps).
+  void Predict(int gap = 1);
+  // How a candidate motion (over the gap) agrees with the prediction. Does not change the filter.
+  GateVerdict Evaluate(const FrameMotion& m) const;
+  // The frame was stitched with motion `m`: a consistent motion updates the filter, an
+  // inconsistent one (kept on its geometric support) restarts it from that motion.
+  void Accept(const FrameMotion& m);
+  // The frame was not stitched: the filter keeps its prediction.
+  void Skip();
   void Reset();
-  double last_distance() const { return last_d2_; }
+  // Standard deviation of the observed frame-to-frame jitter in translation, pixels.
+  double jitter_px() const;
 
  private:
-  MotionGateOptions options_;
-  cv::Size frame_;
+  cv::Mat Measurement(const FrameMotion& m) const;
   void Restart(const cv::Mat& z);
 
+  MotionGateOptions options_;
+  cv::Size frame_;
   cv::KalmanFilter kf_;
+  cv::Mat base_noise_;  // 4 x 1: the measurement noise floor (variances)
+  cv::Mat observed_;    // 4 x 1: running mean of squared innovations of accepted frames
   int seen_ = 0;
-  int rejected_in_row_ = 0;
-  cv::Mat last_rejected_;  // the motion of the last rejected frame
-  double last_d2_ = 0;
+  int gap_ = 1;
+  bool predicted_ = false;
 };
 
 }  // namespace rolamos

@@ -169,6 +169,33 @@ cv::Mat PatchCanvas::Render(const cv::Rect& patch_rect) const {
   return out;
 }
 
+cv::Rect PatchCanvas::RenderGray(const cv::Rect& wanted, double scale, cv::Mat* gray, cv::Mat* mask) const {
+  int factor = 1;
+  while (factor * 2 <= 1.0 / scale && factor * 2 <= kBlock / 4) factor *= 2;
+  cv::Rect rect = wanted & data_;
+  if (rect.empty()) return {};
+  // Aligned to the reduction factor, as Dense needs.
+  const int x0 = FloorDiv(rect.x, factor) * factor, y0 = FloorDiv(rect.y, factor) * factor;
+  const int x1 = -FloorDiv(-(rect.x + rect.width), factor) * factor;
+  const int y1 = -FloorDiv(-(rect.y + rect.height), factor) * factor;
+  rect = cv::Rect(x0, y0, x1 - x0, y1 - y0);
+  cv::Mat sum, weight;
+  Dense(rect, &sum, &weight, factor);
+  std::vector<cv::Mat> ch;
+  cv::split(sum, ch);
+  cv::Mat g = (0.114 * ch[0] + 0.587 * ch[1] + 0.299 * ch[2]);
+  cv::divide(g, cv::max(weight, 1e-12), g);
+  cv::Mat valid = weight > kAlphaCut * 4;
+  const double rest = scale * factor;  // what remains after the power-of-two reduction
+  if (std::abs(rest - 1.0) > 1e-6) {
+    cv::resize(g, g, cv::Size(), rest, rest, cv::INTER_AREA);
+    cv::resize(valid, valid, g.size(), 0, 0, cv::INTER_NEAREST);
+  }
+  g.convertTo(*gray, CV_8U);
+  *mask = valid;
+  return rect;
+}
+
 void PatchCanvas::ViewFromFrame(const cv::Matx33d& H, cv::Size frame, double scale, cv::Mat* gray,
                                 cv::Mat* mask) const {
   const cv::Size out(std::max(8, static_cast<int>(frame.width * scale)),

@@ -12,8 +12,6 @@
 
 #include "engine/feather.h"
 
-#include "engine/feather.h"
-
 namespace rolamos {
 
 class PatchCanvas {
@@ -33,6 +31,11 @@ class PatchCanvas {
   // at `scale` of its resolution (for ECC refinement).
   void ViewFromFrame(const cv::Matx33d& frame_to_patch, cv::Size frame, double scale,
                      cv::Mat* gray, cv::Mat* mask) const;
+  // The blended mosaic over `rect` (patch coordinates) in gray at `scale` of full resolution, and
+  // where it holds data: what a frame that lost the thread is registered against. `rect` is
+  // clipped to the data; returns the rectangle used (empty when nothing is there).
+  cv::Rect RenderGray(const cv::Rect& rect, double scale, cv::Mat* gray, cv::Mat* mask) const;
+  const cv::Rect& data() const { return data_; }
   long long pixel_budget() const { return budget_; }
 
  private:

@@ -1,5 +1,7 @@
 #include "engine/patch_writer.h"
 
+#include <limits>
+
 #include "util/homography.h"
 
 namespace rolamos {
@@ -47,6 +49,14 @@ void PatchWriter::Submit(PatchJob job) {
 }
 
 void PatchWriter::Write(PatchJob& job) {
+  if (!job.images.empty()) {
+    auto canvas = std::make_unique<PatchCanvas>(std::numeric_limits<long long>::max());
+    for (size_t i = 0; i < job.images.size(); ++i) {
+      canvas->Add(job.images[i], *job.weights, job.placements[i]);
+      job.images[i].release();
+    }
+    job.canvas = std::move(canvas);
+  }
   PixelLayout layout;
   layout.width = job.data_rect.width;
   layout.height = job.data_rect.height;

@@ -26,6 +26,12 @@ struct PatchJob {
   std::unique_ptr<PatchCanvas> canvas;
   cv::Rect data_rect;  // patch coordinates of the image to write
   PatchSidecar sidecar;
+  // When given, the patch is blended anew from these frames (BGR, with their frame -> patch
+  // coordinates placements and feather weights) instead of taken from `canvas`: the adjusted
+  // placements, blended in the writer's thread.
+  std::vector<cv::Mat> images;
+  std::vector<cv::Matx33d> placements;
+  std::shared_ptr<const FeatherCode> weights;
 };
 
 class PatchWriter {

@@ -57,6 +57,10 @@ bool PreprocessOptions::IsValid(std::string* error) const {
     *error = "temporal filter weight must be in [0, 1) and its tolerance positive";
     return false;
   }
+  if (despeckle_px < 0 || despeckle_px > 10) {
+    *error = "despeckle radius " + std::to_string(despeckle_px) + " is outside 0..10 pixels";
+    return false;
+  }
   if (!(clahe_clip > 0)) {
     *error = "CLAHE clip limit must be positive";
     return false;
@@ -108,12 +112,25 @@ cv::Mat Preprocessor::Spatial(const cv::Mat& frame) {
   return out;
 }
 
-cv::Mat Preprocessor::DetectionImage(const cv::Mat& frame) const {
+cv::Mat Preprocessor::DetectionImage(const cv::Mat& frame, double scale) const {
   cv::Mat gray;
   if (frame.channels() == 3) cv::cvtColor(frame, gray, cv::COLOR_BGR2GRAY);
   else gray = frame;
+  if (scale < 1.0) {
+    cv::Mat small;
+    cv::resize(gray, small, cv::Size(), scale, scale, cv::INTER_AREA);
+    gray = small;
+  }
+  if (options_.despeckle_px > 0) {
+    const int d = 2 * options_.despeckle_px + 1;
+    cv::Mat opened;
+    cv::morphologyEx(gray, opened, cv::MORPH_OPEN, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(d, d)));
+    gray = opened;
+  }
   if (!options_.clahe) return gray;
-  auto clahe = cv::createCLAHE(options_.clahe_clip, cv::Size(8, 8));
+  // Tiles of about 64 pixels whatever the detection image's size.
+  const cv::Size tiles(std::max(2, gray.cols / 64), std::max(2, gray.rows / 64));
+  auto clahe = cv::createCLAHE(options_.clahe_clip, tiles);
   cv::Mat out;
   clahe->apply(gray, out);
   return out;

@@ -34,7 +34,11 @@ struct PreprocessOptions {
   double temporal_weight = 0.5;  // weight of the previous frame where the two agree
   double temporal_tolerance = 16.0;  // grey levels: differences above this are not averaged
   bool clahe = true;
-  double clahe_clip = 2.0;
+  // Dark, hazy seafloor needs a strong local stretch for features to be found at all.
+  double clahe_clip = 4.0;
+  // Marine snow: bright specks up to this radius (pixels of the detection image) are opened
+  // away before detection, so features are not spent on particles that move on their own.
+  int despeckle_px = 2;
 
   bool IsValid(std::string* error) const;
 };
@@ -45,8 +49,9 @@ class Preprocessor {
   // Undistortion and bilateral smoothing. Checks the frame size against the calibration.
   // Thread-safe: several frames may be filtered at once.
   cv::Mat Spatial(const cv::Mat& frame);
-  // The detection image: gray, contrast-normalised.
-  cv::Mat DetectionImage(const cv::Mat& frame) const;
+  // The detection image: gray, reduced to `scale` of the frame, specks opened away,
+  // contrast-normalised.
+  cv::Mat DetectionImage(const cv::Mat& frame, double scale = 1.0) const;
   // The temporal term: `previous` (filtered, BGR) seen through current_to_previous.
   cv::Mat Temporal(const cv::Mat& current, const cv::Mat& previous,
                    const cv::Matx33d& current_to_previous) const;

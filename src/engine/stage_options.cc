@@ -7,6 +7,7 @@ FeatureOptions ToFeatureOptions(const MosaickerOptions& o) {
   f.type = o.features;
   f.max_features = o.max_features;
   f.detect_scale = o.detect_scale;
+  f.detect_pixels = o.detect_pixels;
   f.ratio = o.ratio;
   f.cross_check = o.cross_check;
   return f;

@@ -117,6 +117,9 @@ json SidecarToJson(const PatchSidecar& s) {
     if (f.bilateral_error) fj["bilateral_error"] = *f.bilateral_error;
     if (f.ecc_shift_px) fj["ecc_shift_px"] = *f.ecc_shift_px;
     if (f.frame_to_global) fj["frame_to_global"] = *f.frame_to_global;
+    if (f.registered_by) fj["registered_by"] = *f.registered_by;
+    if (f.doubtful) fj["doubtful"] = *f.doubtful;
+    if (f.patch_frames) fj["patch_frames"] = *f.patch_frames;
     frames.push_back(std::move(fj));
   }
   j["frames"] = std::move(frames);
@@ -134,6 +137,7 @@ json SidecarToJson(const PatchSidecar& s) {
   if (s.frame_size) j["frame_size"] = *s.frame_size;
   if (s.patch_to_global_online) j["patch_to_global_online"] = *s.patch_to_global_online;
   if (s.aligned) j["aligned"] = *s.aligned;
+  if (s.closed_by) j["closed_by"] = *s.closed_by;
   return j;
 }
 
@@ -176,9 +180,15 @@ PatchSidecar SidecarFromJson(const json& j, const std::string& where) {
     if (fr.Has("bilateral_error")) f.bilateral_error = fr.Number("bilateral_error");
     if (fr.Has("ecc_shift_px")) f.ecc_shift_px = fr.Number("ecc_shift_px");
     if (fr.Has("frame_to_global")) f.frame_to_global = ReadHomography(fr, "frame_to_global");
+    if (fr.Has("registered_by")) f.registered_by = fr.String("registered_by");
+    if (fr.Has("doubtful")) {
+      if (!fr.Get("doubtful").is_boolean()) Fail(fr.Where("doubtful"), "must be true or false");
+      f.doubtful = fr.Get("doubtful").get<bool>();
+    }
+    if (fr.Has("patch_frames")) f.patch_frames = static_cast<int>(fr.Int("patch_frames", 0, kMaxInt));
     f.extra = Extra(frames[i], {"index", "source", "frame_to_patch", "egomotion", "matches",
                                 "inliers", "ecc", "status", "bilateral_error", "ecc_shift_px",
-                                "frame_to_global"});
+                                "frame_to_global", "registered_by", "doubtful", "patch_frames"});
     s.frames.push_back(std::move(f));
   }
   const json& rejected = r.Get("rejected");
@@ -216,9 +226,10 @@ PatchSidecar SidecarFromJson(const json& j, const std::string& where) {
     if (!r.Get("aligned").is_boolean()) Fail(r.Where("aligned"), "must be true or false");
     s.aligned = r.Get("aligned").get<bool>();
   }
+  if (r.Has("closed_by")) s.closed_by = r.String("closed_by");
   s.extra = Extra(j, {"id", "size", "n_images", "offset", "first_homography", "last_homography",
                       "patch_to_global", "frames", "rejected", "link", "pixel_budget", "frame_size",
-                      "patch_to_global_online", "aligned"});
+                      "patch_to_global_online", "aligned", "closed_by"});
   return s;
 }
 

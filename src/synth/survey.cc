@@ -2,6 +2,7 @@
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <sstream>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -80,16 +81,30 @@ void BurnOverlay(cv::Mat& frame, int index) {
   }
 }
 
+// The ground the camera flies over: an image, several images one above the other, or the
+// procedural seafloor.
 class TextureSource {
  public:
   TextureSource(const SurveyOptions& o) : options_(o) {
     if (!o.texture.empty()) {
-      image_ = cv::imread(o.texture, cv::IMREAD_COLOR);
-      if (image_.empty()) Fail(o.texture, "cannot be read as an image");
-      size_ = image_.size();
-      // A path of fixed size (lawnmower with lanes) larger than the image flies over the image
-      // mirrored about its edges, as often as needed: no seam, and a mirrored view does not
-      // match the original in SIFT, so no false loops.
+      // "a.jpg,b.jpg": bands of ground from each image in turn, top to bottom.
+      std::stringstream list(o.texture);
+      for (std::string path; std::getline(list, path, ',');) {
+        if (path.empty()) continue;
+        cv::Mat image = cv::imread(path, cv::IMREAD_COLOR);
+        if (image.empty()) Fail(path, "cannot be read as an image");
+        images_.push_back(image);
+      }
+      if (images_.empty()) Fail(o.texture, "names no image");
+      size_ = images_[0].size();
+      for (size_t i = 1; i < images_.size(); ++i) {
+        size_.width = std::min(size_.width, images_[i].cols);
+        size_.height += images_[i].rows;
+      }
+      // A path of fixed size (lawnmower with lanes) larger than that flies over the images
+      // mirrored sideways and repeated downwards as often as needed. Mirrored only about
+      // vertical lines: mirrored both ways, the ground would be symmetric about points and match
+      // itself turned 180 degrees; and a mirrored view does not match the original in SIFT.
       const cv::Size2d extent = o.PathExtent();
       if (extent.width > 0) {
         const double margin = 2 * std::max(o.frame_width, o.frame_height) * o.gsd +
@@ -115,30 +130,37 @@ class TextureSource {
   cv::Size size() const { return size_; }
   // Pixels of the texture in `r` (may reach outside: black there).
   cv::Mat Window(const cv::Rect& r) const {
-    if (image_.empty()) return RenderSeafloor(r.x, r.y, r.width, r.height);
+    if (images_.empty()) return RenderSeafloor(r.x, r.y, r.width, r.height);
     cv::Mat out = cv::Mat::zeros(r.size(), CV_8UC3);
-    cv::Rect inside = r & cv::Rect(cv::Point(), size_);
-    if (inside.empty()) return out;
-    if (size_ == image_.size()) {
-      image_(inside).copyTo(out(inside - r.tl()));
-      return out;
-    }
-    // Mirrored tiling: texture x -> image column by reflection with period 2 * width.
-    auto mirror = [](int v, int n) {
-      const int m = v % (2 * n);
-      return m < n ? m : 2 * n - 1 - m;
-    };
+    const cv::Rect inside = r & cv::Rect(cv::Point(), size_);
     for (int y = inside.y; y < inside.y + inside.height; ++y) {
-      const cv::Vec3b* src = image_.ptr<cv::Vec3b>(mirror(y, image_.rows));
+      const auto [image, row] = RowAt(y);
+      const cv::Vec3b* src = image->ptr<cv::Vec3b>(row);
       cv::Vec3b* dst = out.ptr<cv::Vec3b>(y - r.y);
-      for (int x = inside.x; x < inside.x + inside.width; ++x) dst[x - r.x] = src[mirror(x, image_.cols)];
+      const int n = image->cols;
+      for (int x = inside.x; x < inside.x + inside.width; ++x) {
+        const int m = x % (2 * n);
+        dst[x - r.x] = src[m < n ? m : 2 * n - 1 - m];
+      }
     }
     return out;
   }
 
  private:
+  // The image and its row at texture row y: the images stacked, the stack repeated.
+  std::pair<const cv::Mat*, int> RowAt(int y) const {
+    int stack = 0;
+    for (const auto& im : images_) stack += im.rows;
+    y %= stack;
+    for (const auto& im : images_) {
+      if (y < im.rows) return {&im, y};
+      y -= im.rows;
+    }
+    return {&images_.back(), images_.back().rows - 1};
+  }
+
   SurveyOptions options_;
-  cv::Mat image_;
+  std::vector<cv::Mat> images_;
   cv::Size size_;
 };
 

@@ -1,0 +1,102 @@
+#include "engine/patch_adjustment.h"
+
+#include <algorithm>
+#include <map>
+
+namespace rolamos {
+
+bool PatchAdjustmentOptions::IsValid(std::string* error) const {
+  if (!solver.IsValid(error)) return false;
+  if (max_pairs_per_link < 8 || !(max_rms_px > 0)) {
+    *error = "patch adjustment needs at least 8 pairs a link and a positive error bound";
+    return false;
+  }
+  return true;
+}
+
+FrameLink Thin(FrameLink link, int max_pairs, cv::Size frame) {
+  if (static_cast<int>(link.in_a.size()) <= max_pairs) return link;
+  constexpr int kCells = 6;
+  std::vector<std::vector<size_t>> cells(kCells * kCells);
+  for (size_t i = 0; i < link.in_a.size(); ++i) {
+    const int cx = std::clamp(int(link.in_a[i].x * kCells / std::max(1, frame.width)), 0, kCells - 1);
+    const int cy = std::clamp(int(link.in_a[i].y * kCells / std::max(1, frame.height)), 0, kCells - 1);
+    cells[size_t(cy * kCells + cx)].push_back(i);
+  }
+  FrameLink out;
+  out.a = link.a;
+  out.b = link.b;
+  for (size_t round = 0; static_cast<int>(out.in_a.size()) < max_pairs; ++round) {
+    bool any = false;
+    for (const auto& c : cells) {
+      if (round >= c.size()) continue;
+      any = true;
+      out.in_a.push_back(link.in_a[c[round]]);
+      out.in_b.push_back(link.in_b[c[round]]);
+      if (static_cast<int>(out.in_a.size()) >= max_pairs) break;
+    }
+    if (!any) break;
+  }
+  return out;
+}
+
+PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<cv::Matx33d>& online,
+                            const std::vector<FrameLink>& links, double focal, cv::Size frame,
+                            const PatchAdjustmentOptions& o) {
+  PatchAdjustment out;
+  out.frame_to_patch = online;
+  if (!o.enabled) {
+    out.note = "off";
+    return out;
+  }
+  if (indices.size() < 3) {
+    out.note = "fewer than three frames";
+    return out;
+  }
+  std::map<int, int> slot;
+  for (size_t i = 0; i < indices.size(); ++i) slot[indices[i]] = static_cast<int>(i);
+  const cv::Matx33d K = CameraMatrix(focal, frame);
+  // Start: level cameras where the online placements put the frames; the first frame is the
+  // reference (its pixels are the plane's at the start).
+  std::vector<PlanePose> poses(indices.size());
+  for (size_t i = 0; i < indices.size(); ++i)
+    poses[i] = i == 0 ? ReferencePose(K) : LevelPoseFromHomography(online[i], K, frame);
+  std::vector<PlaneLink> plane_links;
+  for (const auto& l : links) {
+    auto a = slot.find(l.a), b = slot.find(l.b);
+    if (a == slot.end() || b == slot.end() || l.in_a.size() < 8) continue;
+    const FrameLink thin = Thin(l, o.max_pairs_per_link, frame);
+    PlaneLink p;
+    p.a = a->second;
+    p.b = b->second;
+    p.in_a = thin.in_a;
+    p.in_b = thin.in_b;
+    plane_links.push_back(std::move(p));
+  }
+  // Every frame must be tied to the others, or its pose is free.
+  std::vector<int> degree(indices.size(), 0);
+  for (const auto& l : plane_links) ++degree[size_t(l.a)], ++degree[size_t(l.b)];
+  for (size_t i = 0; i < indices.size(); ++i)
+    if (degree[i] == 0) {
+      out.note = "frame " + std::to_string(indices[i]) + " has no link";
+      return out;
+    }
+  double f = focal;
+  out.stats = AdjustPlanePoses(&poses, &f, frame, plane_links, 0, {}, {}, o.solver);
+  if (!out.stats.ok) {
+    out.note = "adjustment failed: " + out.stats.message;
+    return out;
+  }
+  if (!(out.stats.final_rms_px <= o.max_rms_px)) {
+    out.note = "transfer error " + std::to_string(out.stats.final_rms_px) + " px after adjustment";
+    return out;
+  }
+  out.poses = poses;
+  out.focal = f;
+  const cv::Matx33d Kf = CameraMatrix(f, frame);
+  for (size_t i = 0; i < indices.size(); ++i) out.frame_to_patch[i] = FrameToPlane(poses[i], Kf);
+  out.used = true;
+  return out;
+}
+
+}  // namespace rolamos

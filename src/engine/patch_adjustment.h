@@ -1,0 +1,48 @@
+// When a patch closes, its frames are placed once more, together: each as a camera pose over the
+// seafloor plane (geometry/plane_camera.h), adjusted to every link the engine found between them
+// (the frame before, the other patch frames under it). The online placements chain homographies
+// and bend along a lane; the adjusted ones do not. The patch image is then blended from the
+// adjusted placements, in the plane's coordinates (the first frame's pixel scale and heading).
+#pragma once
+
+#include <optional>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "engine/features.h"
+#include "engine/registration.h"
+#include "geometry/plane_adjustment.h"
+
+namespace rolamos {
+
+// At most `max_pairs` of a link's matches, spread over frame a (a grid of cells taken in turn):
+// enough to pin a pose, few enough for surveys of thousands of frames.
+FrameLink Thin(FrameLink link, int max_pairs, cv::Size frame);
+
+struct PatchAdjustmentOptions {
+  bool enabled = true;
+  PlaneAdjustmentOptions solver;
+  int max_pairs_per_link = 400;  // every pair counts: thinner links cost accuracy
+  double max_rms_px = 2.5;  // an adjustment that leaves a larger transfer error is not used
+
+  bool IsValid(std::string* error) const;
+};
+
+struct PatchAdjustment {
+  bool used = false;            // the adjusted placements replace the online ones
+  std::string note;             // why not, when not
+  std::vector<cv::Matx33d> frame_to_patch;  // per frame, in the order given
+  std::vector<PlanePose> poses;
+  double focal = 0;             // pixels: as given, or as refined
+  PlaneAdjustment stats;
+};
+
+// `indices` and `online` are the patch frames (sequence numbers, online frame -> patch
+// homographies, the first frame's being the identity); links refer to sequence numbers, and may
+// name frames outside the patch only if they are in `indices` too.
+PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<cv::Matx33d>& online,
+                            const std::vector<FrameLink>& links, double focal, cv::Size frame,
+                            const PatchAdjustmentOptions& options);
+
+}  // namespace rolamos

@@ -1,0 +1,89 @@
+// Registration of a new frame to the open patch, beyond the paper's frame-to-frame step:
+// - how well a registration is supported (inliers, their spread over the frame, a homography that
+//   is well conditioned and a plausible motion), so that the motion model arbitrates between
+//   candidates instead of vetoing a real change of course;
+// - guided matching against any frame of the patch, where the current estimate puts the features;
+// - the frame's placement fitted against every patch frame it overlaps (the paper aligns the
+//   observation to the existing mosaic), so that error does not accumulate from pair to pair.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "engine/egomotion.h"
+#include "engine/features.h"
+
+namespace rolamos {
+
+struct SupportOptions {
+  int strong_inliers = 40;      // at least this many homography inliers...
+  double min_spread = 0.06;     // ...covering this much of the frame (convex hull / frame area)
+  double max_scale_change = 1.6;   // singular values of the linear part within [1/x, x]
+  double max_anisotropy = 1.35;    // and their ratio below this
+  double max_perspective = 0.3;    // relative scale change across the frame from the projective terms
+
+  bool IsValid(std::string* error) const;
+};
+
+struct Support {
+  int inliers = 0;
+  double spread = 0;         // convex hull of the inliers / frame area
+  bool conditioned = false;  // a homography a camera over a plane can produce
+  bool strong = false;       // enough of everything to stand on its own
+  std::string weakness;      // why not strong
+};
+
+Support AssessSupport(const EgomotionResult& r, cv::Size frame, const SupportOptions& options);
+
+// Matches of `a`'s features among `b`'s near where `a_to_b` puts them (within `radius` pixels),
+// with the ratio test among those candidates only. Far cheaper than a full match and finds more.
+Matches MatchGuided(const Features& a, const Features& b, const cv::Matx33d& a_to_b, double radius,
+                    double ratio);
+
+// Matched pixels between two frames of the input (their sequence numbers).
+struct FrameLink {
+  int a = 0, b = 0;
+  std::vector<cv::Point2f> in_a, in_b;
+};
+
+// A frame of the open patch, as new frames are registered against it.
+struct PatchFrame {
+  int index = 0;
+  std::shared_ptr<const Features> features;
+  cv::Matx33d to_patch = cv::Matx33d::eye();
+};
+
+// Fraction of frame A (warped by a_to_patch) that frame B covers, both of `size`.
+double FootprintOverlap(const cv::Matx33d& a_to_patch, const cv::Matx33d& b_to_patch, cv::Size size);
+
+struct PatchFitOptions {
+  int max_frames = 6;            // patch frames the new one is fitted against, besides the previous
+  double min_overlap = 0.12;     // a patch frame is used when it covers this much of the new one
+  double search_radius = 12.0;   // guided matching radius, pixels
+  double ratio = 0.85;
+  double inlier_px = 2.0;        // final fit's outlier threshold
+  double max_correction_px = 12.0;  // a fit that moves the corners further is not trusted
+
+  bool IsValid(std::string* error) const;
+};
+
+struct PatchFit {
+  bool ok = false;
+  cv::Matx33d to_patch = cv::Matx33d::eye();
+  int frames = 0;    // patch frames that contributed (the previous one included)
+  int inliers = 0;
+  double correction_px = 0;  // how far the fit moved the corners from the guess
+  std::vector<FrameLink> links;  // the inlier matches with each patch frame (a = the new frame)
+};
+
+// The new frame's placement in the patch from its matches to the previous frame (`from_prev` in
+// the new frame, `to_prev` in the previous one) and to the other patch frames it overlaps.
+PatchFit FitToPatch(int index, const Features& frame, cv::Size size, const cv::Matx33d& guess,
+                    const PatchFrame& previous, const std::vector<cv::Point2f>& from_prev,
+                    const std::vector<cv::Point2f>& to_prev, const std::vector<PatchFrame>& patch,
+                    const PatchFitOptions& options);
+
+}  // namespace rolamos

@@ -1,0 +1,191 @@
+#include "geometry/plane_adjustment.h"
+
+#include <chrono>
+#include <cmath>
+
+#include <ceres/ceres.h>
+
+namespace rolamos {
+
+bool PlaneAdjustmentOptions::IsValid(std::string* error) const {
+  if (loss != "huber" && loss != "cauchy") {
+    *error = "loss \"" + loss + "\" is not huber or cauchy";
+    return false;
+  }
+  if (!(loss_px > 0) || max_iterations < 1 || !(max_tilt_deg > 0 && max_tilt_deg < 80) || threads < 1) {
+    *error = "plane adjustment settings are out of range (loss scale > 0, iterations >= 1, tilt limit in (0, 80))";
+    return false;
+  }
+  return true;
+}
+
+namespace {
+
+// World-to-camera rotation of a pose (yaw, pitch, roll), as plane_camera.cc, for Ceres's jets.
+template <typename T>
+void Rotation(const T* e, T R[9]) {
+  using std::cos;
+  using std::sin;
+  const T cy = cos(e[0]), sy = sin(e[0]), cp = cos(e[1]), sp = sin(e[1]), cr = cos(e[2]), sr = sin(e[2]);
+  // Rx(roll) * Ry(pitch) * Rz(yaw), multiplied out.
+  const T a[9] = {cp * cy, cp * sy, sp, -sy, cy, T(0), -sp * cy, -sp * sy, cp};  // Ry * Rz
+  R[0] = a[0];
+  R[1] = a[1];
+  R[2] = a[2];
+  R[3] = cr * a[3] - sr * a[6];
+  R[4] = cr * a[4] - sr * a[7];
+  R[5] = cr * a[5] - sr * a[8];
+  R[6] = sr * a[3] + cr * a[6];
+  R[7] = sr * a[4] + cr * a[7];
+  R[8] = sr * a[5] + cr * a[8];
+}
+
+// A pixel of frame a cast onto the plane and seen by b, against its match in b.
+struct Transfer {
+  Transfer(cv::Point2f pa, cv::Point2f pb, double cx, double cy, double w)
+      : pa(pa), pb(pb), cx(cx), cy(cy), w(w) {}
+  template <typename T>
+  bool operator()(const T* ea, const T* ca, const T* eb, const T* cb, const T* f, T* r) const {
+    T Ra[9], Rb[9];
+    Rotation(ea, Ra);
+    Rotation(eb, Rb);
+    const T v[3] = {(T(pa.x) - T(cx)) / f[0], (T(pa.y) - T(cy)) / f[0], T(1)};
+    T d[3];  // the ray in the world: Ra^T v
+    for (int k = 0; k < 3; ++k) d[k] = Ra[k] * v[0] + Ra[3 + k] * v[1] + Ra[6 + k] * v[2];
+    if (!(d[2] > T(1e-6))) return false;  // parallel to the plane or away from it
+    const T s = -ca[2] / d[2];
+    const T X[3] = {ca[0] + s * d[0] - cb[0], ca[1] + s * d[1] - cb[1], -cb[2]};
+    T c[3];
+    for (int k = 0; k < 3; ++k) c[k] = Rb[3 * k] * X[0] + Rb[3 * k + 1] * X[1] + Rb[3 * k + 2] * X[2];
+    if (!(c[2] > T(1e-6))) return false;
+    r[0] = T(w) * (f[0] * c[0] / c[2] + T(cx) - T(pb.x));
+    r[1] = T(w) * (f[0] * c[1] / c[2] + T(cy) - T(pb.y));
+    return true;
+  }
+  cv::Point2f pa, pb;
+  double cx, cy, w;
+};
+
+struct CentreResidual {
+  CentreResidual(const CentrePrior& p) : p(p) {}
+  template <typename T>
+  bool operator()(const T* c, T* r) const {
+    r[0] = (c[0] - T(p.xy.x)) / T(p.sigma_px);
+    r[1] = (c[1] - T(p.xy.y)) / T(p.sigma_px);
+    r[2] = p.altitude_px ? (-c[2] - T(*p.altitude_px)) / T(p.altitude_sigma_px) : T(0);
+    return true;
+  }
+  CentrePrior p;
+};
+
+}  // namespace
+
+double PlaneTransferRms(const std::vector<PlanePose>& poses, double focal, cv::Size frame,
+                        const std::vector<PlaneLink>& links) {
+  const cv::Matx33d K = CameraMatrix(focal, frame);
+  double sum = 0;
+  size_t n = 0;
+  for (const auto& l : links) {
+    const cv::Matx33d H = PlaneToFrame(poses[size_t(l.b)], K) * FrameToPlane(poses[size_t(l.a)], K);
+    for (size_t i = 0; i < l.in_a.size(); ++i) {
+      const cv::Vec3d q = H * cv::Vec3d(l.in_a[i].x, l.in_a[i].y, 1);
+      sum += std::pow(q[0] / q[2] - l.in_b[i].x, 2) + std::pow(q[1] / q[2] - l.in_b[i].y, 2);
+      ++n;
+    }
+  }
+  return n ? std::sqrt(sum / double(n)) : 0.0;
+}
+
+PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, cv::Size frame,
+                                 const std::vector<PlaneLink>& links, int anchor,
+                                 const std::vector<char>& held, const std::vector<CentrePrior>& priors,
+                                 const PlaneAdjustmentOptions& o) {
+  const auto start = std::chrono::steady_clock::now();
+  PlaneAdjustment result;
+  std::string error;
+  if (!o.IsValid(&error)) {
+    result.message = error;
+    return result;
+  }
+  const size_t n = poses->size();
+  std::vector<std::array<double, 3>> angles(n), centres(n);
+  for (size_t i = 0; i < n; ++i) {
+    const PlanePose& p = (*poses)[i];
+    angles[i] = {p.yaw, p.pitch, p.roll};
+    centres[i] = {p.centre[0], p.centre[1], p.centre[2]};
+  }
+  const double cx = (frame.width - 1) / 2.0, cy = (frame.height - 1) / 2.0;
+  result.initial_rms_px = PlaneTransferRms(*poses, *focal, frame, links);
+  ceres::Problem::Options po;
+  po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::Problem problem(po);
+  std::unique_ptr<ceres::LossFunction> loss;
+  if (o.loss == "cauchy") loss = std::make_unique<ceres::CauchyLoss>(o.loss_px);
+  else loss = std::make_unique<ceres::HuberLoss>(o.loss_px);
+  std::vector<char> used(n, 0);
+  for (const auto& l : links) {
+    if (l.a < 0 || l.b < 0 || size_t(l.a) >= n || size_t(l.b) >= n || l.a == l.b) continue;
+    for (size_t i = 0; i < l.in_a.size(); ++i) {
+      auto* cost = new ceres::AutoDiffCostFunction<Transfer, 2, 3, 3, 3, 3, 1>(
+          new Transfer(l.in_a[i], l.in_b[i], cx, cy, l.weight));
+      problem.AddResidualBlock(cost, loss.get(), angles[size_t(l.a)].data(), centres[size_t(l.a)].data(),
+                               angles[size_t(l.b)].data(), centres[size_t(l.b)].data(), focal);
+      ++result.residuals;
+    }
+    used[size_t(l.a)] = used[size_t(l.b)] = 1;
+  }
+  for (const auto& p : priors) {
+    if (p.frame < 0 || size_t(p.frame) >= n || !used[size_t(p.frame)]) continue;
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<CentreResidual, 3, 3>(new CentreResidual(p)),
+                             nullptr, centres[size_t(p.frame)].data());
+  }
+  if (result.residuals == 0) {
+    result.message = "no links to adjust";
+    return result;
+  }
+  const double tilt = o.max_tilt_deg * CV_PI / 180;
+  for (size_t i = 0; i < n; ++i) {
+    if (!used[i]) continue;
+    const bool hold = i < held.size() && held[i];
+    if (hold) {
+      problem.SetParameterBlockConstant(angles[i].data());
+      problem.SetParameterBlockConstant(centres[i].data());
+      continue;
+    }
+    if (int(i) == anchor && priors.empty()) {
+      problem.SetManifold(angles[i].data(), new ceres::SubsetManifold(3, {0}));
+      problem.SetParameterBlockConstant(centres[i].data());
+    }
+    for (int k = 1; k < 3; ++k) {
+      problem.SetParameterLowerBound(angles[i].data(), k, -tilt);
+      problem.SetParameterUpperBound(angles[i].data(), k, tilt);
+    }
+    problem.SetParameterUpperBound(centres[i].data(), 2, -1e-3);  // above the plane
+  }
+  if (!o.refine_focal) problem.SetParameterBlockConstant(focal);
+  ceres::Solver::Options so;
+  so.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
+  so.max_num_iterations = o.max_iterations;
+  so.num_threads = o.threads;
+  so.logging_type = ceres::SILENT;
+  ceres::Solver::Summary summary;
+  ceres::Solve(so, &problem, &summary);
+  result.iterations = static_cast<int>(summary.iterations.size());
+  result.ok = summary.IsSolutionUsable();
+  if (!result.ok) {
+    result.message = summary.message;
+    return result;
+  }
+  for (size_t i = 0; i < n; ++i) {
+    PlanePose& p = (*poses)[i];
+    p.yaw = angles[i][0];
+    p.pitch = angles[i][1];
+    p.roll = angles[i][2];
+    p.centre = cv::Vec3d(centres[i][0], centres[i][1], centres[i][2]);
+  }
+  result.final_rms_px = PlaneTransferRms(*poses, *focal, frame, links);
+  result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return result;
+}
+
+}  // namespace rolamos

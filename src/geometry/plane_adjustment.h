@@ -1,0 +1,69 @@
+// Bundle adjustment of camera poses over the seafloor plane (Ceres Solver): every pair of frames
+// that see the same ground contributes its matched pixels; a pixel of frame a, cast onto the plane
+// through a's pose and seen by b, must land on its match in b. A robust loss (Huber or Cauchy)
+// keeps a false match or a false loop from bending the map, and the sparse solver takes surveys
+// of thousands of frames. Used for each patch as it closes (the engine) and for the whole survey
+// (the global map), with navigation entering as weighted priors on the camera centres.
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "geometry/plane_camera.h"
+
+namespace rolamos {
+
+// Matched pixels between frames a and b (indices into the poses).
+struct PlaneLink {
+  int a = 0, b = 0;
+  std::vector<cv::Point2f> in_a, in_b;
+  double weight = 1.0;  // multiplies every residual of the link
+};
+
+// Where a frame's camera centre is known to be (navigation), in map pixels, with its standard
+// deviation; the altitude too when known.
+struct CentrePrior {
+  int frame = 0;
+  cv::Point2d xy;
+  double sigma_px = 1.0;
+  std::optional<double> altitude_px;
+  double altitude_sigma_px = 1.0;
+};
+
+struct PlaneAdjustmentOptions {
+  std::string loss = "huber";  // huber | cauchy: how residuals beyond loss_px are discounted
+  double loss_px = 1.0;
+  int max_iterations = 50;
+  bool refine_focal = false;   // the focal length as one more unknown, shared by all frames
+  double max_tilt_deg = 25.0;  // roll and pitch are held within this
+  int threads = 1;
+
+  bool IsValid(std::string* error) const;
+};
+
+struct PlaneAdjustment {
+  bool ok = false;
+  std::string message;        // Ceres's reason when not ok
+  int residuals = 0;          // matched pixel pairs used
+  double initial_rms_px = 0;  // transfer error before and after, frame pixels
+  double final_rms_px = 0;
+  int iterations = 0;
+  double seconds = 0;
+};
+
+// Adjusts `poses` (and `focal`, with refine_focal) to the links and priors. The gauge: without
+// priors, pose `anchor` keeps its centre and heading (its roll and pitch are adjusted: they are
+// measured against the plane); frames marked in `held` (may be empty) keep their whole pose.
+PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, cv::Size frame,
+                                 const std::vector<PlaneLink>& links, int anchor,
+                                 const std::vector<char>& held, const std::vector<CentrePrior>& priors,
+                                 const PlaneAdjustmentOptions& options);
+
+// RMS transfer error of the links under the poses (frame pixels), as the adjustment measures it.
+double PlaneTransferRms(const std::vector<PlanePose>& poses, double focal, cv::Size frame,
+                        const std::vector<PlaneLink>& links);
+
+}  // namespace rolamos
