@@ -38,7 +38,7 @@ KINDS = {
                  ["PHOTO4", "--width", "1920", "--height", "1080", "--fov", "90", "--frames", "120", "--lanes", "3",
                   "--overlap", "0.75", "--gsd", "0.6", "--attitude-jitter", "0.5"]),
     "small-degraded": ("lawnmower 640 x 480, 40 deg, strong degradations, no turns, 150 frames",
-                       ["PHOTO5", "--width", "640", "--height", "480", "--fov", "40", "--frames", "150", "--lanes", "5",
+                       ["PHOTO2", "--width", "640", "--height", "480", "--fov", "40", "--frames", "150", "--lanes", "5",
                         "--no-turns", "--overlap", "0.7", "--side-overlap", "0.4", "--gsd", "1.0", "--noise", "6",
                         "--particles", "150", "--backscatter", "0.2", "--vignetting", "0.6", "--jpeg", "75"] + JITTER),
     "overlay": ("lawnmower 800 x 600, 60 deg, burned-in timestamp and laser dots, 120 frames",

@@ -311,6 +311,7 @@ cv::Matx33d Mosaicker::Impl::ClosePatch(const std::string& why, const std::optio
     job.sidecar.extra["adjustment"] = {{"rms_px", adjusted.stats.final_rms_px},
                                        {"online_rms_px", adjusted.stats.initial_rms_px},
                                        {"links", static_cast<int>(all.size())},
+                                       {"links_dropped", adjusted.stats.links_dropped},
                                        {"focal_px", adjusted.focal}};
   } else if (adjust_options.enabled) {
     job.sidecar.extra["adjustment"] = {{"skipped", adjusted.note}};
@@ -600,12 +601,20 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
     PatchFit fit = FitToPatch(r.index, *features, m.frame_size, to_patch, anchor, from, to, m.patch_frames,
                               m.fit_options);
     if (!best.from_previous() && fit.ok) fit.frames = std::max(fit.frames, 1);
+    // The fit must leave the frame a motion a camera can make from the previous one.
+    if (fit.ok && !IsPlausibleMotion(m.prev.to_patch.inv() * fit.to_patch, m.frame_size, m.support_options))
+      fit.ok = false;
     if (fit.ok) {
       to_patch = fit.to_patch;
       fitted = fit.frames;
       fitted_links = std::move(fit.links);
     }
   }
+  if (fitted_links.empty()) fitted_links = best.Links(r.index);
+  // Loop closures within the patch (an earlier lane under this frame), for the adjustment.
+  if (m.adjust_options.enabled)
+    for (auto& l : LinkOlderFrames(r.index, *features, m.frame_size, to_patch, m.patch_frames, m.fit_options))
+      fitted_links.push_back(std::move(l));
   lap(Impl::kPatchFit);
   const FrameMotion motion = m.MotionFromPrevious(to_patch);
   const size_t frame_bytes = spatial.total() * spatial.elemSize();
@@ -618,7 +627,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
     Impl::Closing closing;
     closing.index = r.index;
     closing.to_patch = to_patch;
-    closing.links = fitted_links.empty() ? best.Links(r.index) : fitted_links;
+    closing.links = fitted_links;
     PatchLink join;
     join.previous_patch = old_id;
     join.to_previous = ToArray9(m.ClosePatch(memory_full ? "frame_memory" : "pixel_budget", closing));
@@ -646,7 +655,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
   }
   lap(Impl::kEcc);
   m.gate->Accept(motion);
-  m.Stitch(filtered, to_patch, features, r, fitted_links.empty() ? best.Links(r.index) : std::move(fitted_links));
+  m.Stitch(filtered, to_patch, features, r, std::move(fitted_links));
   m.prev = m.patch_frames.back();
   m.prev_filtered = filtered;
   m.lost = 0;

@@ -71,29 +71,32 @@ Support AssessSupport(const EgomotionResult& r, cv::Size frame, const SupportOpt
     cv::convexHull(r.inlier_from, hull);
     s.spread = cv::contourArea(hull) / std::max(1.0, double(frame.area()));
   }
+  s.conditioned = IsPlausibleMotion(r.H, frame, o);
+  if (s.inliers < o.strong_inliers) s.weakness = "few_inliers";
+  else if (s.spread < o.min_spread) s.weakness = "clustered_inliers";
+  else if (!s.conditioned) s.weakness = "implausible_homography";
+  s.strong = s.weakness.empty();
+  return s;
+}
+
+bool IsPlausibleMotion(const cv::Matx33d& H, cv::Size frame, const SupportOptions& o) {
   // A camera over a roughly flat seafloor: no mirror, scale and shear within bounds, and the
   // projective terms changing the scale across the frame only a little.
   const cv::Point2d c((frame.width - 1) / 2.0, (frame.height - 1) / 2.0);
-  const cv::Matx22d J = Jacobian(r.H, c);
+  const cv::Matx22d J = Jacobian(H, c);
   cv::Mat w;
   cv::SVD::compute(cv::Mat(J), w, cv::SVD::NO_UV);
   const double s1 = w.at<double>(0), s2 = w.at<double>(1);
   const double det = cv::determinant(J);
   double min_det = std::numeric_limits<double>::max(), max_det = 0;
   for (const auto& p : Corners(frame)) {
-    const double d = cv::determinant(Jacobian(r.H, p));
+    const double d = cv::determinant(Jacobian(H, p));
     min_det = std::min(min_det, d);
     max_det = std::max(max_det, d);
   }
   const bool finite = std::isfinite(s1) && std::isfinite(s2) && s2 > 1e-9;
-  s.conditioned = finite && det > 0 && min_det > 0 && s1 < o.max_scale_change &&
-                  s2 > 1.0 / o.max_scale_change && s1 / s2 < o.max_anisotropy &&
-                  std::sqrt(max_det / min_det) - 1.0 < o.max_perspective;
-  if (s.inliers < o.strong_inliers) s.weakness = "few_inliers";
-  else if (s.spread < o.min_spread) s.weakness = "clustered_inliers";
-  else if (!s.conditioned) s.weakness = "implausible_homography";
-  s.strong = s.weakness.empty();
-  return s;
+  return finite && det > 0 && min_det > 0 && s1 < o.max_scale_change && s2 > 1.0 / o.max_scale_change &&
+         s1 / s2 < o.max_anisotropy && std::sqrt(max_det / min_det) - 1.0 < o.max_perspective;
 }
 
 Matches MatchGuided(const Features& a, const Features& b, const cv::Matx33d& a_to_b, double radius,
@@ -163,6 +166,39 @@ double FootprintOverlap(const cv::Matx33d& a_to_patch, const cv::Matx33d& b_to_p
   return std::max(0.0, double(common)) / area;
 }
 
+std::vector<FrameLink> LinkOlderFrames(int index, const Features& frame, cv::Size size,
+                                       const cv::Matx33d& to_patch, const std::vector<PatchFrame>& patch,
+                                       const PatchFitOptions& o) {
+  std::vector<FrameLink> out;
+  if (patch.size() <= size_t(o.recent_frames)) return out;
+  std::vector<std::pair<double, const PatchFrame*>> under;
+  for (size_t k = 0; k + size_t(o.recent_frames) < patch.size(); ++k) {
+    const PatchFrame& f = patch[k];
+    if (!f.features) continue;
+    const double overlap = FootprintOverlap(to_patch, f.to_patch, size);
+    if (overlap >= 2 * o.min_overlap) under.emplace_back(overlap, &f);
+  }
+  std::sort(under.begin(), under.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
+  for (const auto& [overlap, f] : under) {
+    if (static_cast<int>(out.size()) >= o.max_loop_frames) break;
+    const Matches m = MatchGuided(frame, *f->features, f->to_patch.inv() * to_patch, o.loop_radius, o.ratio);
+    if (m.from.size() < 20) continue;
+    std::vector<uchar> inlier;
+    const cv::Mat H = cv::findHomography(m.from, m.to, cv::RANSAC, 3.0, inlier, 2000, 0.999);
+    if (H.empty()) continue;
+    FrameLink l;
+    l.a = index;
+    l.b = f->index;
+    for (size_t i = 0; i < inlier.size(); ++i)
+      if (inlier[i]) {
+        l.in_a.push_back(m.from[i]);
+        l.in_b.push_back(m.to[i]);
+      }
+    if (l.in_a.size() >= 20) out.push_back(std::move(l));
+  }
+  return out;
+}
+
 PatchFit FitToPatch(int index, const Features& frame, cv::Size size, const cv::Matx33d& guess,
                     const PatchFrame& previous, const std::vector<cv::Point2f>& from_prev,
                     const std::vector<cv::Point2f>& to_prev, const std::vector<PatchFrame>& patch,
@@ -180,9 +216,11 @@ PatchFit FitToPatch(int index, const Features& frame, cv::Size size, const cv::M
   };
   for (size_t i = 0; i < from_prev.size(); ++i) add(from_prev[i], previous.to_patch, to_prev[i], previous.index);
   fit.frames = from_prev.empty() ? 0 : 1;
-  // The other patch frames under the new one, most overlap first.
+  // The other recent patch frames under the new one, most overlap first.
   std::vector<std::pair<double, const PatchFrame*>> under;
-  for (const auto& f : patch) {
+  const size_t first_recent = patch.size() > size_t(o.recent_frames) ? patch.size() - size_t(o.recent_frames) : 0;
+  for (size_t k = first_recent; k < patch.size(); ++k) {
+    const PatchFrame& f = patch[k];
     if (f.index == previous.index || !f.features) continue;
     const double overlap = FootprintOverlap(guess, f.to_patch, size);
     if (overlap >= o.min_overlap) under.emplace_back(overlap, &f);

@@ -37,6 +37,8 @@ struct Support {
 };
 
 Support AssessSupport(const EgomotionResult& r, cv::Size frame, const SupportOptions& options);
+// Whether H (frame -> frame) is a motion a camera over a roughly flat seafloor can make.
+bool IsPlausibleMotion(const cv::Matx33d& H, cv::Size frame, const SupportOptions& options);
 
 // Matches of `a`'s features among `b`'s near where `a_to_b` puts them (within `radius` pixels),
 // with the ratio test among those candidates only. Far cheaper than a full match and finds more.
@@ -61,6 +63,12 @@ double FootprintOverlap(const cv::Matx33d& a_to_patch, const cv::Matx33d& b_to_p
 
 struct PatchFitOptions {
   int max_frames = 6;            // patch frames the new one is fitted against, besides the previous
+  // Only the patch's most recent frames place a new one online: older ones (an earlier lane)
+  // may have drifted against them, and pulling the frame towards both would distort it. The
+  // older frames it overlaps are linked to it for the adjustment at closing instead.
+  int recent_frames = 6;
+  double loop_radius = 48.0;     // guided matching radius against the older frames, pixels
+  int max_loop_frames = 2;
   double min_overlap = 0.12;     // a patch frame is used when it covers this much of the new one
   double search_radius = 12.0;   // guided matching radius, pixels
   double ratio = 0.85;
@@ -78,6 +86,13 @@ struct PatchFit {
   double correction_px = 0;  // how far the fit moved the corners from the guess
   std::vector<FrameLink> links;  // the inlier matches with each patch frame (a = the new frame)
 };
+
+// Links of a new frame (placed at `to_patch`) with the older patch frames under it (not among the
+// recent ones), each verified by a RANSAC homography: loop closures within the patch, for the
+// adjustment when it closes.
+std::vector<FrameLink> LinkOlderFrames(int index, const Features& frame, cv::Size size,
+                                       const cv::Matx33d& to_patch, const std::vector<PatchFrame>& patch,
+                                       const PatchFitOptions& options);
 
 // The new frame's placement in the patch from its matches to the previous frame (`from_prev` in
 // the new frame, `to_prev` in the previous one) and to the other patch frames it overlaps.

@@ -1,6 +1,7 @@
 #include "geometry/plane_adjustment.h"
 
 #include <chrono>
+#include <algorithm>
 #include <cmath>
 
 #include <ceres/ceres.h>
@@ -96,17 +97,14 @@ double PlaneTransferRms(const std::vector<PlanePose>& poses, double focal, cv::S
   return n ? std::sqrt(sum / double(n)) : 0.0;
 }
 
-PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, cv::Size frame,
-                                 const std::vector<PlaneLink>& links, int anchor,
-                                 const std::vector<char>& held, const std::vector<CentrePrior>& priors,
-                                 const PlaneAdjustmentOptions& o) {
-  const auto start = std::chrono::steady_clock::now();
+namespace {
+
+// One solve over the links not dropped.
+PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size frame,
+                          const std::vector<PlaneLink>& links, const std::vector<char>& dropped, int anchor,
+                          const std::vector<char>& held, const std::vector<CentrePrior>& priors,
+                          const PlaneAdjustmentOptions& o) {
   PlaneAdjustment result;
-  std::string error;
-  if (!o.IsValid(&error)) {
-    result.message = error;
-    return result;
-  }
   const size_t n = poses->size();
   std::vector<std::array<double, 3>> angles(n), centres(n);
   for (size_t i = 0; i < n; ++i) {
@@ -115,7 +113,6 @@ PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, c
     centres[i] = {p.centre[0], p.centre[1], p.centre[2]};
   }
   const double cx = (frame.width - 1) / 2.0, cy = (frame.height - 1) / 2.0;
-  result.initial_rms_px = PlaneTransferRms(*poses, *focal, frame, links);
   ceres::Problem::Options po;
   po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   ceres::Problem problem(po);
@@ -123,8 +120,9 @@ PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, c
   if (o.loss == "cauchy") loss = std::make_unique<ceres::CauchyLoss>(o.loss_px);
   else loss = std::make_unique<ceres::HuberLoss>(o.loss_px);
   std::vector<char> used(n, 0);
-  for (const auto& l : links) {
-    if (l.a < 0 || l.b < 0 || size_t(l.a) >= n || size_t(l.b) >= n || l.a == l.b) continue;
+  for (size_t k = 0; k < links.size(); ++k) {
+    const PlaneLink& l = links[k];
+    if (dropped[k] || l.a < 0 || l.b < 0 || size_t(l.a) >= n || size_t(l.b) >= n || l.a == l.b) continue;
     for (size_t i = 0; i < l.in_a.size(); ++i) {
       auto* cost = new ceres::AutoDiffCostFunction<Transfer, 2, 3, 3, 3, 3, 1>(
           new Transfer(l.in_a[i], l.in_b[i], cx, cy, l.weight));
@@ -183,7 +181,73 @@ PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, c
     p.roll = angles[i][2];
     p.centre = cv::Vec3d(centres[i][0], centres[i][1], centres[i][2]);
   }
-  result.final_rms_px = PlaneTransferRms(*poses, *focal, frame, links);
+  return result;
+}
+
+double LinkRms(const std::vector<PlanePose>& poses, double focal, cv::Size frame, const PlaneLink& l) {
+  return PlaneTransferRms(poses, focal, frame, {l});
+}
+
+}  // namespace
+
+PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, cv::Size frame,
+                                 const std::vector<PlaneLink>& links, int anchor,
+                                 const std::vector<char>& held, const std::vector<CentrePrior>& priors,
+                                 const PlaneAdjustmentOptions& o) {
+  const auto start = std::chrono::steady_clock::now();
+  PlaneAdjustment result;
+  std::string error;
+  if (!o.IsValid(&error)) {
+    result.message = error;
+    return result;
+  }
+  result.initial_rms_px = PlaneTransferRms(*poses, *focal, frame, links);
+  result.dropped.assign(links.size(), 0);
+  const size_t n = poses->size();
+  for (int round = 0;; ++round) {
+    PlaneAdjustment r = SolveOnce(poses, focal, frame, links, result.dropped, anchor, held, priors, o);
+    result.ok = r.ok;
+    result.message = r.message;
+    result.residuals = r.residuals;
+    result.iterations += r.iterations;
+    if (!r.ok || o.drop_link_px <= 0 || round + 1 >= o.rounds) break;
+    // The worst links beyond the bound go, if every frame keeps another link.
+    std::vector<int> degree(n, 0);
+    std::vector<std::pair<double, size_t>> bad;
+    for (size_t k = 0; k < links.size(); ++k) {
+      if (result.dropped[k]) continue;
+      ++degree[size_t(links[k].a)];
+      ++degree[size_t(links[k].b)];
+      const double rms = LinkRms(*poses, *focal, frame, links[k]);
+      if (rms > o.drop_link_px) bad.emplace_back(rms, k);
+    }
+    if (bad.empty()) break;
+    // Only the links far worse than the typical one, and a few at a time: when much is wrong,
+    // the solution is, not the links.
+    std::vector<double> all_rms;
+    for (size_t k = 0; k < links.size(); ++k)
+      if (!result.dropped[k]) all_rms.push_back(LinkRms(*poses, *focal, frame, links[k]));
+    std::nth_element(all_rms.begin(), all_rms.begin() + all_rms.size() / 2, all_rms.end());
+    const double typical = all_rms[all_rms.size() / 2];
+    bad.erase(std::remove_if(bad.begin(), bad.end(), [&](const auto& b) { return b.first < 4 * typical; }), bad.end());
+    std::sort(bad.rbegin(), bad.rend());
+    bad.resize(std::min(bad.size(), std::max<size_t>(1, all_rms.size() / 10)));
+    int dropped_now = 0;
+    for (const auto& [rms, k] : bad) {
+      const PlaneLink& l = links[k];
+      if (degree[size_t(l.a)] <= 1 || degree[size_t(l.b)] <= 1) continue;
+      --degree[size_t(l.a)];
+      --degree[size_t(l.b)];
+      result.dropped[k] = 1;
+      ++result.links_dropped;
+      ++dropped_now;
+    }
+    if (dropped_now == 0) break;
+  }
+  std::vector<PlaneLink> kept;
+  for (size_t k = 0; k < links.size(); ++k)
+    if (!result.dropped[k]) kept.push_back(links[k]);
+  result.final_rms_px = PlaneTransferRms(*poses, *focal, frame, kept);
   result.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return result;
 }

@@ -40,6 +40,11 @@ struct PlaneAdjustmentOptions {
   bool refine_focal = false;   // the focal length as one more unknown, shared by all frames
   double max_tilt_deg = 25.0;  // roll and pitch are held within this
   int threads = 1;
+  // A link whose matches stay further apart than this after a solve (RMS, frame pixels) is taken
+  // for a false one and dropped, and the poses solved again (up to `rounds` times): a wrong
+  // registration must not bend everything around it. 0 = keep every link.
+  double drop_link_px = 4.0;
+  int rounds = 3;
 
   bool IsValid(std::string* error) const;
 };
@@ -51,6 +56,8 @@ struct PlaneAdjustment {
   double initial_rms_px = 0;  // transfer error before and after, frame pixels
   double final_rms_px = 0;
   int iterations = 0;
+  int links_dropped = 0;
+  std::vector<char> dropped;  // per link given: dropped as false
   double seconds = 0;
 };
 
