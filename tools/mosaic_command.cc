@@ -26,6 +26,7 @@ static int RunMosaic(MosaicSwitches s) {
   o.clahe = !s.no_clahe;
   o.fundamental = !s.no_fundamental;
   o.kalman = !s.no_kalman;
+  if (o.mask == "none") o.mask.clear();
   o.recover = !s.no_recover;
   o.patch_fit = !s.no_patch_fit;
   o.adjust_patches = !s.no_adjust;
@@ -47,6 +48,7 @@ static int RunMosaic(MosaicSwitches s) {
   });
   progress.Done();
   if (!sum.calibration_note.empty()) std::printf("%s\n", sum.calibration_note.c_str());
+  if (!sum.mask_note.empty()) std::printf("%s\n", sum.mask_note.c_str());
   std::printf("%s: %d frames, %d stitched (%d on a second chance), %d rejected, %d patches, %.1f s (%.1f frames/s), "
               "peak memory %.0f MiB\n",
               s.output.c_str(), sum.frames, sum.stitched, sum.recovered, sum.rejected, sum.patches, sum.seconds,
@@ -70,6 +72,11 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
   auto* cmd = app.add_subcommand("mosaic", "Mosaic frames (folder, list or video) into a store, online");
   cmd->add_option("input", s->input, "folder of frames, .txt list of frames, or a video")->required();
   cmd->add_option("-o,--output", s->output, "store to create (or add to)")->required();
+  cmd->add_option("--mask", o.mask,
+                  "static overlays to leave out of matching and blending: an image of the frames' size, white where "
+                  "the frames hold a fixed overlay (timestamp, laser dots); \"auto\" finds them in the first frames "
+                  "and writes <store>/static_mask.png; \"none\" for no mask")
+      ->capture_default_str();
   cmd->add_option("--calibration", o.calibration,
                   "OpenCV calibration file (YAML/XML/JSON), or \"auto\" to estimate radial "
                   "distortion from the first frames");

@@ -29,6 +29,10 @@ struct MosaickerOptions {
   bool bilateral = true;
   bool temporal = true;
   bool clahe = true;            // detection image only
+  // Static overlays (timestamp, laser dots, housing) left out of matching, ECC and blending:
+  // an image of the frames' size, white where the frames hold a fixed overlay; "" = none;
+  // "auto" = found from the first frames (MosaicInput writes it to <store>/static_mask.png).
+  std::string mask = "auto";
   // 2. Egomotion
   std::string features = "sift";  // sift | orb | akaze
   int max_features = 1000;
@@ -101,6 +105,7 @@ struct MosaicSummary {
   // Time spent in each stage, summed over frames (seconds): where the time goes.
   std::vector<std::pair<std::string, double>> stage_seconds;
   std::string calibration_note;  // what --calibration auto found, when used
+  std::string mask_note;         // what --mask auto found, when used
 };
 
 class Mosaicker {

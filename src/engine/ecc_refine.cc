@@ -55,7 +55,7 @@ cv::Mat HighPass(const cv::Mat& gray, const cv::Mat& mask, double sigma) {
 }  // namespace
 
 EccResult RefineWithEcc(const cv::Mat& frame_gray, const cv::Matx33d& frame_to_patch,
-                        const PatchCanvas& canvas, const EccOptions& o) {
+                        const PatchCanvas& canvas, const EccOptions& o, const cv::Mat& frame_mask) {
   EccResult r;
   r.frame_to_patch = frame_to_patch;
   if (!o.enabled || canvas.empty()) return r;
@@ -79,6 +79,13 @@ EccResult RefineWithEcc(const cv::Mat& frame_gray, const cv::Matx33d& frame_to_p
     const double sigma = std::max(4.0, 0.04 * templ.cols);
     cv::Mat full(templ.size(), CV_8U, cv::Scalar(255));
     cv::Mat templ_hp = HighPass(templ, full, sigma), input_hp = HighPass(input, mask, sigma);
+    if (!frame_mask.empty()) {  // overlays fixed in the frame: flat, they pull nothing
+      cv::Mat usable;
+      cv::resize(frame_mask, usable, templ.size(), 0, 0, cv::INTER_AREA);
+      cv::erode(usable, usable, cv::Mat(), cv::Point(-1, -1), 2);
+      usable.convertTo(usable, CV_32F, 1.0 / 255);
+      templ_hp = templ_hp.mul(usable);
+    }
     if (cv::countNonZero(mask) < static_cast<int>(mask.total() / 10)) return r;  // little overlap
     if (level < o.levels - 1) {  // carry the coarser estimate to this level
       W.at<float>(0, 2) *= 2;

@@ -31,7 +31,9 @@ struct EccResult {
 };
 
 // `frame_gray` is the frame (8-bit gray, full res); `frame_to_patch` the feature estimate.
+// `frame_mask` (optional, the frame's size, non-zero = usable) leaves static overlays out.
 EccResult RefineWithEcc(const cv::Mat& frame_gray, const cv::Matx33d& frame_to_patch,
-                        const PatchCanvas& canvas, const EccOptions& options);
+                        const PatchCanvas& canvas, const EccOptions& options,
+                        const cv::Mat& frame_mask = cv::Mat());
 
 }  // namespace rolamos

@@ -97,6 +97,8 @@ Features FeatureExtractor::ExtractScaled(const cv::Mat& small, double scale, con
     keypoints.swap(kept);
     f.descriptors = d;
   }
+  for (const auto& k : keypoints)
+    f.strong += options_.type != "sift" || k.response >= options_.min_response;
   // Keypoint centres at the reduced scale back to full-resolution pixel coordinates.
   const float s = static_cast<float>(1.0 / scale);
   const float shift = 0.5f * (s - 1.0f);

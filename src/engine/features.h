@@ -22,6 +22,7 @@ struct FeatureOptions {
   // SIFT's contrast threshold: low, so that dark and hazy seafloor still yields features; the
   // strongest `max_features` are kept.
   double contrast_threshold = 0.005;
+  double min_response = 0.008;  // what counts as a strong feature (SIFT's response)
   double ratio = 0.8;         // Lowe's ratio test
   bool cross_check = true;
 
@@ -34,6 +35,10 @@ struct Features {
   std::vector<cv::Point2f> points;  // in full-resolution frame pixels
   cv::Mat descriptors;
   int norm = cv::NORM_L2;  // or cv::NORM_HAMMING (ORB, AKAZE: binary descriptors)
+  // Features that stand out from sensor noise (SIFT response >= FeatureOptions::min_response):
+  // a frame of open water or a black frame yields plenty of features at a low threshold, but no
+  // strong ones.
+  int strong = 0;
   bool empty() const { return points.empty(); }
 };
 

@@ -10,6 +10,11 @@
 #include "engine/frame_source.h"
 #include "engine/prepared_frame.h"
 #include "engine/self_calibration.h"
+#include "engine/preprocess.h"
+#include "engine/static_mask.h"
+#include "util/files.h"
+
+#include <opencv2/imgcodecs.hpp>
 #include "engine/stage_options.h"
 #include "rolamos/error.hpp"
 #include "rolamos/mosaicker.hpp"
@@ -34,13 +39,45 @@ MosaickerOptions AutoCalibrate(const std::string& input, const Store& store,
   return options;
 }
 
+// Automatic overlay mask: fixed overlays found in the first frames (as the engine will see them,
+// undistorted), written into the store as an image the user can look at, edit and give back.
+MosaickerOptions AutoMask(const std::string& input, const Store& store, MosaickerOptions options,
+                          std::string* note) {
+  StaticMaskOptions mo;
+  auto source = FrameSource::Open(input);
+  Preprocessor pre(ToPreprocessOptions(options));
+  std::vector<cv::Mat> frames;
+  InputFrame f;
+  for (int read = 0; static_cast<int>(frames.size()) < mo.frames && read < 3 * mo.frames && source->Next(&f); ++read) {
+    if (f.image.empty()) continue;
+    try {
+      frames.push_back(pre.Spatial(f.image));
+    } catch (const Error&) {
+      // A frame the calibration does not fit is the engine's to report.
+    }
+  }
+  const StaticMask found = EstimateStaticMask(frames, mo);
+  *note = "mask auto: " + found.note;
+  options.mask = "";
+  if (!found.mask.empty()) {
+    const std::string path = store.dir() + "/static_mask.png";
+    std::vector<uchar> png;
+    cv::imencode(".png", found.mask, png);
+    WriteFileAtomic(path, std::string(png.begin(), png.end()));
+    options.mask = path;
+    *note += "; written to " + path;
+  }
+  return options;
+}
+
 }  // namespace
 
 MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& given,
                           const std::function<void(const FrameReport&, int)>& on_frame) {
   std::string note;
-  const MosaickerOptions options =
-      given.calibration == "auto" ? AutoCalibrate(input, store, given, &note) : given;
+  MosaickerOptions options = given.calibration == "auto" ? AutoCalibrate(input, store, given, &note) : given;
+  std::string mask_note;
+  if (options.mask == "auto") options = AutoMask(input, store, options, &mask_note);
   auto source = FrameSource::Open(input);
   Mosaicker mosaicker(store, options);
   // Frames are prepared (decoded, filtered, features found and matched to the frame before) by
@@ -138,6 +175,7 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
   if (failure) std::rethrow_exception(failure);
   MosaicSummary summary = mosaicker.Finish();
   summary.calibration_note = note;
+  summary.mask_note = mask_note;
   return summary;
 }
 

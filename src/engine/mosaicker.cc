@@ -1,6 +1,7 @@
 #include "rolamos/mosaicker.hpp"
 
 #include <algorithm>
+#include <filesystem>
 #include <chrono>
 #include <deque>
 #include <atomic>
@@ -20,6 +21,7 @@
 #include "engine/preprocess.h"
 #include "engine/patch_adjustment.h"
 #include "engine/registration.h"
+#include "engine/static_mask.h"
 #include "engine/stage_options.h"
 #include "rolamos/error.hpp"
 #include "util/homography.h"
@@ -29,6 +31,10 @@ namespace rolamos {
 
 
 namespace {
+
+// The working canvas (refinement and recovery against the patch) at half resolution: a quarter
+// of the blending work; the patch image is blended at full resolution when it closes.
+constexpr double kWorkingScale = 0.5;
 
 // Largest distance between where two homographies put the frame's corners.
 double MaxCornerShift(const cv::Matx33d& a, const cv::Matx33d& b, cv::Size s) {
@@ -54,6 +60,10 @@ bool MosaickerOptions::IsValid(std::string* error) const {
   }
   if (!(patch_megapixels >= 0.1 && patch_megapixels <= 2000)) {
     *error = "patch budget " + std::to_string(patch_megapixels) + " megapixels is outside 0.1..2000";
+    return false;
+  }
+  if (mask != "" && mask != "auto" && !std::filesystem::exists(mask)) {
+    *error = "static overlay mask \"" + mask + "\" does not exist";
     return false;
   }
   if (!(patch_frames_mb >= 16)) {
@@ -97,6 +107,9 @@ struct Mosaicker::Impl {
   cv::Size frame_size;
   cv::Matx33d K = cv::Matx33d::eye();
   std::shared_ptr<const FeatherCode> weights;
+  // Static overlays: 255 where the frame is usable (full size), and at the detection scale.
+  std::mutex mask_mutex;
+  cv::Mat usable, usable_small;
   std::unique_ptr<MotionGate> gate;
 
   // The patch in progress.
@@ -117,7 +130,6 @@ struct Mosaicker::Impl {
   // The last stitched frame: what the next one is registered to.
   PatchFrame prev;
   std::shared_ptr<const Features> last_prepared;      // Push: of the last frame with features
-  cv::Mat prev_filtered;
   int lost = 0;
   // Frames rejected while this patch is open, kept for a second chance against later frames.
   struct Pending {
@@ -128,7 +140,7 @@ struct Mosaicker::Impl {
   MosaicSummary summary;
   // Stage timers, in the order of the pipeline.
   enum Stage { kPreprocess, kDetectImage, kFeatures, kMatching, kEgomotion, kRecovery, kPatchFit,
-               kTemporal, kEcc, kBlend, kStages };
+               kEcc, kBlend, kAdjust, kStages };
   // Prepare runs on several threads at once: nanoseconds, added atomically.
   std::atomic<long long> stage_ns[kStages] = {};
   struct Laps {
@@ -176,18 +188,19 @@ struct Mosaicker::Impl {
     std::vector<FrameLink> links;
   };
 
-  void StartPatch(const PreparedFrame& p, const cv::Mat& filtered, const std::optional<PatchLink>& join);
+  void StartPatch(const PreparedFrame& p, const std::optional<PatchLink>& join);
   // Hands the patch to the writer; returns first-frame coordinates -> patch image pixels.
   // Returns the closing frame's pixels -> the patch image's pixels (when `closing` is given).
   cv::Matx33d ClosePatch(const std::string& why, const std::optional<Closing>& closing = std::nullopt);
-  void Stitch(const cv::Mat& filtered, const cv::Matx33d& to_patch,
+  void Stitch(const cv::Mat& image, const cv::Matx33d& to_patch,
               const std::shared_ptr<const Features>& f, const FrameReport& report,
               std::vector<FrameLink> found = {});
   FrameReport Reject(FrameReport r, const std::string& reason);
   Candidate Register(const Matches& matches, const cv::Matx33d& target_to_patch, const std::string& by,
                      int target);
   // The frame against the patch's other frames and the patch image, when the previous one failed.
-  std::vector<Candidate> Recover(const PreparedFrame& p, Laps& lap);
+  // `current`: the registration against the previous frame, if any.
+  std::vector<Candidate> Recover(const PreparedFrame& p, const Candidate* current, Laps& lap);
   void SecondChance(Laps& lap);
   FrameMotion MotionFromPrevious(const cv::Matx33d& to_patch) const {
     return MotionOf(prev.to_patch.inv() * to_patch, frame_size);
@@ -203,9 +216,8 @@ FrameReport Mosaicker::Impl::Reject(FrameReport r, const std::string& reason) {
   return r;
 }
 
-void Mosaicker::Impl::StartPatch(const PreparedFrame& p, const cv::Mat& filtered,
-                                 const std::optional<PatchLink>& join) {
-  canvas = std::make_unique<PatchCanvas>(options.PixelBudget());
+void Mosaicker::Impl::StartPatch(const PreparedFrame& p, const std::optional<PatchLink>& join) {
+  canvas = std::make_unique<PatchCanvas>(options.PixelBudget(), kWorkingScale);
   patch_id = next_patch_id++;
   data_bounds = cv::Rect2d();
   frames.clear();
@@ -218,18 +230,16 @@ void Mosaicker::Impl::StartPatch(const PreparedFrame& p, const cv::Mat& filtered
   gate->Reset();
   prev = PatchFrame{};
   prev.features = p.own;
-  prev_filtered = filtered;
 }
 
-void Mosaicker::Impl::Stitch(const cv::Mat& filtered, const cv::Matx33d& to_patch,
+void Mosaicker::Impl::Stitch(const cv::Mat& image, const cv::Matx33d& to_patch,
                              const std::shared_ptr<const Features>& f, const FrameReport& report,
                              std::vector<FrameLink> found) {
-  canvas->Add(filtered, *weights, to_patch);
-  if (adjust_options.enabled) {
-    images.push_back(filtered);
-    image_bytes += filtered.total() * filtered.elemSize();
+  canvas->Add(image, *weights, to_patch);
+  images.push_back(image);
+  image_bytes += image.total() * image.elemSize();
+  if (adjust_options.enabled)
     for (auto& l : found) links.push_back(Thin(std::move(l), adjust_options.max_pairs_per_link, frame_size));
-  }
   const cv::Rect2d b = PatchCanvas::FrameBounds(to_patch, frame_size);
   data_bounds = data_bounds.area() > 0 ? (data_bounds | b) : b;
   FrameRecord rec;
@@ -273,8 +283,10 @@ cv::Matx33d Mosaicker::Impl::ClosePatch(const std::string& why, const std::optio
     for (const auto& l : closing->links) all.push_back(Thin(l, adjust_options.max_pairs_per_link, frame_size));
   }
   PatchAdjustment adjusted;
-  if (adjust_options.enabled && images.size() == frames.size())
+  Laps lap{this};
+  if (adjust_options.enabled)
     adjusted = AdjustPatch(indices, online, all, K(0, 0), frame_size, adjust_options);
+  lap(kAdjust);
   ++(adjusted.used ? summary.adjusted : summary.unadjusted);
   cv::Rect2d bounds = data_bounds;
   if (adjusted.used) {
@@ -296,13 +308,11 @@ cv::Matx33d Mosaicker::Impl::ClosePatch(const std::string& why, const std::optio
   cv::Matx33d closing_to_image = cv::Matx33d::eye();
   if (closing) closing_to_image = T * (adjusted.used ? adjusted.frame_to_patch.back() : closing->to_patch);
   PatchJob job;
-  if (adjusted.used) {
-    job.images = std::move(images);
-    for (size_t i = 0; i < frames.size(); ++i) job.placements.push_back(adjusted.frame_to_patch[i]);
-    job.weights = weights;
-  } else {
-    job.canvas = std::move(canvas);
-  }
+  job.images = std::move(images);
+  for (size_t i = 0; i < frames.size(); ++i)
+    job.placements.push_back(adjusted.used ? adjusted.frame_to_patch[i] : ToMatx(frames[i].frame_to_patch));
+  job.weights = weights;
+  job.temporal = options.temporal ? &pre : nullptr;
   // Frames registered late (second chance) go back to input order.
   std::stable_sort(frames.begin(), frames.end(), [](const FrameRecord& a, const FrameRecord& b) { return a.index < b.index; });
   job.sidecar = AssemblePatchSidecar(patch_id, rect, frames, rejected, link, options.PixelBudget(), frame_size);
@@ -343,22 +353,30 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Register(const Matches& matches, con
   return c;
 }
 
-std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const PreparedFrame& p, Laps& lap) {
+std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const PreparedFrame& p, const Candidate* current,
+                                                                 Laps& lap) {
   std::vector<Candidate> found;
   const Features& f = *p.own;
-  // 1. The patch's recent frames before the previous one (the previous frame may be the bad one:
-  //    blurred, a fish across it), newest first.
+  // 1. The patch's recent frames before the previous one that overlap it (the previous frame may
+  //    be the bad one: blurred, a fish across it), newest first.
   int tried = 0;
   for (auto it = patch_frames.rbegin(); it != patch_frames.rend() && tried < 4; ++it) {
     if (it->index == prev.index || !it->features) continue;
+    if (FootprintOverlap(prev.to_patch, it->to_patch, frame_size) < 0.1) continue;
     ++tried;
     Candidate c = Register(MatchFeatures(f, *it->features, extractor.options()), it->to_patch, "keyframe", it->index);
     if (c.ego.ok) found.push_back(std::move(c));
     if (!found.empty() && found.back().support.strong && found.back().verdict.consistent) break;
   }
   lap(kRecovery);
-  for (const auto& c : found)
+  for (const auto& c : found) {
     if (c.support.strong && c.verdict.consistent) return found;
+    // An unpredicted but strong registration that another frame confirms: a real change of
+    // course, no need to look further.
+    if (current && current->support.strong && c.support.strong &&
+        MaxCornerShift(c.to_patch, current->to_patch, frame_size) < 8.0)
+      return found;
+  }
   // 2. The patch image around the last frame, a frame's size each way: the frame may have turned
   //    any way (features are rotation invariant) and need not overlap the previous frame.
   const cv::Rect2d around = PatchCanvas::FrameBounds(prev.to_patch, frame_size);
@@ -367,15 +385,15 @@ std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const PreparedF
                         static_cast<int>(std::ceil(around.width + 2 * grow)), static_cast<int>(std::ceil(around.height + 2 * grow)));
   const double scale = extractor.options().ScaleFor(frame_size);
   cv::Mat gray, mask;
-  const cv::Rect used = canvas->RenderGray(wanted, scale, &gray, &mask);
-  if (!used.empty() && gray.cols >= 16 && gray.rows >= 16) {
+  cv::Point2d origin;
+  if (canvas->RenderGray(wanted, scale, &gray, &mask, &origin) && gray.cols >= 16 && gray.rows >= 16) {
     FeatureOptions more = extractor.options();
     more.max_features = 3 * more.max_features;  // the view is several frames large
     const FeatureExtractor wide(more);
     cv::Mat eroded;
     cv::erode(mask, eroded, cv::Mat(), cv::Point(-1, -1), 2);
     const Features mosaic = wide.ExtractScaled(pre.DetectionImage(gray, 1.0), scale, eroded);
-    const cv::Matx33d crop_to_patch(1, 0, used.x, 0, 1, used.y, 0, 0, 1);
+    const cv::Matx33d crop_to_patch(1, 0, origin.x, 0, 1, origin.y, 0, 0, 1);
     Candidate c = Register(MatchFeatures(f, mosaic, extractor.options()), crop_to_patch, "patch_mosaic", -1);
     if (c.ego.ok) found.push_back(std::move(c));
   }
@@ -423,7 +441,17 @@ void Mosaicker::Impl::SecondChance(Laps& lap) {
 Mosaicker::Mosaicker(Store store, const MosaickerOptions& options) {
   std::string error;
   if (!options.IsValid(&error)) Fail("mosaic options", error);
-  impl_ = std::make_unique<Impl>(store, options);
+
+  // "auto" needs the first frames before the first is prepared: MosaicInput finds the mask and
+  // gives the engine its file. Pushed frames have nobody to look ahead: no mask, and said so.
+  MosaickerOptions o = options;
+  std::string mask_note;
+  if (o.mask == "auto") {
+    o.mask.clear();
+    mask_note = "mask auto: frames pushed one by one are not looked ahead at; no overlay mask (MosaicInput finds one)";
+  }
+  impl_ = std::make_unique<Impl>(store, o);
+  impl_->summary.mask_note = mask_note;
   impl_->next_patch_id = store.NextPatchId();
 }
 
@@ -450,9 +478,20 @@ std::shared_ptr<PreparedFrame> Mosaicker::Prepare(const cv::Mat& input, const st
   p->spatial = m.pre.Spatial(frame);
   lap(Impl::kPreprocess);
   const double scale = m.extractor.options().ScaleFor(p->size);
-  p->detect = m.pre.DetectionImage(p->spatial, scale);
+  cv::Mat usable_small;
+  p->detect = m.pre.DetectionImage(p->spatial, scale, &usable_small);
+  if (!m.options.mask.empty()) {
+    std::lock_guard<std::mutex> lock(m.mask_mutex);
+    if (m.usable.empty() || m.usable.size() != p->size) {
+      m.usable = 255 - ReadStaticMask(m.options.mask, p->size);
+      cv::resize(m.usable, m.usable_small, p->detect.size(), 0, 0, cv::INTER_NEAREST);
+      // Features need a margin around an overlay: their descriptors reach out.
+      cv::erode(m.usable_small, m.usable_small, cv::Mat(), cv::Point(-1, -1), 4);
+    }
+    usable_small = usable_small.empty() ? m.usable_small : (usable_small & m.usable_small);
+  }
   lap(Impl::kDetectImage);
-  p->own = std::make_shared<const Features>(m.extractor.ExtractScaled(p->detect, scale));
+  p->own = std::make_shared<const Features>(m.extractor.ExtractScaled(p->detect, scale, usable_small));
   lap(Impl::kFeatures);
   return p;
 }
@@ -488,7 +527,9 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
   if (m.frame_size.area() == 0) {
     m.frame_size = p.size;
     m.K = m.pre.CameraMatrix(p.size);
-    m.weights = std::make_shared<const FeatherCode>(FeatherWeights(p.size, m.options.feather_sigma));
+    cv::Mat w = FeatherWeights(p.size, m.options.feather_sigma);
+    if (!m.usable.empty() && m.usable.size() == p.size) w.setTo(0, m.usable == 0);  // overlays never blend
+    m.weights = std::make_shared<const FeatherCode>(w);
     MotionGateOptions g;
     g.enabled = m.options.kalman;
     m.gate = std::make_unique<MotionGate>(g, p.size);
@@ -515,10 +556,9 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
     }
     return done(rep);
   };
-  if (static_cast<int>(features->points.size()) < m.options.min_inliers)
-    return lost_one("featureless");
+  if (features->strong < m.options.min_inliers) return lost_one("featureless");
   if (!m.canvas) {
-    m.StartPatch(p, spatial, std::nullopt);
+    m.StartPatch(p, std::nullopt);
     r.started_patch = true;
     m.Stitch(spatial, cv::Matx33d::eye(), features, r);
     m.prev = m.patch_frames.back();
@@ -560,7 +600,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
   };
   if (!accept || !best.support.strong || !best.verdict.consistent) {
     if (m.options.recover) {
-      std::vector<Impl::Candidate> more = m.Recover(p, lap);
+      std::vector<Impl::Candidate> more = m.Recover(p, best.ego.ok ? &best : nullptr, lap);
       if (best.ego.ok) more.push_back(best);
       const Impl::Candidate* pick = nullptr;
       for (const auto& c : more) {
@@ -618,8 +658,8 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
   lap(Impl::kPatchFit);
   const FrameMotion motion = m.MotionFromPrevious(to_patch);
   const size_t frame_bytes = spatial.total() * spatial.elemSize();
-  const bool memory_full = m.adjust_options.enabled &&
-                           m.image_bytes + frame_bytes > static_cast<size_t>(m.options.patch_frames_mb * 1024 * 1024);
+  const bool memory_full =
+      m.image_bytes + frame_bytes > static_cast<size_t>(m.options.patch_frames_mb * 1024 * 1024);
   if (memory_full || !m.canvas->Fits(PatchCanvas::FrameBounds(to_patch, m.frame_size))) {
     // The pixel budget is reached: close the patch, start the next one with this frame, and
     // remember how the two join (consecutive patches are linked by this frame's homography).
@@ -631,7 +671,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
     PatchLink join;
     join.previous_patch = old_id;
     join.to_previous = ToArray9(m.ClosePatch(memory_full ? "frame_memory" : "pixel_budget", closing));
-    m.StartPatch(p, spatial, join);
+    m.StartPatch(p, join);
     r.started_patch = true;
     m.Stitch(spatial, cv::Matx33d::eye(), features, r);
     m.prev = m.patch_frames.back();
@@ -640,13 +680,11 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
     r.patch_id = m.patch_id;
     return done(r);
   }
-  const cv::Matx33d to_prev = m.prev.to_patch.inv() * to_patch;
-  cv::Mat filtered = m.pre.Temporal(spatial, m.prev_filtered, to_prev);
-  lap(Impl::kTemporal);
   if (m.options.ecc) {
     cv::Mat gray;
-    cv::cvtColor(filtered, gray, cv::COLOR_BGR2GRAY);
-    EccResult ecc = RefineWithEcc(gray, to_patch, *m.canvas, m.ecc_options);
+    cv::cvtColor(spatial, gray, cv::COLOR_BGR2GRAY);
+    EccResult ecc = RefineWithEcc(gray, to_patch, *m.canvas, m.ecc_options,
+                                  m.usable.size() == m.frame_size ? m.usable : cv::Mat());
     r.ecc = ecc.correlation;
     if (ecc.applied) {
       r.ecc_shift = MaxCornerShift(to_patch, ecc.frame_to_patch, m.frame_size);
@@ -655,9 +693,8 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
   }
   lap(Impl::kEcc);
   m.gate->Accept(motion);
-  m.Stitch(filtered, to_patch, features, r, std::move(fitted_links));
+  m.Stitch(spatial, to_patch, features, r, std::move(fitted_links));
   m.prev = m.patch_frames.back();
-  m.prev_filtered = filtered;
   m.lost = 0;
   lap(Impl::kBlend);
   FrameRecord& rec = m.frames.back();
@@ -689,10 +726,12 @@ MosaicSummary Mosaicker::Finish() {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - m.start).count();
   m.summary.peak_rss_mb = PeakRssMb();
   static const char* names[] = {"preprocess", "detection image", "features", "matching", "egomotion",
-                                "recovery", "patch fit", "temporal", "ecc", "blend"};
+                                "recovery", "patch fit", "ecc", "working canvas", "adjustment"};
   m.summary.stage_seconds.clear();
   for (int i = 0; i < Impl::kStages; ++i)
     m.summary.stage_seconds.emplace_back(names[i], 1e-9 * static_cast<double>(m.stage_ns[i].load()));
+  // The writer's thread: the temporal filter, full-resolution blending and encoding of patches.
+  m.summary.stage_seconds.emplace_back("patch writing", m.writer.busy_seconds());
   return m.summary;
 }
 

@@ -20,6 +20,16 @@ int FloorDiv(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
 
 }  // namespace
 
+PatchCanvas::PatchCanvas(long long pixel_budget, double scale, bool reduced)
+    : budget_(pixel_budget), scale_(scale), reduced_(reduced) {
+  CV_Assert(scale > 0 && scale <= 1);
+}
+
+cv::Matx33d PatchCanvas::ToCanvas() const {
+  const double c = scale_;
+  return cv::Matx33d(c, 0, 0.5 * (c - 1), 0, c, 0.5 * (c - 1), 0, 0, 1);
+}
+
 cv::Rect2d PatchCanvas::FrameBounds(const cv::Matx33d& H, cv::Size frame) {
   return WarpedBounds(H, frame);
 }
@@ -46,10 +56,10 @@ bool AnyWeight(const cv::Mat& part) {
 
 }  // namespace
 
-void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& H) {
+void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& frame_to_patch) {
   CV_Assert(frame.type() == CV_8UC3 && weights.code.size() == frame.size());
-  const cv::Rect roi = Enclosing(FrameBounds(H, frame.size()));
-  data_ = data_.empty() ? roi : (data_ | roi);
+  const cv::Rect patch_roi = Enclosing(FrameBounds(frame_to_patch, frame.size()));
+  data_ = data_.empty() ? patch_roi : (data_ | patch_roi);
   // Colour and weight code travel together in one 4-channel warp into the ROI only:
   // frame -> ROI pixel = T(-roi.tl) * H. Edge pixels repeat past the frame (colours are never
   // mixed with black) while the weight code, 0 on the frame's outer ring, fades to nothing.
@@ -57,6 +67,17 @@ void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv
   const cv::Mat in[] = {frame, weights.code};
   const int from_to[] = {0, 0, 1, 1, 2, 2, 3, 3};
   cv::mixChannels(in, 2, &bgrw, 1, from_to, 4);
+  cv::Matx33d H = ToCanvas() * frame_to_patch;
+  if (scale_ < 1) {  // reduced first (area average), then warped: no aliasing, a smaller warp
+    cv::Mat small;
+    cv::resize(bgrw, small, cv::Size(), scale_, scale_, cv::INTER_AREA);
+    const double c = scale_;
+    const cv::Matx33d S(c, 0, 0.5 * (c - 1), 0, c, 0.5 * (c - 1), 0, 0, 1);
+    H = H * S.inv();
+    bgrw = small;
+  }
+  const cv::Rect roi = Enclosing(FrameBounds(H, bgrw.size()));
+  cdata_ = cdata_.empty() ? roi : (cdata_ | roi);
   const cv::Matx33d T(1, 0, -roi.x, 0, 1, -roi.y, 0, 0, 1);
   cv::Mat warped;
   cv::warpPerspective(bgrw, warped, cv::Mat(T * H), roi.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
@@ -73,8 +94,10 @@ void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv
       if (b.sum.empty()) {
         b.sum = cv::Mat::zeros(kBlock, kBlock, CV_32FC3);
         b.weight = cv::Mat::zeros(kBlock, kBlock, CV_32F);
-        b.small_sum = cv::Mat::zeros(kBlock / kMirror, kBlock / kMirror, CV_32FC3);
-        b.small_weight = cv::Mat::zeros(kBlock / kMirror, kBlock / kMirror, CV_32F);
+        if (reduced_) {
+          b.small_sum = cv::Mat::zeros(kBlock / kMirror, kBlock / kMirror, CV_32FC3);
+          b.small_weight = cv::Mat::zeros(kBlock / kMirror, kBlock / kMirror, CV_32F);
+        }
       }
       parts.emplace_back(block_rect, &b);
     }
@@ -92,6 +115,15 @@ void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv
         const cv::Vec4b* px = warped.ptr<cv::Vec4b>(y - roi.y) + (overlap.x - roi.x);
         cv::Vec3f* acc = b.sum.ptr<cv::Vec3f>(by) + bx;
         float* wsum = b.weight.ptr<float>(by) + bx;
+        if (!reduced_) {
+          for (int x = 0; x < overlap.width; ++x) {
+            if (!px[x][3]) continue;
+            const float a = table[px[x][3]];
+            acc[x] += cv::Vec3f(a * px[x][0], a * px[x][1], a * px[x][2]);
+            wsum[x] += a;
+          }
+          continue;
+        }
         cv::Vec3f* small = b.small_sum.ptr<cv::Vec3f>(by / kMirror);
         float* small_w = b.small_weight.ptr<float>(by / kMirror);
         for (int x = 0; x < overlap.width; ++x) {
@@ -129,7 +161,7 @@ void PatchCanvas::Dense(const cv::Rect& rect, cv::Mat* sum, cv::Mat* weight, int
       if (factor == 1) {
         it->second.sum(src).copyTo((*sum)(dst));
         it->second.weight(src).copyTo((*weight)(dst));
-      } else if (factor % kMirror == 0) {
+      } else if (reduced_ && factor % kMirror == 0) {
         const cv::Rect small_src(src.x / kMirror, src.y / kMirror, src.width / kMirror, src.height / kMirror);
         if (factor == kMirror) {
           it->second.small_sum(small_src).copyTo((*sum)(dst));
@@ -169,11 +201,14 @@ cv::Mat PatchCanvas::Render(const cv::Rect& patch_rect) const {
   return out;
 }
 
-cv::Rect PatchCanvas::RenderGray(const cv::Rect& wanted, double scale, cv::Mat* gray, cv::Mat* mask) const {
+bool PatchCanvas::RenderGray(const cv::Rect& wanted, double scale, cv::Mat* gray, cv::Mat* mask,
+                             cv::Point2d* origin) const {
+  const double step = scale_ / scale;  // canvas pixels per output pixel
   int factor = 1;
-  while (factor * 2 <= 1.0 / scale && factor * 2 <= kBlock / 4) factor *= 2;
-  cv::Rect rect = wanted & data_;
-  if (rect.empty()) return {};
+  while (factor * 2 <= step && factor * 2 <= kBlock / 4) factor *= 2;
+  cv::Rect rect = Enclosing(cv::Rect2d(wanted.x * scale_, wanted.y * scale_, wanted.width * scale_,
+                                       wanted.height * scale_)) & cdata_;
+  if (rect.empty()) return false;
   // Aligned to the reduction factor, as Dense needs.
   const int x0 = FloorDiv(rect.x, factor) * factor, y0 = FloorDiv(rect.y, factor) * factor;
   const int x1 = -FloorDiv(-(rect.x + rect.width), factor) * factor;
@@ -186,18 +221,21 @@ cv::Rect PatchCanvas::RenderGray(const cv::Rect& wanted, double scale, cv::Mat* 
   cv::Mat g = (0.114 * ch[0] + 0.587 * ch[1] + 0.299 * ch[2]);
   cv::divide(g, cv::max(weight, 1e-12), g);
   cv::Mat valid = weight > kAlphaCut * 4;
-  const double rest = scale * factor;  // what remains after the power-of-two reduction
+  const double rest = factor / step;  // what remains after the power-of-two reduction
   if (std::abs(rest - 1.0) > 1e-6) {
     cv::resize(g, g, cv::Size(), rest, rest, cv::INTER_AREA);
     cv::resize(valid, valid, g.size(), 0, 0, cv::INTER_NEAREST);
   }
   g.convertTo(*gray, CV_8U);
   *mask = valid;
-  return rect;
+  // Output q = (u - rect.tl + 0.5) scale / scale_ - 0.5 with canvas pixel u = (p + 0.5) scale_ - 0.5.
+  *origin = cv::Point2d(rect.x, rect.y) * (1.0 / scale_);
+  return true;
 }
 
-void PatchCanvas::ViewFromFrame(const cv::Matx33d& H, cv::Size frame, double scale, cv::Mat* gray,
+void PatchCanvas::ViewFromFrame(const cv::Matx33d& frame_to_patch, cv::Size frame, double scale, cv::Mat* gray,
                                 cv::Mat* mask) const {
+  const cv::Matx33d H = ToCanvas() * frame_to_patch;
   const cv::Size out(std::max(8, static_cast<int>(frame.width * scale)),
                      std::max(8, static_cast<int>(frame.height * scale)));
   // Only the canvas under the frame is made dense, then seen through the frame:
@@ -205,8 +243,8 @@ void PatchCanvas::ViewFromFrame(const cv::Matx33d& H, cv::Size frame, double sca
   // The canvas is averaged down by a power of two no larger than 1/scale (sums and weights
   // alike, so their ratio stays the blended colour), which keeps this cheap at ECC's scale.
   int factor = 1;
-  while (factor * 2 <= 1.0 / scale && factor * 2 <= kBlock / 4) factor *= 2;
-  cv::Rect region = Enclosing(FrameBounds(H, frame)) & data_;
+  while (factor * 2 <= scale_ / scale && factor * 2 <= kBlock / 4) factor *= 2;
+  cv::Rect region = Enclosing(FrameBounds(H, frame)) & cdata_;
   if (region.empty()) {
     *gray = cv::Mat::zeros(out, CV_8U);
     *mask = cv::Mat::zeros(out, CV_8U);

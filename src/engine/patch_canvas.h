@@ -2,7 +2,9 @@
 // first frame's pixel grid), kept in 256 x 256 blocks allocated where frames land, so the canvas
 // grows in any direction without ever being copied and holds memory only where there is data.
 // Its pixel budget is the paper's memory management: Fits() says whether one more frame keeps
-// the patch's bounding box within it.
+// the patch's bounding box within it. The engine's working canvas (what frames are refined and
+// recovered against) is kept at a reduced `scale`; the patch image itself is blended at full
+// resolution when the patch closes. Every method speaks patch coordinates whatever the scale.
 #pragma once
 
 #include <cstdint>
@@ -16,7 +18,8 @@ namespace rolamos {
 
 class PatchCanvas {
  public:
-  explicit PatchCanvas(long long pixel_budget) : budget_(pixel_budget) {}
+  // `reduced`: keep the 2 x 2 averaged sums (for ECC's view); a canvas only rendered needs none.
+  explicit PatchCanvas(long long pixel_budget, double scale = 1.0, bool reduced = true);
 
   // Bounding box (patch coordinates) of a frame warped by frame_to_patch.
   static cv::Rect2d FrameBounds(const cv::Matx33d& frame_to_patch, cv::Size frame);
@@ -25,7 +28,8 @@ class PatchCanvas {
   bool empty() const { return blocks_.empty(); }
   // Warps and accumulates a frame (BGR 8-bit) with its feather weights.
   void Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& frame_to_patch);
-  // The blended mosaic (BGRA 8-bit, alpha 0 where nothing was added) of a patch rectangle.
+  // The blended mosaic (BGRA 8-bit, alpha 0 where nothing was added) of a rectangle of the
+  // canvas's pixels (patch coordinates at scale 1).
   cv::Mat Render(const cv::Rect& patch_rect) const;
   // The mosaic seen from a frame: gray pixels and a validity mask in that frame's coordinates,
   // at `scale` of its resolution (for ECC refinement).
@@ -33,17 +37,19 @@ class PatchCanvas {
                      cv::Mat* gray, cv::Mat* mask) const;
   // The blended mosaic over `rect` (patch coordinates) in gray at `scale` of full resolution, and
   // where it holds data: what a frame that lost the thread is registered against. `rect` is
-  // clipped to the data; returns the rectangle used (empty when nothing is there).
-  cv::Rect RenderGray(const cv::Rect& rect, double scale, cv::Mat* gray, cv::Mat* mask) const;
+  // clipped to the data. Returns false when nothing is there; else `origin` is the patch
+  // coordinates that image pixel (0, 0) stands for at `scale` (q = (p - origin + 0.5) scale - 0.5).
+  bool RenderGray(const cv::Rect& rect, double scale, cv::Mat* gray, cv::Mat* mask, cv::Point2d* origin) const;
+  double scale() const { return scale_; }
   const cv::Rect& data() const { return data_; }
   long long pixel_budget() const { return budget_; }
 
  private:
   static constexpr int kBlock = 256;
-  // Each block also keeps its sums averaged over 4 x 4 cells, accumulated as frames are added:
-  // ECC looks at the mosaic at a quarter of the resolution for every frame, and reducing the
-  // full-resolution sums each time cost more than the registration itself.
-  static constexpr int kMirror = 4;
+  // The working canvas's blocks also keep their sums averaged over 2 x 2 cells, accumulated as
+  // frames are added: ECC looks at the mosaic at a quarter of full resolution (half the working
+  // canvas's) for every frame, and reducing the sums each time cost more than the registration.
+  static constexpr int kMirror = 2;
   struct Block {
     cv::Mat sum;           // CV_32FC3: sum of weight * colour
     cv::Mat weight;        // CV_32F: sum of weights
@@ -55,8 +61,14 @@ class PatchCanvas {
   // (1, 2, 4, ... up to the block size) with area averaging; `rect` must be aligned to it.
   void Dense(const cv::Rect& rect, cv::Mat* sum, cv::Mat* weight, int factor = 1) const;
 
+  // Patch coordinates -> canvas pixels: u = (p + 0.5) scale - 0.5.
+  cv::Matx33d ToCanvas() const;
+
   long long budget_;
-  cv::Rect data_;
+  double scale_ = 1.0;
+  bool reduced_ = true;
+  cv::Rect data_;    // patch coordinates: the budget's bounding box
+  cv::Rect cdata_;   // canvas pixels holding data
   std::unordered_map<int64_t, Block> blocks_;
 };
 

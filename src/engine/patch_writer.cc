@@ -1,5 +1,6 @@
 #include "engine/patch_writer.h"
 
+#include <chrono>
 #include <limits>
 
 #include "util/homography.h"
@@ -49,13 +50,18 @@ void PatchWriter::Submit(PatchJob job) {
 }
 
 void PatchWriter::Write(PatchJob& job) {
-  if (!job.images.empty()) {
-    auto canvas = std::make_unique<PatchCanvas>(std::numeric_limits<long long>::max());
-    for (size_t i = 0; i < job.images.size(); ++i) {
-      canvas->Add(job.images[i], *job.weights, job.placements[i]);
-      job.images[i].release();
-    }
-    job.canvas = std::move(canvas);
+  const auto start = std::chrono::steady_clock::now();
+  // The temporal term of the paper's filter (each frame averaged with the one stitched before it,
+  // brought in by their final placements), then blending at full resolution.
+  auto canvas = std::make_unique<PatchCanvas>(std::numeric_limits<long long>::max(), 1.0, false);
+  cv::Mat previous;
+  for (size_t i = 0; i < job.images.size(); ++i) {
+    cv::Mat filtered = job.images[i];
+    if (job.temporal && !previous.empty())
+      filtered = job.temporal->Temporal(job.images[i], previous, job.placements[i - 1].inv() * job.placements[i]);
+    canvas->Add(filtered, *job.weights, job.placements[i]);
+    previous = filtered;
+    job.images[i].release();
   }
   PixelLayout layout;
   layout.width = job.data_rect.width;
@@ -64,11 +70,12 @@ void PatchWriter::Write(PatchJob& job) {
   PyramidTiffWriter writer(store_.PatchImagePath(job.sidecar.id), layout, options_);
   for (int y = 0; y < job.data_rect.height; y += writer.band_height()) {
     const int rows = std::min(writer.band_height(), job.data_rect.height - y);
-    writer.WriteBand(job.canvas->Render(
+    writer.WriteBand(canvas->Render(
         cv::Rect(job.data_rect.x, job.data_rect.y + y, job.data_rect.width, rows)));
   }
   writer.Finish();
-  job.canvas.reset();  // free the canvas before committing
+  canvas.reset();  // free the canvas before committing
+  busy_ns_ += std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - start).count();
   store_.CommitPatch(job.sidecar);
   ++written_;
   if (on_patch_) on_patch_(job.sidecar);

@@ -3,6 +3,7 @@
 // bounds memory at two canvases whatever the survey length.
 #pragma once
 
+#include <atomic>
 #include <functional>
 #include <future>
 #include <memory>
@@ -10,6 +11,7 @@
 #include <vector>
 
 #include "engine/patch_canvas.h"
+#include "engine/preprocess.h"
 #include "rolamos/store.hpp"
 #include "rolamos/tiff_writer.hpp"
 
@@ -22,16 +24,16 @@ PatchSidecar AssemblePatchSidecar(int id, const cv::Rect& rect, std::vector<Fram
                                   std::vector<RejectedFrame> rejected, const std::optional<PatchLink>& link,
                                   long long pixel_budget, cv::Size frame_size);
 
+// A closed patch: its frames (BGR after the spatial filter, in the order they were stitched) and
+// their final placements; the writer filters them in time, blends them at full resolution and
+// writes the image, in its own thread.
 struct PatchJob {
-  std::unique_ptr<PatchCanvas> canvas;
   cv::Rect data_rect;  // patch coordinates of the image to write
   PatchSidecar sidecar;
-  // When given, the patch is blended anew from these frames (BGR, with their frame -> patch
-  // coordinates placements and feather weights) instead of taken from `canvas`: the adjusted
-  // placements, blended in the writer's thread.
   std::vector<cv::Mat> images;
-  std::vector<cv::Matx33d> placements;
+  std::vector<cv::Matx33d> placements;  // frame -> patch coordinates
   std::shared_ptr<const FeatherCode> weights;
+  const Preprocessor* temporal = nullptr;  // the temporal filter, when on
 };
 
 class PatchWriter {
@@ -43,6 +45,8 @@ class PatchWriter {
   void Wait();
   void OnPatch(std::function<void(const PatchSidecar&)> f) { on_patch_ = std::move(f); }
   int written() const { return written_; }
+  // Time spent filtering, blending and writing patches, seconds (the writer's own thread).
+  double busy_seconds() const { return busy_ns_.load() * 1e-9; }
 
  private:
   void Write(PatchJob& job);
@@ -52,6 +56,7 @@ class PatchWriter {
   std::future<void> pending_;
   std::function<void(const PatchSidecar&)> on_patch_;
   int written_ = 0;
+  std::atomic<long long> busy_ns_{0};
 };
 
 }  // namespace rolamos

@@ -57,7 +57,7 @@ bool PreprocessOptions::IsValid(std::string* error) const {
     *error = "temporal filter weight must be in [0, 1) and its tolerance positive";
     return false;
   }
-  if (despeckle_px < 0 || despeckle_px > 10) {
+  if (despeckle_px < 0 || despeckle_px > 10 || !(speck_contrast > 0)) {
     *error = "despeckle radius " + std::to_string(despeckle_px) + " is outside 0..10 pixels";
     return false;
   }
@@ -112,7 +112,7 @@ cv::Mat Preprocessor::Spatial(const cv::Mat& frame) {
   return out;
 }
 
-cv::Mat Preprocessor::DetectionImage(const cv::Mat& frame, double scale) const {
+cv::Mat Preprocessor::DetectionImage(const cv::Mat& frame, double scale, cv::Mat* usable) const {
   cv::Mat gray;
   if (frame.channels() == 3) cv::cvtColor(frame, gray, cv::COLOR_BGR2GRAY);
   else gray = frame;
@@ -121,11 +121,18 @@ cv::Mat Preprocessor::DetectionImage(const cv::Mat& frame, double scale) const {
     cv::resize(gray, small, cv::Size(), scale, scale, cv::INTER_AREA);
     gray = small;
   }
-  if (options_.despeckle_px > 0) {
-    const int d = 2 * options_.despeckle_px + 1;
-    cv::Mat opened;
-    cv::morphologyEx(gray, opened, cv::MORPH_OPEN, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(d, d)));
-    gray = opened;
+  if (usable) {
+    usable->release();
+    if (options_.despeckle_px > 0) {
+      // Specks: what a small opening removes and stands out from its surroundings.
+      const int d = 2 * options_.despeckle_px + 1;
+      const cv::Mat disc = cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(d, d));
+      cv::Mat tophat;
+      cv::morphologyEx(gray, tophat, cv::MORPH_TOPHAT, disc);
+      cv::Mat specks = tophat > options_.speck_contrast;
+      cv::dilate(specks, specks, disc);
+      *usable = specks == 0;
+    }
   }
   if (!options_.clahe) return gray;
   // Tiles of about 64 pixels whatever the detection image's size.

@@ -36,9 +36,11 @@ struct PreprocessOptions {
   bool clahe = true;
   // Dark, hazy seafloor needs a strong local stretch for features to be found at all.
   double clahe_clip = 4.0;
-  // Marine snow: bright specks up to this radius (pixels of the detection image) are opened
-  // away before detection, so features are not spent on particles that move on their own.
+  // Marine snow: bright specks up to this radius (pixels of the detection image) are left out of
+  // detection (masked, not filtered away: filtering would move the features around them), so
+  // features are not spent on particles that move on their own. 0 = off.
   int despeckle_px = 2;
+  double speck_contrast = 12.0;  // grey levels above the surroundings that make a speck
 
   bool IsValid(std::string* error) const;
 };
@@ -49,9 +51,9 @@ class Preprocessor {
   // Undistortion and bilateral smoothing. Checks the frame size against the calibration.
   // Thread-safe: several frames may be filtered at once.
   cv::Mat Spatial(const cv::Mat& frame);
-  // The detection image: gray, reduced to `scale` of the frame, specks opened away,
-  // contrast-normalised.
-  cv::Mat DetectionImage(const cv::Mat& frame, double scale = 1.0) const;
+  // The detection image: gray, reduced to `scale` of the frame, contrast-normalised; with
+  // `usable`, also where features may be found (0 on marine snow specks).
+  cv::Mat DetectionImage(const cv::Mat& frame, double scale = 1.0, cv::Mat* usable = nullptr) const;
   // The temporal term: `previous` (filtered, BGR) seen through current_to_previous.
   cv::Mat Temporal(const cv::Mat& current, const cv::Mat& previous,
                    const cv::Matx33d& current_to_previous) const;

@@ -1,0 +1,199 @@
+// The engine on surveys unlike the ones it was first tuned on: roll and pitch jittered per frame,
+// lanes that join turned 180 degrees without turn frames, a burned-in overlay, open water in
+// mid-survey, repeated and black frames.
+#include <filesystem>
+#include <map>
+
+#include <gtest/gtest.h>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "engine/static_mask.h"
+#include "rolamos/mosaicker.hpp"
+#include "rolamos/survey.hpp"
+#include "synth/seafloor_texture.h"
+#include "test_support.h"
+#include "util/homography.h"
+
+namespace fs = std::filesystem;
+
+namespace rolamos {
+namespace {
+
+MosaickerOptions Options() {
+  MosaickerOptions o;
+  o.tiff.compression = Compression::kZstd;
+  return o;
+}
+
+// 480 x 360 frames, 60 degrees across, roll and pitch drawn anew for every frame.
+SurveyOptions JitteredSurvey(int frames, int lanes) {
+  SurveyOptions o = test::SmallSurvey(frames);
+  o.fov_deg = 60;
+  o.attitude_jitter_deg = 1.0;
+  o.tilt_deg = 1.0;
+  o.lanes = lanes;
+  o.lane_turns = false;
+  o.forward_overlap = 0.7;
+  o.side_overlap = 0.4;
+  return o;
+}
+
+// Per-patch RMS of every frame's 5 x 5 grid against ground truth after one best-fit homography
+// for the patch, in texture pixels (= frame pixels here).
+double PatchRms(const PatchSidecar& s, const Survey& truth) {
+  std::map<std::string, cv::Matx33d> gt;
+  for (const auto& f : truth.frames) gt[fs::path(f.file).filename().string()] = ToMatx(f.frame_to_world);
+  std::vector<cv::Point2d> grid, ours, theirs;
+  for (int i = 0; i < 5; ++i)
+    for (int j = 0; j < 5; ++j)
+      grid.emplace_back(i * (truth.frame_size.width - 1) / 4.0, j * (truth.frame_size.height - 1) / 4.0);
+  for (const auto& f : s.frames) {
+    std::vector<cv::Point2d> a, b;
+    cv::perspectiveTransform(grid, a, cv::Mat(ToMatx(f.frame_to_patch)));
+    cv::perspectiveTransform(grid, b, cv::Mat(gt[fs::path(f.source).filename().string()]));
+    ours.insert(ours.end(), a.begin(), a.end());
+    theirs.insert(theirs.end(), b.begin(), b.end());
+  }
+  if (s.frames.size() < 2) return 0;
+  const cv::Mat fit = cv::findHomography(ours, theirs, 0);
+  std::vector<cv::Point2d> mapped;
+  cv::perspectiveTransform(ours, mapped, fit);
+  double sse = 0;
+  for (size_t i = 0; i < mapped.size(); ++i) sse += std::pow(cv::norm(mapped[i] - theirs[i]), 2);
+  return std::sqrt(sse / mapped.size());
+}
+
+TEST(MosaickerRobustness, JitteredLanesJoinedWithoutTurnsKeepEveryFrame) {
+  test::ScratchDir dir;
+  const Survey survey = WriteSurvey(JitteredSurvey(48, 3), dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, Options());
+  // Every frame, the two 180-degree lane joins included, and no patch lost the thread.
+  EXPECT_EQ(sum.stitched, 48);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  for (const auto& p : reopened.patches()) {
+    const PatchSidecar s = reopened.ReadSidecar(p.id);
+    EXPECT_NE(s.closed_by.value_or(""), "lost_tracking") << "patch " << p.id;
+    // Adjusted as cameras over the plane, the patch does not bend along its lanes.
+    EXPECT_TRUE(s.extra.contains("adjustment") && s.extra["adjustment"].contains("rms_px")) << "patch " << p.id;
+    EXPECT_LT(PatchRms(s, survey), 1.0) << "patch " << p.id;
+  }
+}
+
+TEST(MosaickerRobustness, TheAdjustmentStraightensWhatTheChainBends) {
+  test::ScratchDir dir;
+  SurveyOptions so = JitteredSurvey(36, 1);
+  const Survey survey = WriteSurvey(so, dir / "survey");
+  MosaickerOptions o = Options();
+  o.patch_megapixels = 50;  // one patch: the whole lane
+  Store adjusted = Store::Create(dir / "a.rolamos");
+  MosaicInput(dir / "survey/frames", adjusted, o);
+  o.adjust_patches = false;
+  Store online = Store::Create(dir / "o.rolamos");
+  MosaicInput(dir / "survey/frames", online, o);
+  const double with = PatchRms(Store::Open(dir / "a.rolamos").ReadSidecar(1), survey);
+  const double without = PatchRms(Store::Open(dir / "o.rolamos").ReadSidecar(1), survey);
+  EXPECT_LT(with, 0.7 * without) << "adjusted " << with << " px, online " << without << " px";
+  EXPECT_LT(with, 1.0);
+}
+
+TEST(MosaickerRobustness, OpenWaterClosesThePatchAndTheSeafloorOpensANewOne) {
+  test::ScratchDir dir;
+  WriteSurvey(test::SmallSurvey(40), dir / "survey");
+  // Frames 14 to 25: open water, blue-green with sensor noise.
+  for (int i = 14; i <= 25; ++i) {
+    cv::Mat water(360, 480, CV_8UC3, cv::Scalar(70, 60, 20));
+    cv::Mat noise(water.size(), CV_8UC3);
+    cv::randn(noise, 0, 3);
+    water += noise;
+    char name[64];
+    std::snprintf(name, sizeof name, "/frame_%05d.jpg", i);
+    cv::imwrite(dir / ("survey/frames" + std::string(name)), water);
+  }
+  Store store = Store::Create(dir / "s.rolamos");
+  std::vector<FrameReport> reports;
+  const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, Options(),
+                                        [&](const FrameReport& r, int) { reports.push_back(r); });
+  ASSERT_EQ(reports.size(), 40u);
+  for (int i = 14; i <= 25; ++i) EXPECT_EQ(reports[size_t(i)].status, "rejected") << i;
+  EXPECT_EQ(sum.stitched + sum.rejected, 40);
+  EXPECT_GE(sum.stitched, 26);  // every frame over the seafloor
+  Store reopened = Store::Open(dir / "s.rolamos");
+  ASSERT_GE(reopened.patches().size(), 2u);
+  const PatchSidecar first = reopened.ReadSidecar(reopened.patches().front().id);
+  EXPECT_EQ(first.closed_by.value_or(""), "lost_tracking");
+  const PatchSidecar last = reopened.ReadSidecar(reopened.patches().back().id);
+  EXPECT_GE(last.frames.front().index, 26);
+  // Every rejected frame is in a sidecar with its reason.
+  int rejected = 0;
+  for (const auto& p : reopened.patches()) {
+    for (const auto& r : reopened.ReadSidecar(p.id).rejected) {
+      EXPECT_FALSE(r.reason.empty());
+      ++rejected;
+    }
+  }
+  EXPECT_EQ(rejected, sum.rejected);
+}
+
+TEST(MosaickerRobustness, RepeatedAndBlackFramesAreRecordedWithTheirReason) {
+  test::ScratchDir dir;
+  WriteSurvey(test::SmallSurvey(16), dir / "survey");
+  const std::string frames = dir / "survey/frames";
+  fs::copy_file(frames + "/frame_00005.jpg", frames + "/frame_00006.jpg", fs::copy_options::overwrite_existing);
+  cv::imwrite(frames + "/frame_00010.jpg", cv::Mat::zeros(360, 480, CV_8UC3));
+  Store store = Store::Create(dir / "s.rolamos");
+  std::vector<FrameReport> reports;
+  const MosaicSummary sum = MosaicInput(frames, store, Options(), [&](const FrameReport& r, int) { reports.push_back(r); });
+  ASSERT_EQ(reports.size(), 16u);
+  EXPECT_EQ(reports[6].reason, "duplicate of frame 5");
+  EXPECT_EQ(reports[10].reason, "featureless");
+  EXPECT_EQ(sum.stitched, 14);
+  EXPECT_EQ(sum.patches, 1);  // one black frame does not lose the thread
+}
+
+TEST(MosaickerRobustness, BurnedInOverlayIsFoundAndLeftOut) {
+  test::ScratchDir dir;
+  SurveyOptions so = test::SmallSurvey(30);
+  so.overlay = true;
+  const Survey survey = WriteSurvey(so, dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, Options());
+  EXPECT_NE(sum.mask_note.find("overlay found"), std::string::npos) << sum.mask_note;
+  ASSERT_TRUE(fs::exists(dir / "s.rolamos/static_mask.png"));
+  // The mask covers the laser dots and the timestamp, little else.
+  const cv::Mat mask = cv::imread(dir / "s.rolamos/static_mask.png", cv::IMREAD_GRAYSCALE);
+  EXPECT_GT(mask.at<uchar>(int(0.55 * 360), int(0.42 * 480)), 0);
+  EXPECT_GT(mask.at<uchar>(int(0.55 * 360), int(0.58 * 480)), 0);
+  EXPECT_LT(cv::countNonZero(mask), static_cast<int>(0.15 * mask.total()));
+  // Registered with the seafloor's motion, not the overlay's.
+  EXPECT_EQ(sum.stitched, 30);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  for (const auto& p : reopened.patches())
+    EXPECT_LT(PatchRms(reopened.ReadSidecar(p.id), survey), 1.0) << "patch " << p.id;
+}
+
+TEST(StaticMask, StillFramesAndCleanSurveysGiveNoMask) {
+  // A textured seafloor moving under the camera: nothing fixed.
+  const cv::Mat ground = RenderSeafloor(0, 0, 1500, 800);
+  std::vector<cv::Mat> moving, still;
+  for (int i = 0; i < 24; ++i) {
+    moving.push_back(ground(cv::Rect(40 * i, 15 * i % 400, 480, 360)).clone());
+    still.push_back(ground(cv::Rect(0, 0, 480, 360)).clone());
+  }
+  EXPECT_TRUE(EstimateStaticMask(moving, StaticMaskOptions{}).mask.empty());
+  // A camera that does not move: everything looks fixed, and no mask is the right answer.
+  const StaticMask s = EstimateStaticMask(still, StaticMaskOptions{});
+  EXPECT_TRUE(s.mask.empty());
+  EXPECT_FALSE(s.note.empty());
+  // A mark painted on the moving frames is found.
+  for (auto& f : moving) cv::circle(f, {240, 180}, 14, cv::Scalar(255, 255, 255), cv::FILLED);
+  const StaticMask m = EstimateStaticMask(moving, StaticMaskOptions{});
+  ASSERT_FALSE(m.mask.empty());
+  EXPECT_GT(m.mask.at<uchar>(180, 240), 0);
+  EXPECT_EQ(m.mask.at<uchar>(20, 20), 0);
+}
+
+}  // namespace
+}  // namespace rolamos
