@@ -202,6 +202,15 @@ struct Mosaicker::Impl {
   // `current`: the registration against the previous frame, if any.
   std::vector<Candidate> Recover(const PreparedFrame& p, const Candidate* current, Laps& lap);
   void SecondChance(Laps& lap);
+  // The overlay mask at detection scale `s` (empty when there is none).
+  cv::Mat ScaledUsable(double s) {
+    std::lock_guard<std::mutex> lock(mask_mutex);
+    if (usable.empty()) return {};
+    cv::Mat small;
+    cv::resize(usable, small, cv::Size(), s, s, cv::INTER_NEAREST);
+    cv::erode(small, small, cv::Mat(), cv::Point(-1, -1), 4);
+    return small;
+  }
   FrameMotion MotionFromPrevious(const cv::Matx33d& to_patch) const {
     return MotionOf(prev.to_patch.inv() * to_patch, frame_size);
   }
@@ -357,6 +366,23 @@ std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const PreparedF
                                                                  Laps& lap) {
   std::vector<Candidate> found;
   const Features& f = *p.own;
+  // 0. The previous frame again, in finer detail: a large motion over rugged ground can leave
+  //    too few matches at the usual detection scale.
+  if ((!current || !current->support.strong) && !images.empty() && patch_frames.back().index == prev.index) {
+    FeatureOptions fine = extractor.options();
+    fine.detect_scale = std::min(1.0, 1.7 * fine.ScaleFor(frame_size));
+    fine.max_features = 2 * fine.max_features;
+    const FeatureExtractor detail(fine);
+    const double s = fine.detect_scale;
+    const Features here = detail.ExtractScaled(pre.DetectionImage(p.spatial, s), s, ScaledUsable(s));
+    const Features there = detail.ExtractScaled(pre.DetectionImage(images.back(), s), s, ScaledUsable(s));
+    Candidate c = Register(MatchFeatures(here, there, fine), prev.to_patch, "", prev.index);
+    if (c.ego.ok) found.push_back(std::move(c));
+    if (!found.empty() && found.back().support.strong && found.back().verdict.consistent) {
+      lap(kRecovery);
+      return found;
+    }
+  }
   // 1. The patch's recent frames before the previous one that overlap it (the previous frame may
   //    be the bad one: blurred, a fish across it), newest first.
   int tried = 0;
@@ -588,9 +614,14 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
   //    change of course); a weak one stands only when predicted. Otherwise the frame is tried
   //    against the patch's other frames and its image, and the best candidate is chosen: strong
   //    ones first, closest to the prediction among them.
-  // Without the gate (or while it learns) nothing vouches for a weak registration.
+  // A weak registration (few or clustered inliers) stands when the motion model predicted it, or,
+  // while the model is still learning, when it is a plausible motion from the previous frame
+  // (a patch's first frames: nothing else to go by). Either way it is flagged doubtful.
   auto usable = [&](const Impl::Candidate& c) {
-    return c.ego.ok && (c.support.strong || (m.options.kalman && c.verdict.informed && c.verdict.consistent));
+    if (!c.ego.ok) return false;
+    if (c.support.strong) return true;
+    if (!c.support.conditioned || !m.options.kalman) return false;
+    return c.verdict.informed ? c.verdict.consistent : c.from_previous();
   };
   bool accept = usable(best);
   // Strong and predicted beats strong alone (a course change, or a texture that repeats turned

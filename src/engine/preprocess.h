@@ -39,7 +39,7 @@ struct PreprocessOptions {
   // Marine snow: bright specks up to this radius (pixels of the detection image) are left out of
   // detection (masked, not filtered away: filtering would move the features around them), so
   // features are not spent on particles that move on their own. 0 = off.
-  int despeckle_px = 2;
+  int despeckle_px = 0;
   double speck_contrast = 12.0;  // grey levels above the surroundings that make a speck
 
   bool IsValid(std::string* error) const;

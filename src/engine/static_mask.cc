@@ -11,7 +11,7 @@
 namespace rolamos {
 
 bool StaticMaskOptions::IsValid(std::string* error) const {
-  if (frames < 4 || !(scale > 0.05 && scale <= 1) || !(min_ratio > 0 && min_ratio < 1) || !(min_edge > 0) ||
+  if (frames < 4 || min_frames < 4 || min_frames > frames || !(scale > 0.05 && scale <= 1) || !(min_ratio > 0 && min_ratio < 1) || !(min_edge > 0) ||
       !(grow >= 0 && grow < 0.2) || !(max_fraction > 0 && max_fraction <= 1)) {
     *error = "static mask settings are out of range (at least 4 frames, scale in (0.05, 1], ratio in (0, 1))";
     return false;
@@ -35,8 +35,8 @@ StaticMask EstimateStaticMask(const std::vector<cv::Mat>& frames, const StaticMa
   StaticMask out;
   std::string error;
   if (!o.IsValid(&error)) Fail("static mask", error);
-  if (static_cast<int>(frames.size()) < 4) {
-    out.note = "too few frames to find overlays";
+  if (static_cast<int>(frames.size()) < o.min_frames) {
+    out.note = "too few frames (" + std::to_string(frames.size()) + ") to tell fixed overlays from the seafloor";
     return out;
   }
   const cv::Size size = frames[0].size();
@@ -57,16 +57,19 @@ StaticMask EstimateStaticMask(const std::vector<cv::Mat>& frames, const StaticMa
     grad_sum += GradientMagnitude(small);
     ++n;
   }
-  if (n < 4) {
-    out.note = "too few frames of one size to find overlays";
+  if (n < o.min_frames) {
+    out.note = "too few frames (" + std::to_string(n) + ") to tell fixed overlays from the seafloor";
     return out;
   }
   const cv::Mat mean = sum / n, mean_grad = grad_sum / n;
   const cv::Mat grad_of_mean = GradientMagnitude(mean);
   cv::Mat ratio;
   cv::divide(grad_of_mean, cv::max(mean_grad, 1e-3), ratio);
-  // Fixed edges: strong in the mean image, and as strong as in the frames themselves.
-  cv::Mat fixed = (ratio > o.min_ratio) & (grad_of_mean > o.min_edge);
+  // Fixed edges: strong in the mean image, and as strong as in the frames themselves. Moving
+  // texture keeps about 1/sqrt(n) of its edges in the mean, more by chance: the bar rises with
+  // fewer frames.
+  const double bar = std::max(o.min_ratio, 2.5 / std::sqrt(double(n)));
+  cv::Mat fixed = (ratio > bar) & (grad_of_mean > o.min_edge);
   // The moving seafloor must average out for the test to mean anything: the typical textured
   // pixel (above the median of the frames' edge strength) must lose its edges in the mean.
   std::vector<float> g(mean_grad.begin<float>(), mean_grad.end<float>());
@@ -80,7 +83,7 @@ StaticMask EstimateStaticMask(const std::vector<cv::Mat>& frames, const StaticMa
     std::nth_element(r.begin(), r.begin() + r.size() / 2, r.end());
     moving = r[r.size() / 2];
   }
-  if (!(moving < o.min_ratio)) {
+  if (!(moving < bar)) {
     out.note = "the frames hardly move (edge ratio " + std::to_string(moving) + "): no overlay search";
     return out;
   }

@@ -15,12 +15,13 @@ namespace rolamos {
 
 struct StaticMaskOptions {
   int frames = 24;             // frames looked at, from the start of the survey
+  int min_frames = 12;         // with fewer, overlays cannot be told from the seafloor
   double scale = 0.25;         // resolution of the analysis
   double min_ratio = 0.55;     // |grad mean| / mean |grad| above which an edge is fixed in the image
   double min_edge = 4.0;       // grey levels per pixel: weaker edges are noise
   int min_area_px = 8;         // connected marks smaller than this (analysis pixels) are chance
   double grow = 0.012;         // the mask is grown by this fraction of the frame width, over glow and blur
-  double max_fraction = 0.3;   // a larger mask means the camera hardly moved: none is used
+  double max_fraction = 0.15;  // a larger mask means the camera hardly moved: none is used
 
   bool IsValid(std::string* error) const;
 };
