@@ -1,58 +1,63 @@
-// Global alignment of a store (after `compose` has placed the patches): frames of different times
-// that see the same ground (neighbouring lawnmower lanes, crossing tracks) are matched, and a
-// similarity or affine correction of every frame's online placement is solved for by sparse linear least
-// squares, so that drift along the survey does not accumulate. Consecutive frames keep their
-// online relative placement as constraints; the first frame is held. Each patch's
-// `patch_to_global` becomes the homography that best carries its frames to their corrected
-// places (the online one is kept as "patch_to_global_online"), and every frame records its
-// corrected "frame_to_global"; `compose` then draws the aligned mosaic.
+// The global map: one graph of the whole survey and one robust optimisation of every frame's
+// placement (`rolamos align`).
+//
+// Nodes are the frames of every patch. Edges come from three sources, each verified by matched
+// pixels that one RANSAC homography explains: the engine's own links (stored with each patch),
+// appearance retrieval over every frame (VLAD of its stored SIFT features), and loop closures
+// between frames that the first solution puts over the same ground. Every frame is a camera over
+// the seafloor plane (geometry/plane_camera.h), adjusted to all edges at once by Ceres with a
+// Cauchy loss on each edge, so one false loop cannot bend the map; navigation, when given, pulls
+// the camera centres as weighted priors. Parts that share no ground become separate components,
+// placed side by side. Each frame records its placement (frame_to_global) and each patch its
+// component and the homography that best carries it there; `compose` then draws every frame
+// where it belongs. The store changes in one atomic step at the end: an interrupted align leaves
+// it as it was.
 #pragma once
 
-#include <functional>
 #include <map>
 #include <string>
+#include <vector>
 
-#include "rolamos/progress.hpp"
 #include "rolamos/georeference.hpp"
+#include "rolamos/progress.hpp"
 #include "rolamos/store.hpp"
 
 namespace rolamos {
 
 struct AlignOptions {
-  std::string frames_dir;        // where the frames are, when not where the sidecars say
-  std::string model = "affine";  // correction of each frame's placement: similarity or affine
-  // Frames whose centres are closer than this x frame width are tried, if at least min_index_gap
-  // apart in the sequence: with 80 % forward overlap, the nearest frames of a lane are its own
-  // next ones, which the chain links already and which show no drift; with a gap of 4 and a
-  // radius of 0.5 a 1,000-frame lawnmower survey found only those (loop error 0.8 px, global
-  // error 77 px left uncorrected); with 20 and 1.0 it found the neighbouring lanes (121 px ->
-  // 0.3 px, global 11.7 px), at 1.85 px instead of 1.46 on the 300-frame survey.
-  double search_radius = 1.0;
-  int min_index_gap = 20;
-  int max_pairs_per_frame = 1;   // nearest later candidates tried per frame (more were worse)
-  int min_inliers = 40;          // a loop pair needs this many homography inliers
-  double chain_weight = 1.0;     // of the online frame-to-frame placements
-  double loop_weight = 1.0;      // of a loop pair's matched points
-  double min_loop_error_px = 1.5;  // loops closing better than this (RMS) leave the map as it is
-  // Per-frame navigation (ReadNavigationCsv), when known: each frame is also pulled towards where
-  // the navigation puts it (through one similarity from global pixels to the map, refitted as the
-  // solution moves), so the scale drift that vision alone cannot see is corrected too.
+  // Where the frames are, for patches written without stored features (an older rolamos): their
+  // frames are read and described again. "" = where the sidecars say.
+  std::string frames_dir;
+  int retrieval_candidates = 5;  // most similar frames tried per frame (appearance)
+  int vocabulary = 32;           // VLAD words
+  int loops_per_frame = 3;       // spatial neighbours tried per frame under the first solution
+  double loop_overlap = 0.2;     // footprint overlap that makes two frames spatial neighbours
+  int min_index_gap = 8;         // frames of one patch closer in the sequence are chain neighbours
+  int min_inliers = 25;          // an edge needs this many RANSAC inliers
+  int pairs_per_edge = 24;       // matched pixels kept per edge in the optimisation
+  double loss_px = 2.0;          // Cauchy knee: an edge whose RMS passes this is discounted
+  // Per-frame navigation (ReadNavigationCsv): each camera centre pulled towards it.
   std::map<std::string, FrameNavigation> navigation;
-  double navigation_weight = 0.2;  // of a navigation point, against 1 for a matched point
+  double navigation_sigma_m = 0.5;  // how far a centre may stray from its navigation (1 sigma)
+  int threads = 0;                  // 0 = one per core
 
   bool IsValid(std::string* error) const;
 };
 
 struct AlignSummary {
   int frames = 0;
-  int chain_links = 0;
-  int pairs_tried = 0, pairs_found = 0;
-  bool corrected = false;           // false: the loops already closed (or none was found)
-  double loop_error_before_px = 0;  // RMS distance of loop pairs' matched points, global pixels
-  double loop_error_after_px = 0;
-  int navigation_frames = 0;        // frames with navigation
-  double navigation_before_m = 0;   // median distance of frame centres from their navigation
-  double navigation_after_m = 0;    // (one similarity fitted from the placement to the map)
+  int frames_described = 0;      // read and described again (no stored features)
+  int online_edges = 0;
+  int retrieval_tried = 0, retrieval_edges = 0;
+  int loop_tried = 0, loop_edges = 0;
+  int edges_dropped = 0;          // found false by the optimisation
+  int components = 0;
+  std::vector<int> component_frames;  // frames per component, largest first
+  double rms_before_px = 0;       // transfer error of all edges, frame pixels
+  double rms_after_px = 0;
+  int navigation_frames = 0;
+  double navigation_before_m = 0;  // median distance of frame centres from their navigation
+  double navigation_after_m = 0;
   double seconds = 0;
 };
 

@@ -83,6 +83,9 @@ struct PatchSidecar {
   std::optional<Homography> patch_to_global_online;   // the online placement, kept by align
   std::optional<bool> aligned;                        // patch_to_global is the aligned placement
   std::optional<std::string> closed_by;               // "pixel_budget", "lost_tracking" or "end"
+  // The frames' links and features for the global map (relative to the store), when written.
+  std::optional<std::string> frame_links, frame_features;
+  std::optional<int> component;                       // the part of the map it is in (align)
   nlohmann::json extra = nlohmann::json::object();    // fields added by later versions, kept as read
 };
 
@@ -137,6 +140,11 @@ class Store {
   void CommitPatch(const PatchSidecar& sidecar);
   // Rewrites the sidecar of a committed patch (global alignment updates it).
   void UpdateSidecar(const PatchSidecar& sidecar);
+  // Replaces the sidecars of several patches (and the global record) as one change: the new
+  // sidecars are written under new names, then the manifest switches to them in one atomic
+  // rename, then the old files go. Killed at any point, the store holds either every old sidecar
+  // or every new one.
+  void ReplaceSidecars(const std::vector<PatchSidecar>& sidecars, const GlobalRecord& global);
 
   std::vector<PatchEntry> patches() const;
   // One image of the store, as readers name it: patch `patch` (> 0) or the global mosaic (0).

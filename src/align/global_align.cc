@@ -1,41 +1,37 @@
 #include "rolamos/global_align.hpp"
 
+#include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <map>
-#include <mutex>
+#include <numeric>
+#include <set>
+#include <unordered_map>
 
-#include <Eigen/Sparse>
 #include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "align/navigation_fit.h"
+#include "align/retrieval.h"
 #include "align/stored_frames.h"
+#include "engine/patch_adjustment.h"
+#include "engine/registration.h"
+#include "geometry/plane_adjustment.h"
 #include "rolamos/error.hpp"
+#include "store/frame_data.h"
 #include "util/homography.h"
 #include "util/parallel_for.h"
 
 namespace rolamos {
 
 bool AlignOptions::IsValid(std::string* error) const {
-  if (!(search_radius > 0 && search_radius <= 3)) {
-    *error = "search radius must be in (0, 3] frame widths";
-    return false;
-  }
-  if (min_index_gap < 2 || max_pairs_per_frame < 1 || min_inliers < 8) {
-    *error = "min index gap >= 2, pairs per frame >= 1 and min inliers >= 8 are needed";
-    return false;
-  }
-  if (model != "similarity" && model != "affine") {
-    *error = "alignment model \"" + model + "\" is not similarity or affine";
-    return false;
-  }
-  if (!(min_loop_error_px >= 0)) {
-    *error = "the loop error below which nothing is corrected cannot be negative";
-    return false;
-  }
-  if (!(chain_weight > 0) || !(loop_weight > 0) || !(navigation_weight > 0)) {
-    *error = "weights must be positive";
+  if (retrieval_candidates < 0 || vocabulary < 2 || loops_per_frame < 0 || min_index_gap < 1 ||
+      min_inliers < 8 || pairs_per_edge < 4 || !(loop_overlap > 0 && loop_overlap < 1) || !(loss_px > 0) ||
+      !(navigation_sigma_m > 0) || threads < 0) {
+    *error = "align settings are out of range (at least 8 inliers and 4 pairs an edge, overlap in (0, 1), "
+             "positive loss and navigation sigma)";
     return false;
   }
   return true;
@@ -43,334 +39,532 @@ bool AlignOptions::IsValid(std::string* error) const {
 
 namespace {
 
-struct Frame {
-  int patch = 0;
-  size_t record = 0;   // index in the patch's frames
-  int index = 0;       // sequence number in the survey
+struct Node {
+  int patch = 0;         // patch id
+  size_t record = 0;     // index in the patch's frames
+  int index = 0;         // sequence number
   std::string source;
-  cv::Matx33d to_global;  // online placement
-  cv::Size size;
+  cv::Matx33d to_patch;  // the online placement
+  std::vector<cv::Point2f> points;
+  cv::Mat descriptors;   // CV_8U, n x 128
 };
 
+enum EdgeKind { kOnline = 0, kRetrieval = 1, kLoop = 2 };
 
-// A correspondence between two frames' corrections: C_a(P) should equal C_b(Q), P and Q in
-// online global pixels.
-struct Link {
-  int a, b;
-  cv::Point2d P, Q;
-  double weight;
-  bool loop;
+struct Edge {
+  int a = 0, b = 0;
+  std::vector<cv::Point2f> in_a, in_b;
+  EdgeKind kind = kOnline;
 };
 
-// Correction of frame i, around the survey's centre so the numbers stay well scaled:
-// similarity x' = s x - r y + tx, y' = r x + s y + ty (4 unknowns from 4i), or affine
-// x' = a x + b y + c, y' = d x + e y + f (6 unknowns from 6i). Both are linear in their unknowns,
-// so the whole alignment is one sparse linear least-squares problem.
-struct Solver {
-  int n;
-  bool affine;
-  cv::Point2d centre;
-  double unit;
-  std::vector<Eigen::Triplet<double>> triplets;
-  std::vector<double> rhs;
-  int rows = 0;
-
-  int k() const { return affine ? 6 : 4; }
-  void Row(const std::vector<std::pair<int, double>>& terms, double value, double w) {
-    for (const auto& [col, v] : terms) triplets.emplace_back(rows, col, w * v);
-    rhs.push_back(w * value);
-    ++rows;
+// Union-find over frames.
+struct Components {
+  std::vector<int> parent;
+  explicit Components(size_t n) : parent(n) { std::iota(parent.begin(), parent.end(), 0); }
+  int Find(int i) {
+    while (parent[size_t(i)] != i) i = parent[size_t(i)] = parent[size_t(parent[size_t(i)])];
+    return i;
   }
-  // Coefficients of x' and y' of frame f at point p, times `sign`.
-  void Terms(int f, cv::Point2d p, double sign, std::vector<std::pair<int, double>>* x,
-             std::vector<std::pair<int, double>>* y) const {
-    const int o = k() * f;
-    if (affine) {
-      *x = {{o, sign * p.x}, {o + 1, sign * p.y}, {o + 2, sign}};
-      *y = {{o + 3, sign * p.x}, {o + 4, sign * p.y}, {o + 5, sign}};
-    } else {
-      *x = {{o, sign * p.x}, {o + 1, -sign * p.y}, {o + 2, sign}};
-      *y = {{o, sign * p.y}, {o + 1, sign * p.x}, {o + 3, sign}};
-    }
-  }
-  void Add(const Link& l) {
-    std::vector<std::pair<int, double>> ax, ay, bx, by;
-    Terms(l.a, (l.P - centre) / unit, 1, &ax, &ay);
-    Terms(l.b, (l.Q - centre) / unit, -1, &bx, &by);
-    ax.insert(ax.end(), bx.begin(), bx.end());
-    ay.insert(ay.end(), by.begin(), by.end());
-    Row(ax, 0, l.weight);
-    Row(ay, 0, l.weight);
-  }
-  // Pulls frame i's point P (online global pixels) towards `target`.
-  void Pull(int i, cv::Point2d P, cv::Point2d target, double w) {
-    std::vector<std::pair<int, double>> x, y;
-    Terms(i, (P - centre) / unit, 1, &x, &y);
-    const cv::Point2d t = (target - centre) / unit;
-    Row(x, t.x, w);
-    Row(y, t.y, w);
-  }
-  // Holds frame i at identity (strong) or pulls it there (weak).
-  void Hold(int i, double w) {
-    const int o = k() * i;
-    const std::vector<double> identity = affine ? std::vector<double>{1, 0, 0, 0, 1, 0} : std::vector<double>{1, 0, 0, 0};
-    for (int j = 0; j < k(); ++j) Row({{o + j, 1}}, identity[static_cast<size_t>(j)], w);
-  }
-  std::vector<cv::Matx33d> Solve() {
-    Eigen::SparseMatrix<double> A(rows, k() * n);
-    A.setFromTriplets(triplets.begin(), triplets.end());
-    Eigen::VectorXd b = Eigen::Map<Eigen::VectorXd>(rhs.data(), static_cast<long>(rhs.size()));
-    const Eigen::SparseMatrix<double> AtA = A.transpose() * A;
-    const Eigen::VectorXd Atb = A.transpose() * b;
-    Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt(AtA);
-    if (ldlt.info() != Eigen::Success) Fail("align", "the alignment system is singular");
-    const Eigen::VectorXd x = ldlt.solve(Atb);
-    std::vector<cv::Matx33d> out;
-    const cv::Matx33d to_unit(1 / unit, 0, -centre.x / unit, 0, 1 / unit, -centre.y / unit, 0, 0, 1);
-    const cv::Matx33d from_unit = to_unit.inv();
-    for (int i = 0; i < n; ++i) {
-      const double* v = x.data() + k() * i;
-      const cv::Matx33d c = affine ? cv::Matx33d(v[0], v[1], v[2], v[3], v[4], v[5], 0, 0, 1)
-                                   : cv::Matx33d(v[0], -v[1], v[2], v[1], v[0], v[3], 0, 0, 1);
-      out.push_back(from_unit * c * to_unit);
-    }
-    return out;
+  bool Join(int a, int b) {
+    a = Find(a), b = Find(b);
+    if (a == b) return false;
+    parent[size_t(std::max(a, b))] = std::min(a, b);
+    return true;
   }
 };
 
-// A frame point with its place on the map from the navigation.
-struct NavPoint {
-  int frame;
-  cv::Point2d P;    // online global pixels
-  cv::Point2d map;  // map units
-};
-
-// Median distance on the map between frame centres (every 5th point) placed by `C` and their
-// navigation, after the best similarity; also returns that similarity.
-double NavigationResidual(const std::vector<NavPoint>& nav, const std::vector<cv::Matx33d>* C, cv::Matx33d* to_map) {
-  std::vector<cv::Point2d> from, to;
-  for (const auto& p : nav) {
-    from.push_back(C ? ApplyHomography((*C)[static_cast<size_t>(p.frame)], p.P) : p.P);
-    to.push_back(p.map);
-  }
-  const std::optional<cv::Matx33d> fit = FitSimilarity(from, to);
-  if (!fit) Fail("align", "the navigation does not fit any similarity transform of the placement");
-  *to_map = *fit;
-  std::vector<double> d;
-  for (size_t i = 0; i < from.size(); i += 5) d.push_back(cv::norm(ApplyHomography(*to_map, from[i]) - to[i]));
-  std::nth_element(d.begin(), d.begin() + static_cast<long>(d.size() / 2), d.end());
-  return d[d.size() / 2];
+// At most `n` pairs spread over frame a (Thin's grid), as the optimisation wants them.
+Edge ThinEdge(Edge e, int n, cv::Size frame) {
+  FrameLink l{e.a, e.b, e.in_a, e.in_b};
+  l = Thin(std::move(l), n, frame);
+  e.in_a = std::move(l.in_a);
+  e.in_b = std::move(l.in_b);
+  return e;
 }
 
-std::vector<cv::Point2d> Grid(cv::Size s) {
-  std::vector<cv::Point2d> g;
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j) g.emplace_back(i * (s.width - 1) / 2.0, j * (s.height - 1) / 2.0);
-  return g;
+Features AsFeatures(const Node& n) {
+  Features f;
+  f.points = n.points;
+  n.descriptors.convertTo(f.descriptors, CV_32F);
+  f.norm = cv::NORM_L2;
+  return f;
+}
+
+// Two frames that see the same ground, for real: matches one RANSAC homography explains, a motion
+// a camera over the seafloor can make, enough inliers. `guess` (a -> b), when given, guides the
+// matching.
+bool VerifyPair(const Node& a, const Node& b, const cv::Matx33d* guess, cv::Size frame, const AlignOptions& o,
+                Edge* out) {
+  if (a.points.size() < size_t(o.min_inliers) || b.points.size() < size_t(o.min_inliers)) return false;
+  const Features fa = AsFeatures(a), fb = AsFeatures(b);
+  FeatureOptions fo;
+  Matches m = guess ? MatchGuided(fa, fb, *guess, 60.0, 0.85) : MatchFeatures(fa, fb, fo);
+  if (guess && m.from.size() < size_t(o.min_inliers)) m = MatchFeatures(fa, fb, fo);
+  if (m.from.size() < size_t(o.min_inliers)) return false;
+  std::vector<uchar> inlier;
+  const cv::Mat H = cv::findHomography(m.from, m.to, cv::RANSAC, 3.0, inlier, 2000, 0.999);
+  if (H.empty()) return false;
+  SupportOptions plausible;
+  plausible.max_scale_change = 2.0;
+  plausible.max_anisotropy = 1.5;
+  plausible.max_perspective = 0.5;
+  if (!IsPlausibleMotion(cv::Matx33d(H), frame, plausible)) return false;
+  Edge e;
+  for (size_t i = 0; i < inlier.size(); ++i)
+    if (inlier[i]) {
+      e.in_a.push_back(m.from[i]);
+      e.in_b.push_back(m.to[i]);
+    }
+  if (e.in_a.size() < size_t(o.min_inliers)) return false;
+  // The inliers must cover some of the frame, not one cluster.
+  std::vector<cv::Point2f> hull;
+  cv::convexHull(e.in_a, hull);
+  if (cv::contourArea(hull) < 0.02 * frame.area()) return false;
+  *out = std::move(e);
+  return true;
+}
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
 }
 
 }  // namespace
 
-AlignSummary AlignStore(Store store, const AlignOptions& options, const ProgressFn& progress) {
+AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& progress) {
   std::string error;
-  if (!options.IsValid(&error)) Fail("align options", error);
+  if (!o.IsValid(&error)) Fail("align", error);
   const auto start = std::chrono::steady_clock::now();
-  // 1. Every stitched frame at its online place.
-  std::vector<Frame> frames;
-  std::map<int, PatchSidecar> sidecars;
-  for (const auto& entry : store.patches()) {
-    PatchSidecar s = store.ReadSidecar(entry.id);
-    if (!s.patch_to_global) Fail(store.dir(), "patch " + std::to_string(s.id) + " is not placed: run `rolamos compose` first");
-    // Always from the online placement, so aligning again gives the same result.
-    const Homography online = s.patch_to_global_online.value_or(*s.patch_to_global);
-    if (!s.frame_size) Fail(store.PatchSidecarPath(s.id), "has no frame_size (not written by rolamos mosaic)");
-    for (size_t k = 0; k < s.frames.size(); ++k) {
-      Frame f;
-      f.patch = s.id;
-      f.record = k;
-      f.index = s.frames[k].index;
-      f.source = s.frames[k].source;
-      f.to_global = ToMatx(online) * ToMatx(s.frames[k].frame_to_patch);
-      f.size = cv::Size((*s.frame_size)[0], (*s.frame_size)[1]);
-      frames.push_back(f);
-    }
-    sidecars[s.id] = std::move(s);
-  }
-  if (frames.size() < 2) Fail(store.dir(), "has fewer than two stitched frames");
-  std::sort(frames.begin(), frames.end(), [](const Frame& a, const Frame& b) { return a.index < b.index; });
-  const int n = static_cast<int>(frames.size());
+  auto report = [&](double f) {
+    if (progress) progress(std::min(1.0, f));
+  };
   AlignSummary summary;
-  summary.frames = n;
+  ParallelForOptions pfo;
+  pfo.threads = o.threads;
 
-  // Navigation points: five near each frame's centre.
-  std::vector<NavPoint> nav;
-  for (int i = 0; i < n && !options.navigation.empty(); ++i) {
-    const Frame& f = frames[static_cast<size_t>(i)];
-    const FrameNavigation* fn = FindFrameNavigation(options.navigation, f.source);
-    if (!fn) continue;
-    std::vector<cv::Point2d> global, map;
-    AddNavigationPoints(*fn, f.to_global, f.size, &global, &map);
-    for (size_t k = 0; k < global.size(); ++k) nav.push_back({i, global[k], map[k]});
-    ++summary.navigation_frames;
+  // 1. The frames of every patch, with their stored features (or described again).
+  std::map<int, PatchSidecar> sidecars;
+  for (const auto& e : store.patches()) sidecars[e.id] = store.ReadSidecar(e.id);
+  if (sidecars.empty()) Fail(store.dir(), "has no patches to align");
+  std::vector<Node> nodes;
+  std::map<FrameId, int> node_of;
+  cv::Size frame;
+  double focal = 0;
+  bool have_links = false;
+  for (const auto& [id, s] : sidecars) {
+    if (s.frame_size) frame = cv::Size((*s.frame_size)[0], (*s.frame_size)[1]);
+    if (s.extra.contains("adjustment") && s.extra["adjustment"].contains("focal_px"))
+      focal = s.extra["adjustment"]["focal_px"].get<double>();
+    std::map<int, const StoredFeatures*> stored;
+    std::vector<StoredFeatures> features;
+    if (s.frame_features) {
+      features = ReadFrameFeatures((std::filesystem::path(store.dir()) / *s.frame_features).string());
+      for (const auto& f : features) stored[f.index] = &f;
+    }
+    have_links = have_links || s.frame_links.has_value();
+    for (size_t r = 0; r < s.frames.size(); ++r) {
+      Node n;
+      n.patch = id;
+      n.record = r;
+      n.index = s.frames[r].index;
+      n.source = s.frames[r].source;
+      n.to_patch = ToMatx(s.frames[r].frame_to_patch);
+      auto it = stored.find(n.index);
+      if (it != stored.end()) {
+        n.points = it->second->points;
+        n.descriptors = it->second->descriptors.clone();
+      }
+      node_of[{id, n.index}] = static_cast<int>(nodes.size());
+      nodes.push_back(std::move(n));
+    }
   }
-  if (!options.navigation.empty() && summary.navigation_frames < 2)
-    Fail(store.dir(), "fewer than two stitched frames have navigation (are the frame names those of the CSV?)");
-  cv::Matx33d to_map = cv::Matx33d::eye();
-  if (!nav.empty()) {
-    summary.navigation_before_m = NavigationResidual(nav, nullptr, &to_map);
-    // The online frame is the first frame's view, in perspective when that frame was tilted: a
-    // homography, not a similarity, from the map. The placements are first carried into a frame
-    // similar to the map (the homography, then the similarity back to pixels), so that the chain
-    // and the navigation disagree only where the survey really drifted.
-    if (summary.navigation_frames >= 4) {
-      std::vector<cv::Point2d> from, to;
-      cv::Point2d mean(0, 0);
-      for (const auto& p : nav) mean += p.map;
-      mean *= 1.0 / nav.size();
-      for (const auto& p : nav) from.push_back(p.P), to.push_back(p.map - mean);
-      const cv::Mat H = cv::findHomography(from, to, cv::LMEDS);
-      if (!H.empty()) {
-        const cv::Matx33d rectify = to_map.inv() * cv::Matx33d(1, 0, mean.x, 0, 1, mean.y, 0, 0, 1) * cv::Matx33d(H);
-        for (auto& f : frames) f.to_global = rectify * f.to_global;
-        for (auto& p : nav) p.P = ApplyHomography(rectify, p.P);
+  const int N = static_cast<int>(nodes.size());
+  summary.frames = N;
+  if (N == 0) Fail(store.dir(), "has no frames to align");
+  if (frame.area() == 0) Fail(store.dir(), "its sidecars give no frame size (written by an older rolamos?)");
+  if (!(focal > 0)) focal = 0.5 * frame.width / std::tan(35.0 * CV_PI / 180);  // the engine's default camera
+  const cv::Matx33d K = CameraMatrix(focal, frame);
+  {
+    // Frames without stored features are read and described again, in parallel.
+    std::vector<int> missing;
+    for (int i = 0; i < N; ++i)
+      if (nodes[size_t(i)].points.empty()) missing.push_back(i);
+    const FeatureExtractor extractor(StoredFrameFeatureOptions());
+    std::atomic<int> described{0};
+    ParallelFor(static_cast<long long>(missing.size()), [&](long long k, int) {
+      Node& n = nodes[size_t(missing[size_t(k)])];
+      const std::string path = StoredFramePath(n.source, o.frames_dir);
+      if (!std::filesystem::exists(path)) return;  // no features: the frame keeps its online links only
+      const Features f = DescribeStoredFrame(path, extractor);
+      n.points = f.points;
+      f.descriptors.convertTo(n.descriptors, CV_8U);
+      ++described;
+    }, pfo);
+    summary.frames_described = described;
+  }
+  report(0.1);
+
+  // 2. Edges the engine found: its stored links, or (older stores) the online placements of
+  //    consecutive frames of a patch.
+  std::vector<Edge> edges;
+  std::set<std::pair<int, int>> linked;
+  auto add_linked = [&](int a, int b) { linked.emplace(std::min(a, b), std::max(a, b)); };
+  for (const auto& [id, s] : sidecars) {
+    if (s.frame_links) {
+      for (const auto& l : ReadFrameLinks((std::filesystem::path(store.dir()) / *s.frame_links).string())) {
+        auto a = node_of.find(l.a), b = node_of.find(l.b);
+        if (a == node_of.end() || b == node_of.end() || l.in_a.size() < 8) continue;
+        Edge e;
+        e.a = a->second;
+        e.b = b->second;
+        e.in_a = l.in_a;
+        e.in_b = l.in_b;
+        edges.push_back(ThinEdge(std::move(e), o.pairs_per_edge, frame));
+        add_linked(a->second, b->second);
+      }
+    } else {
+      for (size_t r = 1; r < s.frames.size(); ++r) {
+        const int a = node_of[{id, s.frames[r].index}], b = node_of[{id, s.frames[r - 1].index}];
+        const cv::Matx33d H = nodes[size_t(b)].to_patch.inv() * nodes[size_t(a)].to_patch;
+        Edge e;
+        e.a = a;
+        e.b = b;
+        for (int gy = 0; gy < 4; ++gy)
+          for (int gx = 0; gx < 4; ++gx) {
+            const cv::Point2d p((gx + 0.5) * frame.width / 4, (gy + 0.5) * frame.height / 4);
+            e.in_a.emplace_back(p);
+            e.in_b.emplace_back(ApplyHomography(H, p));
+          }
+        edges.push_back(std::move(e));
+        add_linked(a, b);
+      }
+    }
+    // A patch the engine linked to the one before by the pixel budget: its first frame's stored
+    // link with the previous patch is among the links already.
+  }
+  summary.online_edges = static_cast<int>(edges.size());
+  auto near_in_sequence = [&](int i, int j) {
+    return nodes[size_t(i)].patch == nodes[size_t(j)].patch &&
+           std::abs(nodes[size_t(i)].index - nodes[size_t(j)].index) < o.min_index_gap;
+  };
+
+  // 3. Appearance retrieval over every frame, each candidate verified.
+  if (o.retrieval_candidates > 0) {
+    std::vector<cv::Mat> descriptors;
+    for (const auto& n : nodes) descriptors.push_back(n.descriptors);
+    RetrievalOptions ro;
+    ro.words = o.vocabulary;
+    ro.candidates = o.retrieval_candidates;
+    const auto candidates = RetrieveSimilarFrames(descriptors, ro, [&](int i, int j) {
+      return !near_in_sequence(i, j) && !linked.count({std::min(i, j), std::max(i, j)});
+    });
+    summary.retrieval_tried = static_cast<int>(candidates.size());
+    std::vector<Edge> found(candidates.size());
+    std::vector<char> ok(candidates.size(), 0);
+    ParallelFor(static_cast<long long>(candidates.size()), [&](long long k, int) {
+      const auto [i, j] = candidates[size_t(k)];
+      Edge e;
+      if (!VerifyPair(nodes[size_t(i)], nodes[size_t(j)], nullptr, frame, o, &e)) return;
+      e.a = i;
+      e.b = j;
+      e.kind = kRetrieval;
+      found[size_t(k)] = ThinEdge(std::move(e), o.pairs_per_edge, frame);
+      ok[size_t(k)] = 1;
+    }, pfo);
+    for (size_t k = 0; k < found.size(); ++k)
+      if (ok[k]) {
+        add_linked(found[k].a, found[k].b);
+        edges.push_back(std::move(found[k]));
+        ++summary.retrieval_edges;
+      }
+  }
+  report(0.35);
+
+  // 4. Components, and a first placement along a spanning tree (the engine's links first).
+  Components comp{static_cast<size_t>(N)};
+  std::vector<size_t> order(edges.size());
+  std::iota(order.begin(), order.end(), 0);
+  std::stable_sort(order.begin(), order.end(), [&](size_t x, size_t y) {
+    if (edges[x].kind != edges[y].kind) return edges[x].kind < edges[y].kind;
+    return edges[x].in_a.size() > edges[y].in_a.size();
+  });
+  std::vector<std::vector<std::pair<int, size_t>>> tree(static_cast<size_t>(N));  // (neighbour, edge)
+  for (size_t k : order) {
+    const Edge& e = edges[k];
+    if (comp.Join(e.a, e.b)) {
+      tree[size_t(e.a)].emplace_back(e.b, k);
+      tree[size_t(e.b)].emplace_back(e.a, k);
+    }
+  }
+  std::vector<cv::Matx33d> G(static_cast<size_t>(N), cv::Matx33d::eye());  // frame -> plane
+  std::vector<char> placed(static_cast<size_t>(N), 0);
+  std::map<int, std::vector<int>> members;  // root -> frames
+  for (int i = 0; i < N; ++i) members[comp.Find(i)].push_back(i);
+  for (auto& [root, list] : members) {
+    std::vector<int> queue{root};
+    placed[size_t(root)] = 1;
+    for (size_t q = 0; q < queue.size(); ++q) {
+      const int u = queue[q];
+      for (const auto& [v, k] : tree[size_t(u)]) {
+        if (placed[size_t(v)]) continue;
+        const Edge& e = edges[k];
+        cv::Mat H = cv::findHomography(e.in_a, e.in_b, 0);  // a -> b
+        cv::Matx33d Hab = H.empty() ? cv::Matx33d::eye() : cv::Matx33d(H);
+        G[size_t(v)] = e.a == u ? G[size_t(u)] * Hab.inv() : G[size_t(u)] * Hab;
+        G[size_t(v)] *= 1.0 / G[size_t(v)](2, 2);
+        placed[size_t(v)] = 1;
+        queue.push_back(v);
       }
     }
   }
+  std::vector<PlanePose> poses(static_cast<size_t>(N));
+  for (int i = 0; i < N; ++i)
+    poses[size_t(i)] = comp.Find(i) == i ? ReferencePose(K) : LevelPoseFromHomography(G[size_t(i)], K, frame);
 
-  std::vector<Link> links;
-  // 2. The chain: consecutive frames keep their online relative placement (a 3 x 3 grid).
-  for (int i = 0; i + 1 < n; ++i) {
-    const Frame& a = frames[static_cast<size_t>(i)];
-    for (const cv::Point2d p : Grid(a.size)) {
-      const cv::Point2d P = ApplyHomography(a.to_global, p);
-      links.push_back({i, i + 1, P, P, options.chain_weight, false});
-    }
-    ++summary.chain_links;
-  }
-  // 3. Loop pairs: frames near each other on the map but apart in time, matched for real.
-  std::vector<cv::Point2d> centre(static_cast<size_t>(n));
-  for (int i = 0; i < n; ++i)
-    centre[static_cast<size_t>(i)] = ApplyHomography(frames[static_cast<size_t>(i)].to_global,
-                                           {frames[static_cast<size_t>(i)].size.width / 2.0, frames[static_cast<size_t>(i)].size.height / 2.0});
-  std::vector<std::pair<int, int>> candidates;
-  for (int i = 0; i < n; ++i) {
-    std::vector<std::pair<double, int>> near;
-    const double radius = options.search_radius * frames[static_cast<size_t>(i)].size.width;
-    for (int j = i + 1; j < n; ++j) {
-      if (frames[static_cast<size_t>(j)].index - frames[static_cast<size_t>(i)].index < options.min_index_gap) continue;
-      const double d = cv::norm(centre[static_cast<size_t>(i)] - centre[static_cast<size_t>(j)]);
-      if (d < radius) near.emplace_back(d, j);
-    }
-    std::sort(near.begin(), near.end());
-    for (size_t k = 0; k < near.size() && k < static_cast<size_t>(options.max_pairs_per_frame); ++k)
-      candidates.emplace_back(i, near[k].second);
-  }
-  const FeatureOptions fo = StoredFrameFeatureOptions();
-  const FeatureExtractor extractor(fo);
-  // Each frame is described once, whichever pair asks first.
-  std::map<int, std::shared_ptr<const Features>> cache;
-  std::mutex mutex;
-  auto features = [&](int i) -> std::shared_ptr<const Features> {
-    {
-      std::lock_guard<std::mutex> lock(mutex);
-      auto it = cache.find(i);
-      if (it != cache.end()) return it->second;
-    }
-    auto f = std::make_shared<const Features>(DescribeStoredFrame(
-        StoredFramePath(frames[static_cast<size_t>(i)].source, options.frames_dir), extractor));
-    std::lock_guard<std::mutex> lock(mutex);
-    return cache.emplace(i, f).first->second;
+  // 5. Every component adjusted on its own (each has its own gauge), in parallel.
+  PlaneAdjustmentOptions po;
+  po.loss = "cauchy";
+  po.loss_px = o.loss_px;
+  po.per_link = true;
+  po.drop_link_px = 3 * o.loss_px;
+  po.max_iterations = 60;
+  std::vector<char> dropped(edges.size(), 0);
+  auto adjust = [&](const std::vector<GroundPrior>& priors) {
+    std::vector<std::pair<int, std::vector<int>>> parts(members.begin(), members.end());
+    std::atomic<int> dropped_count{0};
+    ParallelFor(static_cast<long long>(parts.size()), [&](long long c, int) {
+      const auto& [root, list] = parts[size_t(c)];
+      if (list.size() < 2) return;
+      std::map<int, int> local;
+      std::vector<PlanePose> part;
+      for (int i : list) {
+        local[i] = static_cast<int>(part.size());
+        part.push_back(poses[size_t(i)]);
+      }
+      std::vector<PlaneLink> links;
+      std::vector<size_t> which;
+      for (size_t k = 0; k < edges.size(); ++k) {
+        if (dropped[k] || !local.count(edges[k].a)) continue;
+        PlaneLink l;
+        l.a = local[edges[k].a];
+        l.b = local[edges[k].b];
+        l.in_a = edges[k].in_a;
+        l.in_b = edges[k].in_b;
+        links.push_back(std::move(l));
+        which.push_back(k);
+      }
+      std::vector<GroundPrior> mine;
+      for (const auto& p : priors)
+        if (local.count(p.frame)) {
+          GroundPrior q = p;
+          q.frame = local[p.frame];
+          mine.push_back(q);
+        }
+      PlaneAdjustmentOptions opt = po;
+      opt.threads = 1;
+      double f = focal;
+      const PlaneAdjustment r = AdjustPlanePoses(&part, &f, frame, links, local[root], {},
+                                                 mine.size() >= 2 ? mine : std::vector<GroundPrior>{}, opt);
+      if (!r.ok) return;  // the first placement stays
+      for (size_t k = 0; k < which.size(); ++k)
+        if (r.dropped[k]) {
+          dropped[which[k]] = 1;
+          ++dropped_count;
+        }
+      for (int i : list) poses[size_t(i)] = part[size_t(local[i])];
+    }, pfo);
+    return dropped_count.load();
   };
-  std::vector<std::vector<Link>> found(candidates.size());
-  std::atomic<int> done{0};
-  ParallelFor(static_cast<long long>(candidates.size()), [&](long long c, int) {
-    const auto [i, j] = candidates[static_cast<size_t>(c)];
-    const VerifiedMatch v = MatchVerified(*features(i), *features(j), fo, options.min_inliers);
-    // Up to 60 inliers, evenly through the list, as point pairs in online global pixels.
-    const int step = std::max(1, v.inliers / 60);
-    int seen = 0;
-    for (size_t k = 0; v.inliers > 0 && k < v.inlier.size(); ++k) {
-      if (!v.inlier[k] || (seen++ % step)) continue;
-      found[static_cast<size_t>(c)].push_back({i, j, ApplyHomography(frames[static_cast<size_t>(i)].to_global, v.matches.from[k]),
-                                               ApplyHomography(frames[static_cast<size_t>(j)].to_global, v.matches.to[k]),
-                                               options.loop_weight, true});
+  auto edges_rms = [&]() {
+    std::vector<PlaneLink> all;
+    for (size_t k = 0; k < edges.size(); ++k) {
+      if (dropped[k]) continue;
+      PlaneLink l;
+      l.a = edges[k].a;
+      l.b = edges[k].b;
+      l.in_a = edges[k].in_a;
+      l.in_b = edges[k].in_b;
+      all.push_back(std::move(l));
     }
-    if (progress) progress(0.9 * ++done / std::max<size_t>(1, candidates.size()));
+    return PlaneTransferRms(poses, focal, frame, all);
+  };
+  summary.rms_before_px = edges_rms();
+  summary.edges_dropped += adjust({});
+  report(0.55);
+
+  // 6. Loop closures: frames the solution puts over the same ground, apart in the sequence.
+  if (o.loops_per_frame > 0) {
+    std::vector<cv::Matx33d> P(static_cast<size_t>(N));
+    std::vector<cv::Point2d> centre(static_cast<size_t>(N));
+    for (int i = 0; i < N; ++i) {
+      P[size_t(i)] = FrameToPlane(poses[size_t(i)], K);
+      centre[size_t(i)] = ApplyHomography(P[size_t(i)], {(frame.width - 1) / 2.0, (frame.height - 1) / 2.0});
+    }
+    const double cell = std::hypot(frame.width, frame.height);
+    auto key = [&](cv::Point2d c) {
+      return (int64_t(std::floor(c.x / cell)) << 32) ^ uint32_t(int32_t(std::floor(c.y / cell)));
+    };
+    std::unordered_map<int64_t, std::vector<int>> grid;
+    for (int i = 0; i < N; ++i) grid[key(centre[size_t(i)])].push_back(i);
+    std::vector<std::pair<int, int>> candidates;
+    for (int i = 0; i < N; ++i) {
+      std::vector<std::pair<double, int>> near;
+      const int cx = int(std::floor(centre[size_t(i)].x / cell)), cy = int(std::floor(centre[size_t(i)].y / cell));
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          auto it = grid.find((int64_t(cx + dx) << 32) ^ uint32_t(int32_t(cy + dy)));
+          if (it == grid.end()) continue;
+          for (int j : it->second) {
+            if (j <= i || comp.Find(i) != comp.Find(j) || near_in_sequence(i, j) || linked.count({i, j})) continue;
+            const double overlap = FootprintOverlap(P[size_t(i)], P[size_t(j)], frame);
+            if (overlap >= o.loop_overlap) near.emplace_back(overlap, j);
+          }
+        }
+      std::sort(near.rbegin(), near.rend());
+      for (size_t k = 0; k < near.size() && k < size_t(o.loops_per_frame); ++k) candidates.emplace_back(i, near[k].second);
+    }
+    summary.loop_tried = static_cast<int>(candidates.size());
+    std::vector<Edge> found(candidates.size());
+    std::vector<char> ok(candidates.size(), 0);
+    ParallelFor(static_cast<long long>(candidates.size()), [&](long long k, int) {
+      const auto [i, j] = candidates[size_t(k)];
+      const cv::Matx33d guess = P[size_t(j)].inv() * P[size_t(i)];
+      Edge e;
+      if (!VerifyPair(nodes[size_t(i)], nodes[size_t(j)], &guess, frame, o, &e)) return;
+      e.a = i;
+      e.b = j;
+      e.kind = kLoop;
+      found[size_t(k)] = ThinEdge(std::move(e), o.pairs_per_edge, frame);
+      ok[size_t(k)] = 1;
+    }, pfo);
+    for (size_t k = 0; k < found.size(); ++k)
+      if (ok[k]) {
+        add_linked(found[k].a, found[k].b);
+        edges.push_back(std::move(found[k]));
+        dropped.push_back(0);
+        ++summary.loop_edges;
+      }
+    if (summary.loop_edges > 0) summary.edges_dropped += adjust({});
+  }
+  report(0.8);
+
+  // 7. Navigation: the centres pulled towards it, through the similarity that carries the plane
+  //    to the map (refitted as the solution moves).
+  std::vector<std::pair<int, cv::Point2d>> nav_centres;  // frame, map position of its centre
+  std::string nav_crs;
+  if (!o.navigation.empty()) {
+    for (int i = 0; i < N; ++i) {
+      const FrameNavigation* n = FindFrameNavigation(o.navigation, nodes[size_t(i)].source);
+      if (!n) continue;
+      const auto& g = n->geotransform;
+      const double c = (frame.width - 1) / 2.0, r = (frame.height - 1) / 2.0;
+      nav_centres.emplace_back(i, cv::Point2d(g[0] + (c + 0.5) * g[1] + (r + 0.5) * g[2],
+                                              g[3] + (c + 0.5) * g[4] + (r + 0.5) * g[5]));
+      nav_crs = n->crs;
+    }
+    summary.navigation_frames = static_cast<int>(nav_centres.size());
+    if (nav_centres.empty())
+      Fail("navigation", "none of its " + std::to_string(o.navigation.size()) +
+                             " frames is a frame of this store (frames are matched by file name)");
+  }
+  const cv::Point2d frame_centre((frame.width - 1) / 2.0, (frame.height - 1) / 2.0);
+  auto nav_residual = [&](cv::Matx33d* to_map) {
+    std::vector<cv::Point2d> from, to;
+    for (const auto& [i, m] : nav_centres) {
+      from.push_back(ApplyHomography(FrameToPlane(poses[size_t(i)], K), frame_centre));
+      to.push_back(m);
+    }
+    const auto S = FitSimilarity(from, to);
+    if (!S) return -1.0;
+    *to_map = *S;
+    std::vector<double> d;
+    for (size_t k = 0; k < from.size(); ++k) d.push_back(cv::norm(ApplyHomography(*S, from[k]) - to[k]));
+    return Median(d);
+  };
+  if (nav_centres.size() >= 2) {
+    cv::Matx33d to_map;
+    summary.navigation_before_m = nav_residual(&to_map);
+    for (int round = 0; round < 2 && summary.navigation_before_m >= 0; ++round) {
+      const cv::Matx33d from_map = to_map.inv();
+      const double metres_per_px = std::sqrt(std::abs(to_map(0, 0) * to_map(1, 1) - to_map(0, 1) * to_map(1, 0)));
+      std::vector<GroundPrior> priors;
+      for (const auto& [i, m] : nav_centres) {
+        GroundPrior p;
+        p.frame = i;
+        p.pixel = frame_centre;
+        p.xy = ApplyHomography(from_map, m);
+        p.sigma_px = o.navigation_sigma_m / std::max(1e-12, metres_per_px);
+        priors.push_back(p);
+      }
+      summary.edges_dropped += adjust(priors);
+      summary.navigation_after_m = nav_residual(&to_map);
+    }
+  }
+  summary.rms_after_px = edges_rms();
+
+  // 8. Components side by side (largest first, left to right), each frame's placement, and each
+  //    patch's best-fit placement and component.
+  std::vector<std::pair<int, int>> by_size;  // (frames, root)
+  for (const auto& [root, list] : members) by_size.emplace_back(static_cast<int>(list.size()), root);
+  std::sort(by_size.begin(), by_size.end(), [](const auto& x, const auto& y) {
+    return x.first != y.first ? x.first > y.first : x.second < y.second;
   });
-  summary.pairs_tried = static_cast<int>(candidates.size());
-  double before = 0;
-  int loop_points = 0;
-  for (const auto& f : found) {
-    summary.pairs_found += !f.empty();
-    for (const auto& l : f) {
-      links.push_back(l);
-      before += std::pow(cv::norm(l.P - l.Q), 2);
-      ++loop_points;
+  std::map<int, int> component_of_root;
+  std::map<int, cv::Matx33d> shift;  // root -> plane to global
+  double next_x = 0;
+  for (size_t c = 0; c < by_size.size(); ++c) {
+    const int root = by_size[c].second;
+    component_of_root[root] = static_cast<int>(c);
+    summary.component_frames.push_back(by_size[c].first);
+    cv::Rect2d box;
+    for (int i : members[root]) {
+      const cv::Rect2d b = WarpedBounds(FrameToPlane(poses[size_t(i)], K), frame);
+      box = box.area() > 0 ? (box | b) : b;
+    }
+    // The largest component keeps its coordinates (navigation, if any, fitted to it); the others
+    // follow to its right, a frame's width apart.
+    if (c == 0) {
+      shift[root] = cv::Matx33d::eye();
+      next_x = box.x + box.width + frame.width;
+    } else {
+      shift[root] = cv::Matx33d(1, 0, next_x - box.x, 0, 1, -box.y, 0, 0, 1);
+      next_x += box.width + frame.width;
     }
   }
-  summary.loop_error_before_px = loop_points ? std::sqrt(before / loop_points) : 0;
-  // Loops that already close within the matching noise reveal no drift: correcting them would
-  // only spread that noise over the map (measured: 0.63 -> 0.90 px on a survey whose loops closed
-  // to 0.7 px). The online placement stays.
-  if (nav.empty() && (loop_points == 0 || summary.loop_error_before_px < options.min_loop_error_px)) {
-    summary.loop_error_after_px = summary.loop_error_before_px;
-    summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-    if (progress) progress(1.0);
-    return summary;
-  }
-  summary.corrected = true;
-  // With navigation, loops that already close are left out of the solution for the same reason.
-  if (summary.loop_error_before_px < options.min_loop_error_px)
-    links.erase(std::remove_if(links.begin(), links.end(), [](const Link& l) { return l.loop; }), links.end());
-
-  // 4. Solve for the corrections: every frame weakly pulled to its place; the first frame held,
-  // or with navigation, every frame pulled towards it (the similarity to the map refitted a few
-  // times as the placement moves).
-  double w = 0;
-  for (const auto& f : frames) w = std::max(w, double(f.size.width));
-  std::vector<cv::Matx33d> C;
-  for (int round = 0; round < (nav.empty() ? 1 : 4); ++round) {
-    Solver solver;
-    solver.n = n;
-    solver.affine = options.model == "affine";
-    solver.unit = w;
-    solver.centre = centre[0];
-    for (const auto& l : links) solver.Add(l);
-    const cv::Matx33d from_map = to_map.inv();
-    for (const auto& p : nav) solver.Pull(p.frame, p.P, ApplyHomography(from_map, p.map), options.navigation_weight);
-    solver.Hold(0, nav.empty() ? 1e3 : 1e-4);
-    for (int i = 1; i < n; ++i) solver.Hold(i, 1e-4);
-    C = solver.Solve();
-    if (!nav.empty()) summary.navigation_after_m = NavigationResidual(nav, &C, &to_map);
-  }
-  double after = 0;
-  for (const auto& l : links)
-    if (l.loop) after += std::pow(cv::norm(ApplyHomography(C[static_cast<size_t>(l.a)], l.P) - ApplyHomography(C[static_cast<size_t>(l.b)], l.Q)), 2);
-  summary.loop_error_after_px = loop_points ? std::sqrt(after / loop_points) : 0;
-
-  // 5. New places: frames record theirs; each patch gets the homography that best carries its
-  // frames (through their frame_to_patch) to them.
+  summary.components = static_cast<int>(by_size.size());
   std::map<int, std::vector<cv::Point2d>> patch_pts, global_pts;
-  for (int i = 0; i < n; ++i) {
-    const Frame& f = frames[static_cast<size_t>(i)];
-    const cv::Matx33d aligned = C[static_cast<size_t>(i)] * f.to_global;
-    PatchSidecar& s = sidecars[f.patch];
-    s.frames[f.record].frame_to_global = ToArray9(aligned);
-    const cv::Matx33d to_patch = ToMatx(s.frames[f.record].frame_to_patch);
-    for (const cv::Point2d p : Grid(f.size)) {
-      patch_pts[f.patch].push_back(ApplyHomography(to_patch, p));
-      global_pts[f.patch].push_back(ApplyHomography(aligned, p));
-    }
+  std::map<int, std::map<int, int>> patch_components;
+  for (int i = 0; i < N; ++i) {
+    const Node& n = nodes[size_t(i)];
+    const int root = comp.Find(i);
+    const cv::Matx33d to_global = shift[root] * FrameToPlane(poses[size_t(i)], K);
+    PatchSidecar& s = sidecars[n.patch];
+    s.frames[n.record].frame_to_global = ToArray9(to_global);
+    ++patch_components[n.patch][component_of_root[root]];
+    for (int gy = 0; gy < 3; ++gy)
+      for (int gx = 0; gx < 3; ++gx) {
+        const cv::Point2d p(gx * (frame.width - 1) / 2.0, gy * (frame.height - 1) / 2.0);
+        patch_pts[n.patch].push_back(ApplyHomography(n.to_patch, p));
+        global_pts[n.patch].push_back(ApplyHomography(to_global, p));
+      }
   }
+  std::vector<PatchSidecar> updated;
   for (auto& [id, s] : sidecars) {
-    if (!s.patch_to_global_online) s.patch_to_global_online = *s.patch_to_global;
+    if (s.patch_to_global && !s.patch_to_global_online) s.patch_to_global_online = *s.patch_to_global;
     const cv::Mat H = cv::findHomography(patch_pts[id], global_pts[id], 0);
     if (H.empty()) Fail(store.PatchSidecarPath(id), "its frames give no patch placement");
     s.patch_to_global = ToArray9(cv::Matx33d(H));
     s.aligned = true;
-    store.UpdateSidecar(s);
+    int best = 0, count = -1;
+    for (const auto& [c, k] : patch_components[id])
+      if (k > count) best = c, count = k;
+    s.component = best;
+    updated.push_back(s);
   }
-  if (progress) progress(1.0);
+  GlobalRecord global = store.global();
+  store.ReplaceSidecars(updated, global);
+  report(1.0);
   summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return summary;
 }

@@ -1,15 +1,21 @@
 #include "rolamos/global_align.hpp"
 
 #include <filesystem>
+#include <fstream>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "rolamos/compose.hpp"
 #include "rolamos/error.hpp"
 #include "rolamos/mosaicker.hpp"
 #include "rolamos/survey.hpp"
+#include "rolamos/tiled_image.hpp"
 #include "test_support.h"
 #include "util/homography.h"
+
+namespace fs = std::filesystem;
 
 namespace rolamos {
 namespace {
@@ -18,52 +24,130 @@ double GlobalRms(const Store& store, const Survey& truth, bool aligned) {
   return test::Rms(test::ErrorsAgainstTruth(store, truth, aligned));
 }
 
-// A lawnmower survey whose lanes overlap: loop closure must find the revisits and bring the whole
-// map closer to the ground truth than the chain of online placements; compose then uses it.
-TEST(AlignStore, LoopClosureReducesGlobalDriftOnALawnmowerSurvey) {
-  test::ScratchDir dir;
-  const Survey survey = WriteSurvey(test::SmallSurvey(72), dir / "survey");
-  Store store = test::MosaicAndCompose(dir / "survey/frames", dir / "s.rolamos", 0.8);
-  ComposeOptions co;
-  co.tiff.compression = Compression::kZstd;
-  const double before = GlobalRms(store, survey, false);
-
-  // Loops that close within the threshold are left alone.
-  AlignOptions strict;
-  strict.min_loop_error_px = 1000;
-  const AlignSummary skipped = AlignStore(store, strict);
-  EXPECT_FALSE(skipped.corrected);
-  EXPECT_FALSE(store.ReadSidecar(store.patches().front().id).aligned.has_value());
-  // By default the neighbouring lanes are found (frames apart in time), and they show the drift.
-  const AlignOptions all;
-  const AlignSummary r = AlignStore(store, all);
-  EXPECT_TRUE(r.corrected);
-  EXPECT_EQ(r.frames, 72);
-  EXPECT_GT(r.pairs_found, 10);
-  EXPECT_LT(r.loop_error_after_px, r.loop_error_before_px);
-  const double after = GlobalRms(store, survey, true);
-  EXPECT_LT(after, before) << "before " << before << " px";
-  EXPECT_LT(after, 2.0) << "before " << before << " px";
-  // Online placements kept; compose draws the aligned one.
-  for (const auto& p : store.patches()) {
-    const PatchSidecar s = store.ReadSidecar(p.id);
-    EXPECT_TRUE(s.patch_to_global_online.has_value());
-    EXPECT_TRUE(s.aligned.value_or(false));
-  }
-  EXPECT_GT(ComposeMosaic(store, co).patches_used, 1);
-  // Aligning again starts from the online placements: the same result.
-  AlignStore(store, all);
-  EXPECT_NEAR(GlobalRms(store, survey, true), after, 1e-6);
+MosaickerOptions Fast(double patch_megapixels = 0) {
+  MosaickerOptions mo;
+  mo.tiff.compression = Compression::kZstd;
+  if (patch_megapixels > 0) mo.patch_megapixels = patch_megapixels;
+  return mo;
 }
 
-// Navigation from the ground truth (2 mm a texture pixel): the frames pulled towards it end up
-// closer to the truth than the online chain (1.03 -> 0.59 px here), and the navigation fits them
-// better. The first frame of this survey is tilted, so the online frame is in perspective.
-TEST(AlignStore, NavigationPullsTheFramesToTheMap) {
+ComposeOptions FastCompose() {
+  ComposeOptions co;
+  co.tiff.compression = Compression::kZstd;
+  return co;
+}
+
+// Lanes that join turned 180 degrees, and roll and pitch jittered per frame: the lanes overlap
+// side by side, which only loop closure can tie together. Every frame goes into one map, closer to
+// the truth than the engine's links alone can place it.
+TEST(AlignStore, OneMapOfTheWholeSurveyFromLinksRetrievalAndLoops) {
+  test::ScratchDir dir;
+  SurveyOptions so = test::SmallSurvey(60);
+  so.fov_deg = 60;
+  so.lanes = 4;
+  so.lane_turns = false;
+  so.attitude_jitter_deg = 0.7;
+  so.forward_overlap = 0.7;
+  so.side_overlap = 0.4;
+  const Survey survey = WriteSurvey(so, dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaicInput(dir / "survey/frames", store, Fast(0.5));  // several patches
+  // No compose first: align places every patch itself.
+  const AlignSummary r = AlignStore(store, AlignOptions{});
+  EXPECT_EQ(r.frames, 60);
+  EXPECT_EQ(r.components, 1);
+  EXPECT_GT(r.online_edges, 59);
+  EXPECT_GT(r.loop_edges + r.retrieval_edges, 10);
+  EXPECT_LT(r.rms_after_px, 1.5);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  for (const auto& p : reopened.patches()) {
+    const PatchSidecar s = reopened.ReadSidecar(p.id);
+    EXPECT_TRUE(s.aligned.value_or(false));
+    EXPECT_EQ(s.component.value_or(-1), 0);
+    for (const auto& f : s.frames) EXPECT_TRUE(f.frame_to_global.has_value());
+  }
+  const double aligned = GlobalRms(reopened, survey, true);
+  EXPECT_LT(aligned, 1.5) << "global RMS after align";
+  // compose draws every frame where align put it.
+  const ComposeResult c = ComposeMosaic(reopened, FastCompose());
+  EXPECT_TRUE(c.left_out.empty());
+  EXPECT_EQ(c.patches_used, static_cast<int>(reopened.patches().size()));
+  // The mosaic, seen back through a frame's own placement, shows that frame.
+  {
+    const Store composed = Store::Open(dir / "s.rolamos");
+    TiledImage mosaic = TiledImage::Open(composed.MosaicPath(), std::make_shared<TileCache>());
+    const PatchSidecar s = composed.ReadSidecar(composed.patches()[1].id);
+    const FrameRecord& f = s.frames[s.frames.size() / 2];
+    const cv::Matx33d F = ToMatx(*f.frame_to_global);
+    const cv::Rect2d b = WarpedBounds(F, survey.frame_size);
+    const cv::Rect area = cv::Rect(int(b.x), int(b.y), int(b.width) + 2, int(b.height) + 2) &
+                          cv::Rect(0, 0, int(mosaic.width()), int(mosaic.height()));
+    const cv::Mat part = mosaic.ReadRegion(0, area);
+    cv::Mat seen;
+    cv::warpPerspective(part, seen, cv::Mat(cv::Matx33d(1, 0, -area.x, 0, 1, -area.y, 0, 0, 1) * F), survey.frame_size,
+                        cv::INTER_LINEAR | cv::WARP_INVERSE_MAP);
+    cv::cvtColor(seen, seen, cv::COLOR_BGRA2BGR);
+    const cv::Mat frame = cv::imread(dir / ("survey/frames/" + fs::path(f.source).filename().string()));
+    const cv::Rect centre(140, 105, 200, 150);
+    EXPECT_GT(test::Psnr(seen(centre), frame(centre)), 30.0);  // 32.6 here; a 2 px error gives ~29
+  }
+  // Aligning again gives the same map (align is repeatable).
+  AlignStore(reopened, AlignOptions{});
+  EXPECT_NEAR(GlobalRms(Store::Open(dir / "s.rolamos"), survey, true), aligned, 0.05);
+}
+
+// Open water in mid-survey: two parts that share no ground become two components, placed side by
+// side, both composed; nothing is left out.
+TEST(AlignStore, PartsThatShareNoGroundAreComponentsSideBySide) {
+  test::ScratchDir dir;
+  SurveyOptions so = test::SmallSurvey(36);
+  so.lanes = 1;
+  WriteSurvey(so, dir / "survey");
+  for (int i = 14; i <= 21; ++i) {
+    char name[64];
+    std::snprintf(name, sizeof name, "/frame_%05d.jpg", i);
+    cv::imwrite(dir / ("survey/frames" + std::string(name)), cv::Mat(360, 480, CV_8UC3, cv::Scalar(70, 60, 20)));
+  }
+  Store store = Store::Create(dir / "s.rolamos");
+  const MosaicSummary m = MosaicInput(dir / "survey/frames", store, Fast());
+  const AlignSummary r = AlignStore(store, AlignOptions{});
+  EXPECT_EQ(r.frames, m.stitched);
+  EXPECT_EQ(r.components, 2);
+  ASSERT_EQ(r.component_frames.size(), 2u);
+  EXPECT_EQ(r.component_frames[0] + r.component_frames[1], m.stitched);
+  const ComposeResult c = ComposeMosaic(Store::Open(dir / "s.rolamos"), FastCompose());
+  EXPECT_TRUE(c.left_out.empty());
+  EXPECT_EQ(c.patches_used, m.patches);
+}
+
+// The same ground planted in two places the survey never connects: appearance retrieval finds the
+// pair, and it must not pull the two parts together or bend either.
+TEST(AlignStore, AFalseLoopDoesNotBendTheMap) {
+  test::ScratchDir dir;
+  SurveyOptions so = test::SmallSurvey(40);
+  so.lanes = 2;
+  const Survey survey = WriteSurvey(so, dir / "survey");
+  // Frame 35 (second lane) replaced by a copy of frame 5 (first lane, elsewhere on the ground).
+  fs::copy_file(dir / "survey/frames/frame_00005.jpg", dir / "survey/frames/frame_00035.jpg",
+                fs::copy_options::overwrite_existing);
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaicInput(dir / "survey/frames", store, Fast(0.5));
+  const AlignSummary r = AlignStore(store, AlignOptions{});
+  EXPECT_GE(r.frames, 38);
+  // Every frame but the planted one where the truth says.
+  const std::vector<double> e = test::ErrorsAgainstTruth(Store::Open(dir / "s.rolamos"), survey, true);
+  std::vector<double> sorted = e;
+  std::sort(sorted.begin(), sorted.end());
+  EXPECT_LT(sorted[sorted.size() * 9 / 10], 3.0);
+}
+
+// Navigation from the ground truth (2 mm a texture pixel): the camera centres are pulled towards
+// it and the frames end up as close to the truth as vision puts them, or closer.
+TEST(AlignStore, NavigationPullsTheCamerasToTheMap) {
   test::ScratchDir dir;
   const Survey survey = WriteSurvey(test::SmallSurvey(48), dir / "survey");
-  Store store = test::MosaicAndCompose(dir / "survey/frames", dir / "s.rolamos");
-  const double before = GlobalRms(store, survey, false);
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaicInput(dir / "survey/frames", store, Fast());
   AlignOptions o;
   for (const auto& f : survey.frames) {
     // The frame's pixel -> map affine, linearised at its centre.
@@ -77,40 +161,26 @@ TEST(AlignStore, NavigationPullsTheFramesToTheMap) {
     const double m = 0.002;
     n.geotransform = {500000 + m * (c.x - dx.x * (s.width - 1) / 2.0 - dy.x * (s.height - 1) / 2.0), m * dx.x, m * dy.x,
                       5200000 - m * (c.y - dx.y * (s.width - 1) / 2.0 - dy.y * (s.height - 1) / 2.0), -m * dx.y, -m * dy.y};
-    o.navigation[std::filesystem::path(f.file).filename().string()] = n;
+    o.navigation[fs::path(f.file).filename().string()] = n;
   }
+  o.navigation_sigma_m = 0.01;
   const AlignSummary r = AlignStore(store, o);
-  EXPECT_TRUE(r.corrected);
   EXPECT_EQ(r.navigation_frames, 48);
-  EXPECT_LT(r.navigation_after_m, r.navigation_before_m);
-  const double after = GlobalRms(store, survey, true);
-  EXPECT_LT(after, before);
-  EXPECT_LT(after, 0.8 * before) << "before " << before << " px";
+  EXPECT_LE(r.navigation_after_m, r.navigation_before_m + 1e-6);
+  EXPECT_LT(GlobalRms(Store::Open(dir / "s.rolamos"), survey, true), 1.5);
   // Navigation for none of these frames is a clear error, not a silent no-op.
   AlignOptions wrong;
   wrong.navigation["someone-else.jpg"] = o.navigation.begin()->second;
   EXPECT_NE(test::ErrorOf([&] { AlignStore(store, wrong); }).find("navigation"), std::string::npos);
 }
 
-TEST(AlignStore, ClearErrorsBeforeComposeAndForMissingFrames) {
+TEST(AlignStore, ClearErrorsForBadOptionsAndEmptyStores) {
   test::ScratchDir dir;
-  WriteSurvey(test::SmallSurvey(16), dir / "survey");
-  MosaickerOptions mo;
-  mo.tiff.compression = Compression::kZstd;
-  Store store = Store::Create(dir / "s.rolamos");
-  MosaicInput(dir / "survey/frames", store, mo);
-  EXPECT_NE(test::ErrorOf([&] { AlignStore(store, AlignOptions{}); }).find("rolamos compose"), std::string::npos);
-  ComposeOptions co;
-  co.tiff.compression = Compression::kZstd;
-  ComposeMosaic(store, co);
+  Store empty = Store::Create(dir / "e.rolamos");
+  EXPECT_NE(test::ErrorOf([&] { AlignStore(empty, AlignOptions{}); }).find("no patches"), std::string::npos);
   AlignOptions o;
-  o.frames_dir = dir / "elsewhere";
-  o.search_radius = 3;  // so that some pair is tried and its frames are needed
-  o.min_index_gap = 2;
-  EXPECT_NE(test::ErrorOf([&] { AlignStore(store, o); }).find("frames_dir"), std::string::npos);
-  o = AlignOptions{};
-  o.model = "projective";
-  EXPECT_NE(test::ErrorOf([&] { AlignStore(store, o); }).find("projective"), std::string::npos);
+  o.min_inliers = 3;
+  EXPECT_NE(test::ErrorOf([&] { AlignStore(empty, o); }).find("inliers"), std::string::npos);
 }
 
 }  // namespace

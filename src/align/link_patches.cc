@@ -3,9 +3,11 @@
 #include <chrono>
 #include <filesystem>
 #include <map>
+#include <set>
 
 
 #include "align/stored_frames.h"
+#include "store/frame_data.h"
 #include "rolamos/error.hpp"
 #include "util/homography.h"
 
@@ -39,10 +41,26 @@ LinkSummary LinkPatches(Store store, const LinkOptions& options, const ProgressF
   const FeatureOptions fo = StoredFrameFeatureOptions();
   const FeatureExtractor extractor(fo);
   std::map<std::pair<int, size_t>, Features> described;  // (patch, frame record)
+  std::set<int> loaded;  // patches whose stored features are in `described`
   auto describe = [&](const PatchSidecar& s, size_t k) -> const Features& {
     auto key = std::make_pair(s.id, k);
     auto it = described.find(key);
     if (it != described.end()) return it->second;
+    // The features the engine stored with the patch, when it did: no frame is read again.
+    if (s.frame_features && loaded.insert(s.id).second) {
+      std::map<int, size_t> record;
+      for (size_t r = 0; r < s.frames.size(); ++r) record[s.frames[r].index] = r;
+      for (const auto& f : ReadFrameFeatures((std::filesystem::path(store.dir()) / *s.frame_features).string())) {
+        auto r = record.find(f.index);
+        if (r == record.end()) continue;
+        Features g;
+        g.points = f.points;
+        f.descriptors.convertTo(g.descriptors, CV_32F);
+        described[{s.id, r->second}] = std::move(g);
+      }
+      it = described.find(key);
+      if (it != described.end()) return it->second;
+    }
     Features f = DescribeStoredFrame(StoredFramePath(s.frames[k].source, options.frames_dir), extractor);
     ++summary.frames_described;
     return described[key] = std::move(f);

@@ -31,18 +31,39 @@ void AddNavigationPoints(const FrameNavigation& nav, const cv::Matx33d& frame_to
 }
 
 std::optional<cv::Matx33d> FitSimilarity(const std::vector<cv::Point2d>& from, const std::vector<cv::Point2d>& to) {
+  if (from.size() < 2 || from.size() != to.size()) return std::nullopt;
   cv::Point2d a(0, 0), b(0, 0);
   for (size_t i = 0; i < from.size(); ++i) a += from[i], b += to[i];
   a *= 1.0 / from.size();
   b *= 1.0 / to.size();
-  std::vector<cv::Point2f> x, y;
-  for (size_t i = 0; i < from.size(); ++i) x.emplace_back(from[i] - a), y.emplace_back(to[i] - b);
-  std::vector<uchar> inliers;
-  const cv::Mat A = cv::estimateAffinePartial2D(x, y, inliers, cv::LMEDS);
-  if (A.empty()) return std::nullopt;
-  const cv::Matx23d T(A);
-  return cv::Matx33d(1, 0, b.x, 0, 1, b.y, 0, 0, 1) * cv::Matx33d(T(0, 0), T(0, 1), T(0, 2), T(1, 0), T(1, 1), T(1, 2), 0, 0, 1) *
-         cv::Matx33d(1, 0, -a.x, 0, 1, -a.y, 0, 0, 1);
+  // Image pixels run down where maps run north: the transform may be a mirror image as well as
+  // a turn. Both are fitted (a mirror as a turn of the flipped points); the better one is kept.
+  std::optional<cv::Matx33d> best;
+  double best_median = 0;
+  for (const double flip : {1.0, -1.0}) {
+    std::vector<cv::Point2f> x, y;
+    for (size_t i = 0; i < from.size(); ++i) {
+      const cv::Point2d d = from[i] - a;
+      x.emplace_back(static_cast<float>(d.x), static_cast<float>(flip * d.y));
+      y.emplace_back(to[i] - b);
+    }
+    std::vector<uchar> inliers;
+    const cv::Mat A = cv::estimateAffinePartial2D(x, y, inliers, cv::LMEDS);
+    if (A.empty()) continue;
+    const cv::Matx23d T(A);
+    const cv::Matx33d M = cv::Matx33d(1, 0, b.x, 0, 1, b.y, 0, 0, 1) *
+                          cv::Matx33d(T(0, 0), T(0, 1), T(0, 2), T(1, 0), T(1, 1), T(1, 2), 0, 0, 1) *
+                          cv::Matx33d(1, 0, 0, 0, flip, 0, 0, 0, 1) * cv::Matx33d(1, 0, -a.x, 0, 1, -a.y, 0, 0, 1);
+    std::vector<double> residuals;
+    for (size_t i = 0; i < from.size(); ++i) residuals.push_back(cv::norm(ApplyHomography(M, from[i]) - to[i]));
+    std::nth_element(residuals.begin(), residuals.begin() + residuals.size() / 2, residuals.end());
+    const double median = residuals[residuals.size() / 2];
+    if (!best || median < best_median) {
+      best = M;
+      best_median = median;
+    }
+  }
+  return best;
 }
 
 }  // namespace rolamos

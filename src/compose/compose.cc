@@ -1,5 +1,6 @@
 #include "rolamos/compose.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <map>
@@ -59,6 +60,8 @@ std::string Fingerprint(const std::vector<PlacedPatch>& placed, const ComposeRes
     const auto time = std::filesystem::last_write_time(p.path, ec).time_since_epoch().count();
     f << '\n' << p.id << ' ' << p.path << ' ' << bytes << ' ' << time;
     for (int k = 0; k < 9; ++k) f << ' ' << p.to_mosaic.val[k];
+    for (const auto& l : p.local)
+      for (int k = 0; k < 9; ++k) f << ' ' << l.to_mosaic.val[k];
   }
   return FingerprintHex(f.str());
 }
@@ -129,6 +132,17 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
     }
     p.to_mosaic = G;  // global for now; the mosaic's offset and scale come next
     p.size = cv::Size(static_cast<int>(s.size[0]), static_cast<int>(s.size[1]));
+    // Aligned frames each have their own placement: the patch goes piecewise, frame by frame.
+    const bool per_frame = s.aligned.value_or(false) && s.frame_size && !s.frames.empty() &&
+                           std::all_of(s.frames.begin(), s.frames.end(), [](const FrameRecord& f) { return f.frame_to_global.has_value(); });
+    if (per_frame) {
+      const cv::Point2d c(((*s.frame_size)[0] - 1) / 2.0, ((*s.frame_size)[1] - 1) / 2.0);
+      for (const auto& f : s.frames) {
+        const cv::Matx33d F = ToMatx(*f.frame_to_global);
+        p.local.push_back({F * ToMatx(f.frame_to_patch).inv(), ApplyHomography(F, c)});
+      }
+      p.local_sigma = 0.35 * std::max((*s.frame_size)[0], (*s.frame_size)[1]);
+    }
     to_global[entry.id] = G;
     placed.push_back(p);
   }
@@ -156,6 +170,15 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
   for (auto& p : placed) {
     p.to_mosaic = S * O * p.to_mosaic;
     p.bounds = WarpedBounds(p.to_mosaic, p.size);
+    for (auto& l : p.local) {
+      l.to_mosaic = S * O * l.to_mosaic;
+      l.centre = ApplyHomography(S * O, l.centre);
+    }
+    if (!p.local.empty()) {  // the pieces may reach a little past the single placement
+      const double grow = 8 + 0.02 * std::max(p.bounds.width, p.bounds.height);
+      p.bounds = cv::Rect2d(p.bounds.x - grow, p.bounds.y - grow, p.bounds.width + 2 * grow, p.bounds.height + 2 * grow);
+      p.local_sigma *= scale;
+    }
   }
 
   // 3. Chunk by chunk on all cores, journaled so that an interrupted run resumes.
@@ -185,6 +208,8 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
   for (const auto& p : placed) {
     PatchSidecar s = store.ReadSidecar(p.id);
     s.patch_to_global = ToArray9(O * to_global[p.id]);  // full-resolution global pixels
+    for (auto& f : s.frames)  // the frames' own placements move with it
+      if (f.frame_to_global) f.frame_to_global = ToArray9(O * ToMatx(*f.frame_to_global));
     store.UpdateSidecar(s);
   }
   GlobalRecord global = store.global();

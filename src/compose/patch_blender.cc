@@ -37,6 +37,60 @@ cv::Mat FeatherFromAlpha(const cv::Mat& alpha, int width) {
   return cv::min(dist / static_cast<float>(width), 1.0f);
 }
 
+// Mosaic region pixel -> read-region pixel through the frames' own placements, blended: maps for
+// cv::remap over `roi` (region pixels), computed on a coarse grid (the blend is smooth) and
+// interpolated.
+void LocalMaps(const PlacedPatch& p, const cv::Rect& rect, const cv::Rect& roi, const cv::Matx33d& R,
+               cv::Mat* map_x, cv::Mat* map_y) {
+  constexpr int kStep = 8;
+  const int gw = roi.width / kStep + 2, gh = roi.height / kStep + 2;
+  cv::Mat gx(gh, gw, CV_32F), gy(gh, gw, CV_32F);
+  // The frames that matter here, and their mosaic -> read-region maps.
+  const cv::Point2d mid(rect.x + roi.x + roi.width / 2.0, rect.y + roi.y + roi.height / 2.0);
+  const double reach = 3 * p.local_sigma + std::hypot(roi.width, roi.height);
+  std::vector<std::pair<cv::Matx33d, cv::Point2d>> near;
+  for (const auto& l : p.local)
+    if (cv::norm(l.centre - mid) < reach) near.emplace_back((l.to_mosaic * R).inv(), l.centre);
+  if (near.empty())
+    for (const auto& l : p.local) near.emplace_back((l.to_mosaic * R).inv(), l.centre);
+  const double k = -0.5 / (p.local_sigma * p.local_sigma);
+  for (int j = 0; j < gh; ++j) {
+    for (int i = 0; i < gw; ++i) {
+      const cv::Point2d m(rect.x + roi.x + i * kStep, rect.y + roi.y + j * kStep);
+      double sx = 0, sy = 0, sw = 0, dmin = 1e300;
+      for (const auto& [inv, c] : near) dmin = std::min(dmin, (m - c).dot(m - c));
+      for (const auto& [inv, c] : near) {
+        const double w = std::exp(k * ((m - c).dot(m - c) - dmin));  // relative to the nearest: no underflow
+        const cv::Point2d q = ApplyHomography(inv, m);
+        sx += w * q.x;
+        sy += w * q.y;
+        sw += w;
+      }
+      gx.at<float>(j, i) = static_cast<float>(sx / sw);
+      gy.at<float>(j, i) = static_cast<float>(sy / sw);
+    }
+  }
+  // Grid node (i, j) sits at roi pixel (i, j) * kStep: bilinear between nodes.
+  map_x->create(roi.height, roi.width, CV_32F);
+  map_y->create(roi.height, roi.width, CV_32F);
+  for (int v = 0; v < roi.height; ++v) {
+    const int j = v / kStep;
+    const float b = float(v - j * kStep) / kStep;
+    float* mx = map_x->ptr<float>(v);
+    float* my = map_y->ptr<float>(v);
+    for (int u = 0; u < roi.width; ++u) {
+      const int i = u / kStep;
+      const float a = float(u - i * kStep) / kStep;
+      auto lerp = [&](const cv::Mat& g) {
+        return (1 - b) * ((1 - a) * g.at<float>(j, i) + a * g.at<float>(j, i + 1)) +
+               b * ((1 - a) * g.at<float>(j + 1, i) + a * g.at<float>(j + 1, i + 1));
+      };
+      mx[u] = lerp(gx);
+      my[u] = lerp(gy);
+    }
+  }
+}
+
 }  // namespace
 
 PatchBlender::PatchBlender(std::vector<PlacedPatch> patches, double scale, int feather_px)
@@ -98,12 +152,20 @@ cv::Mat PatchBlender::Render(const cv::Rect& rect) const {
     // read-region pixel -> patch level-0 pixel -> region pixel -> roi pixel
     const cv::Matx33d R(1 / fx, 0, (rx0 + 0.5) / fx - 0.5, 0, 1 / fy, (ry0 + 0.5) / fy - 0.5, 0, 0, 1);
     const bool interior = rx0 > 0 && ry0 > 0 && rx1 < L.width && ry1 < L.height;
+    cv::Mat map_x, map_y;
+    if (!p.local.empty()) LocalMaps(p, rect, roi, R, &map_x, &map_y);
     if (acc.empty() && interior && OnlyOne(k, area) && cv::countNonZero(alpha != 255) == 0) {
       // A region well inside a single patch, where every weight is 1 (the common case on a large
       // survey): the 8-bit warp is the blend, and 4x faster than the sums.
       cv::Mat out;
-      cv::warpPerspective(px, out, cv::Mat(to_region * R), rect.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
-      return out;
+      if (p.local.empty()) {
+        cv::warpPerspective(px, out, cv::Mat(to_region * R), rect.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+        return out;
+      }
+      if (roi == cv::Rect(0, 0, rect.width, rect.height)) {
+        cv::remap(px, out, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+        return out;
+      }
     }
     const cv::Mat weight = FeatherFromAlpha(alpha, feather);
     // Weighted colour and the weight, warped together.
@@ -116,7 +178,10 @@ cv::Mat PatchBlender::Render(const cv::Rect& rect) const {
     }
     const cv::Matx33d T(1, 0, -roi.x, 0, 1, -roi.y, 0, 0, 1);
     cv::Mat warped = Scratch(warped_buffer, roi.height, roi.width, CV_32FC4);
-    cv::warpPerspective(weighted, warped, cv::Mat(T * to_region * R), roi.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+    if (p.local.empty())
+      cv::warpPerspective(weighted, warped, cv::Mat(T * to_region * R), roi.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+    else
+      cv::remap(weighted, warped, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
     if (acc.empty()) {
       acc = Scratch(acc_buffer, rect.height, rect.width, CV_32FC4);
       acc.setTo(cv::Scalar::all(0));

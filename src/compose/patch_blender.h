@@ -15,13 +15,25 @@
 
 namespace rolamos {
 
+// Where the part of a patch around one of its frames goes (after `rolamos align`, every frame has
+// its own placement): patch level-0 pixel -> mosaic pixel, and the frame's centre on the mosaic.
+struct LocalPlacement {
+  cv::Matx33d to_mosaic;
+  cv::Point2d centre;
+};
+
 struct PlacedPatch {
   int id = 0;
   std::string path;
   std::shared_ptr<const TiledImage> image;  // opened (and checked) when the patch was placed
   cv::Size size;           // level-0 pixels
-  cv::Matx33d to_mosaic;   // patch level-0 pixel -> mosaic pixel
+  cv::Matx33d to_mosaic;   // patch level-0 pixel -> mosaic pixel (the best single one)
   cv::Rect2d bounds;       // in mosaic pixels
+  // Per frame, when the frames were placed one by one: the patch is warped piecewise, each
+  // mosaic pixel taken from where the frames nearest it put it (weights falling off with the
+  // distance from each frame's centre, so the pieces join without a step).
+  std::vector<LocalPlacement> local;
+  double local_sigma = 1;  // mosaic pixels
 };
 
 class PatchBlender {

@@ -4,6 +4,7 @@
 #include <filesystem>
 #include <chrono>
 #include <deque>
+#include <map>
 #include <atomic>
 #include <mutex>
 #include <cmath>
@@ -35,6 +36,41 @@ namespace {
 // The working canvas (refinement and recovery against the patch) at half resolution: a quarter
 // of the blending work; the patch image is blended at full resolution when it closes.
 constexpr double kWorkingScale = 0.5;
+
+// What the store keeps for the global map: pairs a link, features a frame.
+constexpr int kStoredPairsPerLink = 48;
+constexpr int kStoredFeatures = 400;
+
+// A frame's features as the store keeps them: at most kStoredFeatures, spread over a grid of the
+// frame (each cell's in turn), SIFT descriptors as bytes (OpenCV's are whole numbers below 256).
+StoredFeatures ToStored(int index, const Features& f, cv::Size frame) {
+  StoredFeatures s;
+  s.index = index;
+  if (f.norm != cv::NORM_L2 || f.descriptors.cols != 128) return s;  // only SIFT goes to the store
+  constexpr int kCells = 8;
+  std::vector<std::vector<int>> cells(kCells * kCells);
+  for (size_t i = 0; i < f.points.size(); ++i) {
+    const int cx = std::clamp(int(f.points[i].x * kCells / std::max(1, frame.width)), 0, kCells - 1);
+    const int cy = std::clamp(int(f.points[i].y * kCells / std::max(1, frame.height)), 0, kCells - 1);
+    cells[size_t(cy * kCells + cx)].push_back(static_cast<int>(i));
+  }
+  std::vector<int> keep;
+  for (size_t round = 0; static_cast<int>(keep.size()) < kStoredFeatures; ++round) {
+    bool any = false;
+    for (const auto& c : cells) {
+      if (round >= c.size() || static_cast<int>(keep.size()) >= kStoredFeatures) continue;
+      keep.push_back(c[round]);
+      any = true;
+    }
+    if (!any) break;
+  }
+  s.descriptors = cv::Mat(static_cast<int>(keep.size()), 128, CV_8U);
+  for (size_t k = 0; k < keep.size(); ++k) {
+    s.points.push_back(f.points[size_t(keep[k])]);
+    f.descriptors.row(keep[k]).convertTo(s.descriptors.row(static_cast<int>(k)), CV_8U);
+  }
+  return s;
+}
 
 // Largest distance between where two homographies put the frame's corners.
 double MaxCornerShift(const cv::Matx33d& a, const cv::Matx33d& b, cv::Size s) {
@@ -336,6 +372,18 @@ cv::Matx33d Mosaicker::Impl::ClosePatch(const std::string& why, const std::optio
     job.sidecar.extra["adjustment"] = {{"skipped", adjusted.note}};
   }
   job.data_rect = rect;
+  // For the global map: the links (thinned) and each frame's strongest features, spread out.
+  std::map<int, int> patch_of;
+  for (const auto& f : frames) patch_of[f.index] = patch_id;
+  if (closing) patch_of[closing->index] = next_patch_id;
+  for (const auto& l : all) {
+    auto a = patch_of.find(l.a), b = patch_of.find(l.b);
+    if (a == patch_of.end() || b == patch_of.end()) continue;
+    const FrameLink thin = Thin(l, kStoredPairsPerLink, frame_size);
+    job.links.push_back({{a->second, l.a}, {b->second, l.b}, thin.in_a, thin.in_b});
+  }
+  for (const auto& pf : patch_frames)
+    if (pf.features) job.features.push_back(ToStored(pf.index, *pf.features, frame_size));
   canvas.reset();
   writer.Submit(std::move(job));
   ++summary.patches;

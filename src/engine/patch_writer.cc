@@ -1,6 +1,7 @@
 #include "engine/patch_writer.h"
 
 #include <chrono>
+#include <filesystem>
 #include <limits>
 
 #include "util/homography.h"
@@ -75,6 +76,18 @@ void PatchWriter::Write(PatchJob& job) {
   }
   writer.Finish();
   canvas.reset();  // free the canvas before committing
+  // Links and features first: a committed sidecar names only files that are there.
+  const std::string stem = store_.PatchSidecarPath(job.sidecar.id).substr(0, store_.PatchSidecarPath(job.sidecar.id).size() - 5);
+  const std::string rel = std::filesystem::path(stem).parent_path().filename().string() + "/" +
+                          std::filesystem::path(stem).filename().string();
+  if (!job.links.empty()) {
+    WriteFrameLinks(stem + ".links.json", job.links);
+    job.sidecar.frame_links = rel + ".links.json";
+  }
+  if (!job.features.empty()) {
+    WriteFrameFeatures(stem + ".features", job.features);
+    job.sidecar.frame_features = rel + ".features";
+  }
   busy_ns_ += std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - start).count();
   store_.CommitPatch(job.sidecar);
   ++written_;

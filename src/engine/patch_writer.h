@@ -12,6 +12,7 @@
 
 #include "engine/patch_canvas.h"
 #include "engine/preprocess.h"
+#include "store/frame_data.h"
 #include "rolamos/store.hpp"
 #include "rolamos/tiff_writer.hpp"
 
@@ -34,6 +35,9 @@ struct PatchJob {
   std::vector<cv::Matx33d> placements;  // frame -> patch coordinates
   std::shared_ptr<const FeatherCode> weights;
   const Preprocessor* temporal = nullptr;  // the temporal filter, when on
+  // For the global map: the links found between the patch's frames, and their features.
+  std::vector<StoredLink> links;
+  std::vector<StoredFeatures> features;
 };
 
 class PatchWriter {

@@ -67,16 +67,37 @@ struct Transfer {
   double cx, cy, w;
 };
 
-struct CentreResidual {
-  CentreResidual(const CentrePrior& p) : p(p) {}
+// Every pixel of a link at once (2 n residuals).
+struct LinkTransfer {
+  LinkTransfer(const PlaneLink* l, double cx, double cy) : l(l), cx(cx), cy(cy) {}
   template <typename T>
-  bool operator()(const T* c, T* r) const {
-    r[0] = (c[0] - T(p.xy.x)) / T(p.sigma_px);
-    r[1] = (c[1] - T(p.xy.y)) / T(p.sigma_px);
-    r[2] = p.altitude_px ? (-c[2] - T(*p.altitude_px)) / T(p.altitude_sigma_px) : T(0);
+  bool operator()(const T* ea, const T* ca, const T* eb, const T* cb, const T* f, T* r) const {
+    for (size_t i = 0; i < l->in_a.size(); ++i)
+      if (!Transfer(l->in_a[i], l->in_b[i], cx, cy, l->weight)(ea, ca, eb, cb, f, r + 2 * i)) return false;
     return true;
   }
-  CentrePrior p;
+  const PlaneLink* l;
+  double cx, cy;
+};
+
+// The ground under a frame's pixel against where navigation puts it.
+struct GroundResidual {
+  GroundResidual(const GroundPrior& p, double cx, double cy) : p(p), cx(cx), cy(cy) {}
+  template <typename T>
+  bool operator()(const T* e, const T* c, const T* f, T* r) const {
+    T R[9];
+    Rotation(e, R);
+    const T v[3] = {(T(p.pixel.x) - T(cx)) / f[0], (T(p.pixel.y) - T(cy)) / f[0], T(1)};
+    T d[3];
+    for (int k = 0; k < 3; ++k) d[k] = R[k] * v[0] + R[3 + k] * v[1] + R[6 + k] * v[2];
+    if (!(d[2] > T(1e-6))) return false;
+    const T s = -c[2] / d[2];
+    r[0] = (c[0] + s * d[0] - T(p.xy.x)) / T(p.sigma_px);
+    r[1] = (c[1] + s * d[1] - T(p.xy.y)) / T(p.sigma_px);
+    return true;
+  }
+  GroundPrior p;
+  double cx, cy;
 };
 
 }  // namespace
@@ -102,7 +123,7 @@ namespace {
 // One solve over the links not dropped.
 PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size frame,
                           const std::vector<PlaneLink>& links, const std::vector<char>& dropped, int anchor,
-                          const std::vector<char>& held, const std::vector<CentrePrior>& priors,
+                          const std::vector<char>& held, const std::vector<GroundPrior>& priors,
                           const PlaneAdjustmentOptions& o) {
   PlaneAdjustment result;
   const size_t n = poses->size();
@@ -119,10 +140,25 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
   std::unique_ptr<ceres::LossFunction> loss;
   if (o.loss == "cauchy") loss = std::make_unique<ceres::CauchyLoss>(o.loss_px);
   else loss = std::make_unique<ceres::HuberLoss>(o.loss_px);
+  std::vector<std::unique_ptr<ceres::LossFunction>> owned_losses;  // per-link losses outlive the problem
   std::vector<char> used(n, 0);
   for (size_t k = 0; k < links.size(); ++k) {
     const PlaneLink& l = links[k];
     if (dropped[k] || l.a < 0 || l.b < 0 || size_t(l.a) >= n || size_t(l.b) >= n || l.a == l.b) continue;
+    if (o.per_link && !l.in_a.empty()) {
+      auto* cost = new ceres::AutoDiffCostFunction<LinkTransfer, ceres::DYNAMIC, 3, 3, 3, 3, 1>(
+          new LinkTransfer(&l, cx, cy), 2 * static_cast<int>(l.in_a.size()));
+      // The knee where the link's RMS reaches loss_px.
+      const double a = o.loss_px * std::sqrt(double(l.in_a.size()));
+      ceres::LossFunction* link_loss =
+          o.loss == "cauchy" ? static_cast<ceres::LossFunction*>(new ceres::CauchyLoss(a)) : new ceres::HuberLoss(a);
+      problem.AddResidualBlock(cost, link_loss, angles[size_t(l.a)].data(), centres[size_t(l.a)].data(),
+                               angles[size_t(l.b)].data(), centres[size_t(l.b)].data(), focal);
+      owned_losses.emplace_back(link_loss);
+      result.residuals += static_cast<int>(l.in_a.size());
+      used[size_t(l.a)] = used[size_t(l.b)] = 1;
+      continue;
+    }
     for (size_t i = 0; i < l.in_a.size(); ++i) {
       auto* cost = new ceres::AutoDiffCostFunction<Transfer, 2, 3, 3, 3, 3, 1>(
           new Transfer(l.in_a[i], l.in_b[i], cx, cy, l.weight));
@@ -134,8 +170,8 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
   }
   for (const auto& p : priors) {
     if (p.frame < 0 || size_t(p.frame) >= n || !used[size_t(p.frame)]) continue;
-    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<CentreResidual, 3, 3>(new CentreResidual(p)),
-                             nullptr, centres[size_t(p.frame)].data());
+    problem.AddResidualBlock(new ceres::AutoDiffCostFunction<GroundResidual, 2, 3, 3, 1>(new GroundResidual(p, cx, cy)),
+                             nullptr, angles[size_t(p.frame)].data(), centres[size_t(p.frame)].data(), focal);
   }
   if (result.residuals == 0) {
     result.message = "no links to adjust";
@@ -192,7 +228,7 @@ double LinkRms(const std::vector<PlanePose>& poses, double focal, cv::Size frame
 
 PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, cv::Size frame,
                                  const std::vector<PlaneLink>& links, int anchor,
-                                 const std::vector<char>& held, const std::vector<CentrePrior>& priors,
+                                 const std::vector<char>& held, const std::vector<GroundPrior>& priors,
                                  const PlaneAdjustmentOptions& o) {
   const auto start = std::chrono::steady_clock::now();
   PlaneAdjustment result;

@@ -23,14 +23,13 @@ struct PlaneLink {
   double weight = 1.0;  // multiplies every residual of the link
 };
 
-// Where a frame's camera centre is known to be (navigation), in map pixels, with its standard
-// deviation; the altitude too when known.
-struct CentrePrior {
+// Where the ground under a pixel of a frame is known to be (navigation: usually the frame's
+// centre), in map pixels, with its standard deviation.
+struct GroundPrior {
   int frame = 0;
-  cv::Point2d xy;
+  cv::Point2d pixel;  // of the frame
+  cv::Point2d xy;     // on the plane
   double sigma_px = 1.0;
-  std::optional<double> altitude_px;
-  double altitude_sigma_px = 1.0;
 };
 
 struct PlaneAdjustmentOptions {
@@ -45,6 +44,9 @@ struct PlaneAdjustmentOptions {
   // registration must not bend everything around it. 0 = keep every link.
   double drop_link_px = 4.0;
   int rounds = 3;
+  // One residual block (and one robust loss) per link rather than per matched pixel: a false
+  // link is discounted as a whole, and surveys of thousands of frames build a small problem.
+  bool per_link = false;
 
   bool IsValid(std::string* error) const;
 };
@@ -66,7 +68,7 @@ struct PlaneAdjustment {
 // measured against the plane); frames marked in `held` (may be empty) keep their whole pose.
 PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, cv::Size frame,
                                  const std::vector<PlaneLink>& links, int anchor,
-                                 const std::vector<char>& held, const std::vector<CentrePrior>& priors,
+                                 const std::vector<char>& held, const std::vector<GroundPrior>& priors,
                                  const PlaneAdjustmentOptions& options);
 
 // RMS transfer error of the links under the poses (frame pixels), as the adjustment measures it.

@@ -138,6 +138,9 @@ json SidecarToJson(const PatchSidecar& s) {
   if (s.patch_to_global_online) j["patch_to_global_online"] = *s.patch_to_global_online;
   if (s.aligned) j["aligned"] = *s.aligned;
   if (s.closed_by) j["closed_by"] = *s.closed_by;
+  if (s.frame_links) j["frame_links"] = *s.frame_links;
+  if (s.frame_features) j["frame_features"] = *s.frame_features;
+  if (s.component) j["component"] = *s.component;
   return j;
 }
 
@@ -227,9 +230,13 @@ PatchSidecar SidecarFromJson(const json& j, const std::string& where) {
     s.aligned = r.Get("aligned").get<bool>();
   }
   if (r.Has("closed_by")) s.closed_by = r.String("closed_by");
+  if (r.Has("frame_links")) s.frame_links = r.String("frame_links");
+  if (r.Has("frame_features")) s.frame_features = r.String("frame_features");
+  if (r.Has("component")) s.component = static_cast<int>(r.Int("component", 0, kMaxInt));
   s.extra = Extra(j, {"id", "size", "n_images", "offset", "first_homography", "last_homography",
                       "patch_to_global", "frames", "rejected", "link", "pixel_budget", "frame_size",
-                      "patch_to_global_online", "aligned", "closed_by"});
+                      "patch_to_global_online", "aligned", "closed_by", "frame_links", "frame_features",
+                      "component"});
   return s;
 }
 

@@ -1,5 +1,7 @@
 #include "rolamos/store.hpp"
 
+#include <algorithm>
+
 #include <cstdio>
 #include <filesystem>
 
@@ -162,6 +164,45 @@ void Store::UpdateSidecar(const PatchSidecar& sidecar) {
     }
   }
   Fail(ManifestPath(), "no patch " + std::to_string(sidecar.id));
+}
+
+void Store::ReplaceSidecars(const std::vector<PatchSidecar>& sidecars, const GlobalRecord& global) {
+  std::lock_guard<std::mutex> lock(state_->mutex);
+  // The next generation of sidecar names: patches/NNNNNN.vG.json.
+  int generation = 0;
+  for (const auto& p : state_->patches) {
+    const std::string name = fs::path(p.sidecar).filename().string();
+    const size_t v = name.rfind(".v");
+    if (v != std::string::npos && name.size() > v + 7 && name.substr(name.size() - 5) == ".json")
+      generation = std::max(generation, std::atoi(name.substr(v + 2, name.size() - 5 - v - 2).c_str()));
+  }
+  ++generation;
+  std::vector<PatchEntry> entries = state_->patches;
+  std::vector<std::string> old_files;
+  for (const auto& s : sidecars) {
+    auto it = std::find_if(entries.begin(), entries.end(), [&](const PatchEntry& e) { return e.id == s.id; });
+    if (it == entries.end()) Fail(ManifestPath(), "no patch " + std::to_string(s.id));
+    const std::string rel = PatchStem(s.id) + ".v" + std::to_string(generation) + ".json";
+    WriteFileAtomic((fs::path(dir_) / rel).string(), SidecarToJson(s).dump(1) + "\n");
+    old_files.push_back((fs::path(dir_) / it->sidecar).string());
+    it->sidecar = rel;
+  }
+  const std::vector<PatchEntry> before = state_->patches;
+  const GlobalRecord global_before = state_->global;
+  state_->patches = entries;
+  state_->global = global;
+  state_->global.n_patches = static_cast<int>(entries.size());
+  try {
+    WriteManifestLocked();
+  } catch (...) {
+    state_->patches = before;
+    state_->global = global_before;
+    throw;
+  }
+  for (const auto& f : old_files) {
+    std::error_code ec;
+    fs::remove(f, ec);  // an old sidecar left behind is harmless: the manifest no longer names it
+  }
 }
 
 std::vector<PatchEntry> Store::patches() const {
