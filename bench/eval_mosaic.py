@@ -51,7 +51,9 @@ def main():
     gx, gy = np.meshgrid(np.linspace(0, w - 1, 5), np.linspace(0, h - 1, 5))
     grid = np.c_[gx.ravel(), gy.ravel()]
     frame_rms, stitched = [], 0
-    for side in sorted(glob.glob(os.path.join(store, "patches", "*.json"))):
+    manifest = json.load(open(os.path.join(store, "store.json")))
+    for entry in manifest["patches"]:
+        side = os.path.join(store, entry["sidecar"])
         s = json.load(open(side))
         src, dst, owners = [], [], []
         for i, f in enumerate(s["frames"]):

@@ -30,12 +30,12 @@ struct AlignOptions {
   std::string frames_dir;
   int retrieval_candidates = 5;  // most similar frames tried per frame (appearance)
   int vocabulary = 32;           // VLAD words
-  int loops_per_frame = 3;       // spatial neighbours tried per frame under the first solution
+  int loops_per_frame = 4;       // spatial neighbours tried per frame under the first solution
   double loop_overlap = 0.2;     // footprint overlap that makes two frames spatial neighbours
   int min_index_gap = 8;         // frames of one patch closer in the sequence are chain neighbours
   int min_inliers = 25;          // an edge needs this many RANSAC inliers
   int pairs_per_edge = 24;       // matched pixels kept per edge in the optimisation
-  double loss_px = 2.0;          // Cauchy knee: an edge whose RMS passes this is discounted
+  double loss_px = 1.0;          // Cauchy knee: an edge whose RMS passes this is discounted
   // Per-frame navigation (ReadNavigationCsv): each camera centre pulled towards it.
   std::map<std::string, FrameNavigation> navigation;
   double navigation_sigma_m = 0.5;  // how far a centre may stray from its navigation (1 sigma)

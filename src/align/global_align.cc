@@ -281,41 +281,79 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
   }
   report(0.35);
 
-  // 4. Components, and a first placement along a spanning tree (the engine's links first).
+  // 4. Components, and a first placement: within a patch the engine's own placements (already
+  //    adjusted together), between patches a spanning tree of their strongest edges (the engine's
+  //    links first), so that few estimates are chained.
   Components comp{static_cast<size_t>(N)};
-  std::vector<size_t> order(edges.size());
-  std::iota(order.begin(), order.end(), 0);
-  std::stable_sort(order.begin(), order.end(), [&](size_t x, size_t y) {
-    if (edges[x].kind != edges[y].kind) return edges[x].kind < edges[y].kind;
-    return edges[x].in_a.size() > edges[y].in_a.size();
-  });
-  std::vector<std::vector<std::pair<int, size_t>>> tree(static_cast<size_t>(N));  // (neighbour, edge)
-  for (size_t k : order) {
-    const Edge& e = edges[k];
-    if (comp.Join(e.a, e.b)) {
-      tree[size_t(e.a)].emplace_back(e.b, k);
-      tree[size_t(e.b)].emplace_back(e.a, k);
+  for (const auto& e : edges) comp.Join(e.a, e.b);
+  struct PatchEdge {
+    int p = 0, q = 0;
+    cv::Matx33d p_to_q;
+    EdgeKind kind = kOnline;
+    size_t inliers = 0;
+  };
+  std::map<std::pair<int, int>, PatchEdge> between;  // strongest edge per pair of patches
+  for (const auto& e : edges) {
+    const Node& a = nodes[size_t(e.a)];
+    const Node& b = nodes[size_t(e.b)];
+    if (a.patch == b.patch) continue;
+    const cv::Mat H = cv::findHomography(e.in_a, e.in_b, 0);  // a -> b
+    if (H.empty()) continue;
+    PatchEdge pe;
+    pe.p = a.patch;
+    pe.q = b.patch;
+    pe.p_to_q = b.to_patch * cv::Matx33d(H) * a.to_patch.inv();
+    pe.kind = e.kind;
+    pe.inliers = e.in_a.size();
+    auto key = std::make_pair(std::min(pe.p, pe.q), std::max(pe.p, pe.q));
+    if (pe.p > pe.q) {
+      std::swap(pe.p, pe.q);
+      pe.p_to_q = pe.p_to_q.inv();
     }
+    auto it = between.find(key);
+    if (it == between.end() || std::make_pair(-int(pe.kind), pe.inliers) > std::make_pair(-int(it->second.kind), it->second.inliers))
+      between[key] = pe;
   }
-  std::vector<cv::Matx33d> G(static_cast<size_t>(N), cv::Matx33d::eye());  // frame -> plane
-  std::vector<char> placed(static_cast<size_t>(N), 0);
-  std::map<int, std::vector<int>> members;  // root -> frames
-  for (int i = 0; i < N; ++i) members[comp.Find(i)].push_back(i);
-  for (auto& [root, list] : members) {
-    std::vector<int> queue{root};
-    placed[size_t(root)] = 1;
-    for (size_t q = 0; q < queue.size(); ++q) {
-      const int u = queue[q];
-      for (const auto& [v, k] : tree[size_t(u)]) {
-        if (placed[size_t(v)]) continue;
-        const Edge& e = edges[k];
-        cv::Mat H = cv::findHomography(e.in_a, e.in_b, 0);  // a -> b
-        cv::Matx33d Hab = H.empty() ? cv::Matx33d::eye() : cv::Matx33d(H);
-        G[size_t(v)] = e.a == u ? G[size_t(u)] * Hab.inv() : G[size_t(u)] * Hab;
-        G[size_t(v)] *= 1.0 / G[size_t(v)](2, 2);
-        placed[size_t(v)] = 1;
+  std::vector<PatchEdge> order;
+  for (const auto& [key, pe] : between) order.push_back(pe);
+  std::stable_sort(order.begin(), order.end(), [](const PatchEdge& x, const PatchEdge& y) {
+    return x.kind != y.kind ? x.kind < y.kind : x.inliers > y.inliers;
+  });
+  std::map<int, int> patch_slot;
+  for (const auto& [id, s] : sidecars) patch_slot[id] = static_cast<int>(patch_slot.size());
+  Components patch_comp{patch_slot.size()};
+  std::map<int, std::vector<std::pair<int, cv::Matx33d>>> patch_tree;  // patch -> (neighbour, this -> neighbour)
+  for (const auto& pe : order)
+    if (patch_comp.Join(patch_slot[pe.p], patch_slot[pe.q])) {
+      patch_tree[pe.p].emplace_back(pe.q, pe.p_to_q);
+      patch_tree[pe.q].emplace_back(pe.p, pe.p_to_q.inv());
+    }
+  std::map<int, cv::Matx33d> patch_to_plane;
+  for (const auto& [id, s] : sidecars) {
+    if (patch_to_plane.count(id)) continue;
+    patch_to_plane[id] = cv::Matx33d::eye();
+    std::vector<int> queue{id};
+    for (size_t k = 0; k < queue.size(); ++k) {
+      const int u = queue[k];
+      for (const auto& [v, u_to_v] : patch_tree[u]) {
+        if (patch_to_plane.count(v)) continue;
+        cv::Matx33d G = patch_to_plane[u] * u_to_v.inv();
+        G *= 1.0 / G(2, 2);
+        patch_to_plane[v] = G;
         queue.push_back(v);
       }
+    }
+  }
+  std::vector<cv::Matx33d> G(static_cast<size_t>(N));
+  for (int i = 0; i < N; ++i) G[size_t(i)] = patch_to_plane[nodes[size_t(i)].patch] * nodes[size_t(i)].to_patch;
+  std::map<int, std::vector<int>> members;  // root -> frames
+  for (int i = 0; i < N; ++i) members[comp.Find(i)].push_back(i);
+  // Each component's reference: its first frame, level, its pixels the plane's.
+  for (auto& [root, list] : members) {
+    const cv::Matx33d to_ref = G[size_t(root)].inv();
+    for (int i : list) {
+      G[size_t(i)] = to_ref * G[size_t(i)];
+      G[size_t(i)] *= 1.0 / G[size_t(i)](2, 2);
     }
   }
   std::vector<PlanePose> poses(static_cast<size_t>(N));
@@ -328,7 +366,7 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
   po.loss_px = o.loss_px;
   po.per_link = true;
   po.drop_link_px = 3 * o.loss_px;
-  po.max_iterations = 60;
+  po.max_iterations = 200;
   std::vector<char> dropped(edges.size(), 0);
   auto adjust = [&](const std::vector<GroundPrior>& priors) {
     std::vector<std::pair<int, std::vector<int>>> parts(members.begin(), members.end());
