@@ -13,6 +13,7 @@
 #include "rolamos/survey.hpp"
 #include "rolamos/tiled_image.hpp"
 #include "test_support.h"
+#include "util/files.h"
 #include "util/homography.h"
 
 namespace fs = std::filesystem;
@@ -172,6 +173,54 @@ TEST(AlignStore, NavigationPullsTheCamerasToTheMap) {
   AlignOptions wrong;
   wrong.navigation["someone-else.jpg"] = o.navigation.begin()->second;
   EXPECT_NE(test::ErrorOf([&] { AlignStore(store, wrong); }).find("navigation"), std::string::npos);
+}
+
+// Navigation that disagrees with vision for part of the survey (a bad fix, a jump of a metre) is
+// discounted: the map keeps to the frames.
+TEST(AlignStore, NavigationThatContradictsVisionForPartOfTheSurveyIsDiscounted) {
+  test::ScratchDir dir;
+  const Survey survey = WriteSurvey(test::SmallSurvey(48), dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaicInput(dir / "survey/frames", store, Fast());
+  AlignOptions o;
+  for (const auto& f : survey.frames) {
+    const cv::Matx33d W = ToMatx(f.frame_to_world);
+    const cv::Size s = survey.frame_size;
+    const cv::Point2d c = ApplyHomography(W, {(s.width - 1) / 2.0, (s.height - 1) / 2.0});
+    const cv::Point2d dx = ApplyHomography(W, {(s.width + 1) / 2.0, (s.height - 1) / 2.0}) - c;
+    const cv::Point2d dy = ApplyHomography(W, {(s.width - 1) / 2.0, (s.height + 1) / 2.0}) - c;
+    FrameNavigation n;
+    n.crs = "EPSG:32755";
+    const double m = 0.002;
+    const double jump = f.index >= 20 && f.index < 28 ? 1.0 : 0.0;  // eight frames a metre off
+    n.geotransform = {500000 + jump + m * (c.x - dx.x * (s.width - 1) / 2.0 - dy.x * (s.height - 1) / 2.0), m * dx.x,
+                      m * dy.x, 5200000 - m * (c.y - dx.y * (s.width - 1) / 2.0 - dy.y * (s.height - 1) / 2.0),
+                      -m * dx.y, -m * dy.y};
+    o.navigation[fs::path(f.file).filename().string()] = n;
+  }
+  o.navigation_sigma_m = 0.01;
+  AlignStore(store, o);
+  EXPECT_LT(GlobalRms(Store::Open(dir / "s.rolamos"), survey, true), 3.0);
+}
+
+// An align stopped half way (here by its progress callback; kill -9 in the CLI test) leaves the
+// store exactly as it was: every sidecar the old one.
+TEST(AlignStore, AnInterruptedAlignLeavesTheStoreAsItWas) {
+  test::ScratchDir dir;
+  WriteSurvey(test::SmallSurvey(24), dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaicInput(dir / "survey/frames", store, Fast(0.5));
+  const std::string before = ReadSmallFile(dir / "s.rolamos/store.json");
+  EXPECT_THROW(AlignStore(store, AlignOptions{}, [](double f) {
+                 if (f > 0.5) throw Error("stopped");
+               }),
+               Error);
+  EXPECT_EQ(ReadSmallFile(dir / "s.rolamos/store.json"), before);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  for (const auto& p : reopened.patches()) EXPECT_FALSE(reopened.ReadSidecar(p.id).aligned.has_value());
+  // And the next align completes.
+  AlignStore(reopened, AlignOptions{});
+  EXPECT_TRUE(Store::Open(dir / "s.rolamos").ReadSidecar(1).aligned.value_or(false));
 }
 
 TEST(AlignStore, ClearErrorsForBadOptionsAndEmptyStores) {

@@ -170,8 +170,12 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
   }
   for (const auto& p : priors) {
     if (p.frame < 0 || size_t(p.frame) >= n || !used[size_t(p.frame)]) continue;
+    // Robust too: navigation that contradicts vision for part of a survey (a bad fix, a jump)
+    // is discounted beyond three of its sigmas instead of bending the map towards it.
+    auto* prior_loss = new ceres::CauchyLoss(3.0);
+    owned_losses.emplace_back(prior_loss);
     problem.AddResidualBlock(new ceres::AutoDiffCostFunction<GroundResidual, 2, 3, 3, 1>(new GroundResidual(p, cx, cy)),
-                             nullptr, angles[size_t(p.frame)].data(), centres[size_t(p.frame)].data(), focal);
+                             prior_loss, angles[size_t(p.frame)].data(), centres[size_t(p.frame)].data(), focal);
   }
   if (result.residuals == 0) {
     result.message = "no links to adjust";

@@ -2,6 +2,7 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <map>
 #include <sstream>
 
 #include "rolamos/error.hpp"
@@ -62,6 +63,8 @@ json DescribeStore(const std::string& dir) {
       pj["n_images"] = s.n_images;
       pj["rejected"] = s.rejected.size();
       pj["linked"] = s.patch_to_global.has_value();
+      if (s.component) pj["component"] = *s.component;
+      if (s.closed_by) pj["closed_by"] = *s.closed_by;
       json img = DescribeImage((std::filesystem::path(dir) / p.image).string());
       pj["levels"] = img["levels"].size();
       pj["compression"] = img["compression"];
@@ -132,6 +135,26 @@ std::string FormatDescription(const json& j) {
       << "\n  global: " << g["size"][0] << " x " << g["size"][1] << " px, " << g["n_images"]
       << " images in " << g["n_patches"] << " patches, scale " << g["scale"]
       << (g["crs"].is_null() ? ", not georeferenced" : ", georeferenced") << "\n";
+  // The parts of the map (after `rolamos align`): ground no frame connects lies between them.
+  std::map<int, std::pair<int, int>> parts;  // component -> (patches, images)
+  int unaligned = 0, rejected = 0;
+  for (const auto& p : j["patches"]) {
+    if (p.contains("rejected")) rejected += p["rejected"].get<int>();
+    if (!p.contains("component")) {
+      ++unaligned;
+      continue;
+    }
+    auto& part = parts[p["component"].get<int>()];
+    ++part.first;
+    part.second += p.value("n_images", 0);
+  }
+  if (!parts.empty()) {
+    out << "  map: " << parts.size() << " part" << (parts.size() == 1 ? "" : "s") << " (side by side where no ground connects them):";
+    for (const auto& [c, pi] : parts) out << " [" << c << "] " << pi.second << " images in " << pi.first << " patches;";
+    out << "\n";
+  }
+  if (unaligned && !parts.empty()) out << "  " << unaligned << " patches not in the aligned map (added after `rolamos align`?)\n";
+  if (rejected) out << "  " << rejected << " frames rejected by the engine, each with its reason in its patch's sidecar\n";
   for (const auto& p : j["patches"]) {
     out << "  patch " << p["id"] << ": ";
     if (p.contains("size"))
@@ -140,6 +163,8 @@ std::string FormatDescription(const json& j) {
     if (p.contains("levels"))
       out << ", " << p["levels"] << " levels, " << p["compression"].get<std::string>() << ", "
           << Fmt("%.1f MiB", p["file_bytes"].get<double>() / 1048576.0);
+    if (p.contains("component")) out << ", part " << p["component"];
+    if (p.contains("closed_by")) out << ", closed by " << p["closed_by"].get<std::string>();
     if (p.contains("problem")) out << "  PROBLEM: " << p["problem"].get<std::string>();
     out << "\n";
   }
