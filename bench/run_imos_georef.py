@@ -48,7 +48,7 @@ def georeference(store, nav):
 
 def main():
     ap = argparse.ArgumentParser()
-    ap.add_argument("--weight", type=float, default=None)
+    ap.add_argument("--sigma", type=float, default=None, help="align --navigation-sigma (m)")
     a = ap.parse_args()
     nav = os.path.join(DATA, "georef_frames.csv")
     os.makedirs(OUT, exist_ok=True)
@@ -67,8 +67,8 @@ def main():
         scatter = navigation_scatter(store, seq, affines)
         crs, px, med0, max0 = georeference(store, nav)
         align = [CLI, "align", store, "-q", "--navigation", nav]
-        if a.weight is not None:
-            align += ["--navigation-weight", str(a.weight)]
+        if a.sigma is not None:
+            align += ["--navigation-sigma", str(a.sigma)]
         out = run(align)
         crs, px1, med1, max1 = georeference(store, nav)
         before_all.append(med0)
