@@ -15,7 +15,8 @@ struct MosaicSwitches {
   // from costing frames per second.
   TiffSwitches tiff{"webp", 90, 256, 0, 9, 0};
   bool no_bilateral = false, no_temporal = false, no_clahe = false, no_fundamental = false,
-       no_kalman = false, no_ecc = false, no_cross_check = false, no_recover = false, no_patch_fit = false, no_adjust = false;
+       no_kalman = false, no_ecc = false, no_cross_check = false, no_recover = false, no_patch_fit = false, no_adjust = false,
+       no_flat_field = false, no_exposure = false, no_water_colour = false;
   bool quiet = false;
 };
 
@@ -30,6 +31,9 @@ static int RunMosaic(MosaicSwitches s) {
   o.recover = !s.no_recover;
   o.patch_fit = !s.no_patch_fit;
   o.adjust_patches = !s.no_adjust;
+  o.flat_field = !s.no_flat_field;
+  o.exposure = !s.no_exposure;
+  o.water_colour = !s.no_water_colour;
   o.ecc = !s.no_ecc;
   o.cross_check = !s.no_cross_check;
   o.tiff = ToWriteOptions(s.tiff);
@@ -98,6 +102,10 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
   cmd->add_flag("--no-recover", s->no_recover,
                 "no recovery: a frame is registered to the previous one only, never against the patch's other "
                 "frames or image, and rejected frames get no second chance");
+  cmd->add_flag("--no-flat-field", s->no_flat_field,
+                "keep the lighting (vignetting, the lights' cone) the survey's frames share");
+  cmd->add_flag("--no-exposure", s->no_exposure, "no matching of each frame's exposure to its neighbours'");
+  cmd->add_flag("--no-water-colour", s->no_water_colour, "keep the water's colour cast");
   cmd->add_flag("--no-adjust", s->no_adjust,
                 "keep the online placements: no adjustment of each patch's frames as cameras over the seafloor plane "
                 "when it closes");

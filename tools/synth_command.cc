@@ -56,6 +56,10 @@ void AddSynthCommand(CLI::App& app, Runner* run) {
       ->capture_default_str();
   cmd->add_option("--vignetting", o.vignetting, "corner darkening 0..1")->capture_default_str();
   cmd->add_option("--backscatter", o.backscatter, "haze (0 = off)")->capture_default_str();
+  cmd->add_option("--light-cone", o.light_cone, "the vehicle's lights, a bright spot off the centre (0..1, 0 = off)")
+      ->capture_default_str();
+  cmd->add_option("--exposure-jitter", o.exposure_jitter, "per-frame exposure gain, standard deviation (0 = off)")
+      ->capture_default_str();
   cmd->add_option("--noise", o.noise, "sensor noise sigma")->capture_default_str();
   cmd->add_option("--particles", o.particles, "marine snow per frame")->capture_default_str();
   cmd->add_option("--jpeg", o.jpeg_quality, "JPEG quality (0 = PNG)")->capture_default_str();

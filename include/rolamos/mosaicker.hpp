@@ -64,6 +64,12 @@ struct MosaickerOptions {
   std::string ecc_motion = "translation";  // translation | euclidean | affine | homography
   // 5. Blending: Gaussian sigma as a fraction of the frame (0.2, 0.1, 0.01), 0 = plain average
   double feather_sigma = 0.2;
+  // Colour, before blending: the survey's lighting (vignetting, the lights' cone) divided out,
+  // each frame's exposure matched to its neighbours', the water's colour cast balanced. The
+  // survey-wide estimates are kept in <store>/lighting.json.
+  bool flat_field = true;
+  bool exposure = true;
+  bool water_colour = true;
   // 6. Memory management
   double patch_megapixels = 5.0;
   double patch_memory_mb = 0;     // if > 0, also bounds the patch canvas (16 bytes a pixel)

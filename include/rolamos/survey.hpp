@@ -37,6 +37,8 @@ struct SurveyOptions {
   double attenuation = 1.0;   // red/green loss with altitude
   double vignetting = 0.35;   // darkening at the corners
   double backscatter = 0.08;  // blue-green haze
+  double light_cone = 0;      // the vehicle's lights: a bright spot off the centre, 0..1 of brightness
+  double exposure_jitter = 0; // per-frame exposure gain drawn around 1 (standard deviation)
   double noise = 2.0;         // sensor noise sigma, grey levels
   int particles = 40;         // marine snow per frame
   int jpeg_quality = 92;      // 0 = write PNG

@@ -22,7 +22,9 @@
 #include "engine/preprocess.h"
 #include "engine/patch_adjustment.h"
 #include "engine/registration.h"
+#include "engine/colour.h"
 #include "engine/static_mask.h"
+#include "util/files.h"
 #include "engine/stage_options.h"
 #include "rolamos/error.hpp"
 #include "util/homography.h"
@@ -163,6 +165,7 @@ struct Mosaicker::Impl {
   size_t image_bytes = 0;
   std::vector<FrameLink> links;
   PatchAdjustmentOptions adjust_options;
+  std::unique_ptr<ColourModel> colour;
   // The last stitched frame: what the next one is registered to.
   PatchFrame prev;
   std::shared_ptr<const Features> last_prepared;      // Push: of the last frame with features
@@ -198,6 +201,11 @@ struct Mosaicker::Impl {
         ecc_options(ToEccOptions(o)),
         writer(s, o.tiff) {
     adjust_options.enabled = o.adjust_patches;
+    ColourOptions co;
+    co.lighting = o.flat_field;
+    co.exposure = o.exposure;
+    co.water_colour = o.water_colour;
+    colour = std::make_unique<ColourModel>(co);
     adjust_options.solver.refine_focal = getenv("ROLAMOS_REFINE_FOCAL") != nullptr;
   }
 
@@ -281,6 +289,7 @@ void Mosaicker::Impl::Stitch(const cv::Mat& image, const cv::Matx33d& to_patch,
                              const std::shared_ptr<const Features>& f, const FrameReport& report,
                              std::vector<FrameLink> found) {
   canvas->Add(image, *weights, to_patch);
+  if (options.flat_field || options.water_colour) colour->Add(image, usable.size() == image.size() ? usable : cv::Mat());
   images.push_back(image);
   image_bytes += image.total() * image.elemSize();
   if (adjust_options.enabled)
@@ -358,6 +367,8 @@ cv::Matx33d Mosaicker::Impl::ClosePatch(const std::string& why, const std::optio
     job.placements.push_back(adjusted.used ? adjusted.frame_to_patch[i] : ToMatx(frames[i].frame_to_patch));
   job.weights = weights;
   job.temporal = options.temporal ? &pre : nullptr;
+  if (options.flat_field || options.water_colour) job.colour = colour->Correction(frame_size);
+  job.exposure = options.exposure;
   // Frames registered late (second chance) go back to input order.
   std::stable_sort(frames.begin(), frames.end(), [](const FrameRecord& a, const FrameRecord& b) { return a.index < b.index; });
   job.sidecar = AssemblePatchSidecar(patch_id, rect, frames, rejected, link, options.PixelBudget(), frame_size);
@@ -801,6 +812,8 @@ MosaicSummary Mosaicker::Finish() {
   Impl& m = *impl_;
   m.ClosePatch("end");
   m.writer.Wait();
+  if ((m.options.flat_field || m.options.water_colour) && m.colour->frames() > 0)
+    WriteFileAtomic(m.store.dir() + "/lighting.json", m.colour->ToJson());
   m.summary.seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - m.start).count();
   m.summary.peak_rss_mb = PeakRssMb();

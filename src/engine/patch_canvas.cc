@@ -45,9 +45,10 @@ bool PatchCanvas::Fits(const cv::Rect2d& bounds) const {
 namespace {
 
 // Whether any pixel of `part` (BGRW) carries weight: the ROI's empty corners need no blocks.
+template <typename Px>
 bool AnyWeight(const cv::Mat& part) {
   for (int y = 0; y < part.rows; ++y) {
-    const cv::Vec4b* p = part.ptr<cv::Vec4b>(y);
+    const Px* p = part.ptr<Px>(y);
     for (int x = 0; x < part.cols; ++x)
       if (p[x][3]) return true;
   }
@@ -57,14 +58,18 @@ bool AnyWeight(const cv::Mat& part) {
 }  // namespace
 
 void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& frame_to_patch) {
-  CV_Assert(frame.type() == CV_8UC3 && weights.code.size() == frame.size());
+  // 16-bit frames (colour-corrected, kDeepScale per grey level) only where nothing is reduced.
+  const bool deep = frame.type() == CV_16UC3;
+  CV_Assert((frame.type() == CV_8UC3 || (deep && scale_ == 1 && !reduced_)) && weights.code.size() == frame.size());
   const cv::Rect patch_roi = Enclosing(FrameBounds(frame_to_patch, frame.size()));
   data_ = data_.empty() ? patch_roi : (data_ | patch_roi);
   // Colour and weight code travel together in one 4-channel warp into the ROI only:
   // frame -> ROI pixel = T(-roi.tl) * H. Edge pixels repeat past the frame (colours are never
   // mixed with black) while the weight code, 0 on the frame's outer ring, fades to nothing.
-  cv::Mat bgrw(frame.size(), CV_8UC4);
-  const cv::Mat in[] = {frame, weights.code};
+  cv::Mat code = weights.code;
+  if (deep) weights.code.convertTo(code, CV_16U);
+  cv::Mat bgrw(frame.size(), deep ? CV_16UC4 : CV_8UC4);
+  const cv::Mat in[] = {frame, code};
   const int from_to[] = {0, 0, 1, 1, 2, 2, 3, 3};
   cv::mixChannels(in, 2, &bgrw, 1, from_to, 4);
   cv::Matx33d H = ToCanvas() * frame_to_patch;
@@ -89,7 +94,9 @@ void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv
     for (int bx = bx0; bx <= bx1; ++bx) {
       const cv::Rect block_rect(bx * kBlock, by * kBlock, kBlock, kBlock);
       const cv::Rect overlap = block_rect & roi;
-      if (overlap.empty() || !AnyWeight(warped(overlap - roi.tl()))) continue;
+      if (overlap.empty() || (deep ? !AnyWeight<cv::Vec4w>(warped(overlap - roi.tl()))
+                                   : !AnyWeight<cv::Vec4b>(warped(overlap - roi.tl()))))
+        continue;
       Block& b = blocks_[Key(bx, by)];
       if (b.sum.empty()) {
         b.sum = cv::Mat::zeros(kBlock, kBlock, CV_32FC3);
@@ -112,9 +119,20 @@ void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv
       const int bx = overlap.x - block_rect.x;
       for (int y = overlap.y; y < overlap.y + overlap.height; ++y) {
         const int by = y - block_rect.y;
-        const cv::Vec4b* px = warped.ptr<cv::Vec4b>(y - roi.y) + (overlap.x - roi.x);
         cv::Vec3f* acc = b.sum.ptr<cv::Vec3f>(by) + bx;
         float* wsum = b.weight.ptr<float>(by) + bx;
+        if (deep) {
+          const cv::Vec4w* pw = warped.ptr<cv::Vec4w>(y - roi.y) + (overlap.x - roi.x);
+          constexpr float kInv = 1.0f / kDeepScale;
+          for (int x = 0; x < overlap.width; ++x) {
+            if (!pw[x][3]) continue;
+            const float a = table[std::min<int>(pw[x][3], 255)];
+            acc[x] += cv::Vec3f(a * pw[x][0] * kInv, a * pw[x][1] * kInv, a * pw[x][2] * kInv);
+            wsum[x] += a;
+          }
+          continue;
+        }
+        const cv::Vec4b* px = warped.ptr<cv::Vec4b>(y - roi.y) + (overlap.x - roi.x);
         if (!reduced_) {
           for (int x = 0; x < overlap.width; ++x) {
             if (!px[x][3]) continue;

@@ -26,7 +26,11 @@ class PatchCanvas {
   // Whether the patch's bounding box, grown to hold `bounds`, stays within the budget.
   bool Fits(const cv::Rect2d& bounds) const;
   bool empty() const { return blocks_.empty(); }
-  // Warps and accumulates a frame (BGR 8-bit) with its feather weights.
+  // Grey levels of a 16-bit frame are this many of its units: colour-corrected frames keep
+  // fractions and values past 255 until the patch is rendered.
+  static constexpr float kDeepScale = 64.0f;
+  // Warps and accumulates a frame (BGR 8-bit, or 16-bit in kDeepScale units on a full-resolution
+  // canvas without reduced sums) with its feather weights.
   void Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& frame_to_patch);
   // The blended mosaic (BGRA 8-bit, alpha 0 where nothing was added) of a rectangle of the
   // canvas's pixels (patch coordinates at scale 1).

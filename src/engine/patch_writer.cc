@@ -1,5 +1,9 @@
 #include "engine/patch_writer.h"
 
+#include <opencv2/imgproc.hpp>
+
+#include "engine/colour.h"
+
 #include <chrono>
 #include <filesystem>
 #include <limits>
@@ -55,13 +59,38 @@ void PatchWriter::Write(PatchJob& job) {
   // The temporal term of the paper's filter (each frame averaged with the one stitched before it,
   // brought in by their final placements), then blending at full resolution.
   auto canvas = std::make_unique<PatchCanvas>(std::numeric_limits<long long>::max(), 1.0, false);
+  // Exposure gains from the corrected frames at 1/8 resolution (where they overlap on the patch).
+  std::vector<double> gains(job.images.size(), 1.0);
+  const bool colour = !job.colour.empty() || job.exposure;
+  if (job.exposure) {
+    constexpr double kGainScale = 0.125;
+    cv::Mat small_colour;
+    if (!job.colour.empty()) cv::resize(job.colour, small_colour, cv::Size(), kGainScale, kGainScale, cv::INTER_AREA);
+    std::vector<cv::Mat> small(job.images.size());
+    for (size_t i = 0; i < job.images.size(); ++i) {
+      cv::resize(job.images[i], small[i], cv::Size(), kGainScale, kGainScale, cv::INTER_AREA);
+      small[i].convertTo(small[i], CV_32F);
+      if (!small_colour.empty() && small_colour.size() == small[i].size()) small[i] = small[i].mul(small_colour);
+    }
+    gains = SolveExposureGains(small, kGainScale, job.placements, job.exposure_prior);
+  }
   cv::Mat previous;
   for (size_t i = 0; i < job.images.size(); ++i) {
     cv::Mat filtered = job.images[i];
     if (job.temporal && !previous.empty())
       filtered = job.temporal->Temporal(job.images[i], previous, job.placements[i - 1].inv() * job.placements[i]);
-    canvas->Add(filtered, *job.weights, job.placements[i]);
     previous = filtered;
+    if (colour) {
+      // Corrected in float and blended in 16 bits: no clipping before the patch is rendered.
+      cv::Mat f;
+      filtered.convertTo(f, CV_32F, gains[i] * PatchCanvas::kDeepScale);
+      if (!job.colour.empty()) f = f.mul(job.colour);
+      cv::Mat deep;
+      f.convertTo(deep, CV_16U);
+      canvas->Add(deep, *job.weights, job.placements[i]);
+    } else {
+      canvas->Add(filtered, *job.weights, job.placements[i]);
+    }
     job.images[i].release();
   }
   PixelLayout layout;

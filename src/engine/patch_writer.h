@@ -35,6 +35,11 @@ struct PatchJob {
   std::vector<cv::Matx33d> placements;  // frame -> patch coordinates
   std::shared_ptr<const FeatherCode> weights;
   const Preprocessor* temporal = nullptr;  // the temporal filter, when on
+  // Colour: per-pixel multiplier of every frame (lighting and water colour; empty = none), and
+  // whether each frame's exposure is matched to its neighbours.
+  cv::Mat colour;
+  bool exposure = false;
+  double exposure_prior = 0.05;
   // For the global map: the links found between the patch's frames, and their features.
   std::vector<StoredLink> links;
   std::vector<StoredFeatures> features;

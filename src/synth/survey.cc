@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -42,6 +43,8 @@ bool SurveyOptions::IsValid(std::string* error) const {
   if (!(max_turn_deg > 0 && max_turn_deg <= 180))
     return bad("max turn " + std::to_string(max_turn_deg) + " degrees is outside (0, 180]");
   if (jpeg_quality < 0 || jpeg_quality > 100) return bad("JPEG quality must be 0 (PNG) or 1..100");
+  if (!(light_cone >= 0 && light_cone <= 1) || !(exposure_jitter >= 0 && exposure_jitter <= 0.5))
+    return bad("light cone must be in [0, 1] and exposure jitter in [0, 0.5]");
   if (noise < 0 || particles < 0 || vignetting < 0 || vignetting > 1 || backscatter < 0 ||
       attenuation < 0 || altitude_jitter < 0 || altitude_jitter > 0.5 || tilt_deg < 0 || tilt_deg > 30)
     return bad("a degradation or motion setting is out of range");
@@ -176,11 +179,18 @@ cv::Mat Degrade(const cv::Mat& clean, const SurveyOptions& o, const CameraPose& 
   const cv::Scalar haze = cv::Scalar(0.38, 0.33, 0.08) * o.backscatter;
   const float cx = (f.cols - 1) / 2.0f, cy = (f.rows - 1) / 2.0f;
   const float rmax2 = cx * cx + cy * cy;
+  // The vehicle's lights: a broad bright cone a little below and left of the centre (lights sit
+  // beside the camera), fixed in the frame; and the camera's exposure, different every frame.
+  const float lx = cx - 0.15f * f.cols, ly = cy + 0.12f * f.rows, lr2 = 0.18f * rmax2;
+  std::normal_distribution<double> exposure(1.0, o.exposure_jitter);
+  const float e = o.exposure_jitter > 0 ? static_cast<float>(std::clamp(exposure(rng), 0.5, 1.5)) : 1.0f;
   for (int y = 0; y < f.rows; ++y) {
     cv::Vec3f* p = f.ptr<cv::Vec3f>(y);
     for (int x = 0; x < f.cols; ++x) {
       const float r2 = ((x - cx) * (x - cx) + (y - cy) * (y - cy)) / rmax2;
-      const float v = 1.0f - static_cast<float>(o.vignetting) * r2;
+      const float d2 = ((x - lx) * (x - lx) + (y - ly) * (y - ly)) / lr2;
+      const float light = 1.0f - static_cast<float>(o.light_cone) * (1.0f - 1.6f * std::exp(-0.5f * d2));
+      const float v = (1.0f - static_cast<float>(o.vignetting) * r2) * light * e;
       for (int c = 0; c < 3; ++c)
         p[x][c] = p[x][c] * static_cast<float>(gain[c]) * v +
                   static_cast<float>(haze[c]) * (0.8f + 0.4f * r2);

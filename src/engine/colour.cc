@@ -1,0 +1,222 @@
+#include "engine/colour.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <Eigen/Dense>
+#include <nlohmann/json.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "rolamos/error.hpp"
+#include "util/homography.h"
+
+namespace rolamos {
+
+bool ColourOptions::IsValid(std::string* error) const {
+  if (degree < 0 || degree > 8 || freeze_frames < 4 || !(exposure_prior > 0)) {
+    *error = "colour settings are out of range (polynomial degree 0..8, freeze after at least 4 frames)";
+    return false;
+  }
+  return true;
+}
+
+namespace {
+
+constexpr double kMinLevel = 2.0;  // grey levels: darker pixels carry no lighting information
+
+// The polynomial's terms x^i y^j, i + j <= degree, at (x, y) in [-1, 1].
+std::vector<double> Terms(double x, double y, int degree) {
+  std::vector<double> t;
+  for (int i = 0; i <= degree; ++i)
+    for (int j = 0; i + j <= degree; ++j) t.push_back(std::pow(x, i) * std::pow(y, j));
+  return t;
+}
+
+}  // namespace
+
+ColourModel::ColourModel(const ColourOptions& options) : options_(options) {
+  std::string error;
+  if (!options.IsValid(&error)) Fail("colour", error);
+  log_sum_ = cv::Mat::zeros(grid_, CV_64FC3);
+  count_ = cv::Mat::zeros(grid_, CV_64F);
+}
+
+void ColourModel::Add(const cv::Mat& frame, const cv::Mat& usable) {
+  if (frozen() || frame.empty()) return;
+  CV_Assert(frame.type() == CV_8UC3);
+  cv::Mat small, ok;
+  cv::resize(frame, small, grid_, 0, 0, cv::INTER_AREA);
+  if (!usable.empty()) cv::resize(usable, ok, grid_, 0, 0, cv::INTER_AREA);
+  // Saturated cells say nothing about the lighting either.
+  for (int y = 0; y < grid_.height; ++y)
+    for (int x = 0; x < grid_.width; ++x) {
+      const cv::Vec3b p = small.at<cv::Vec3b>(y, x);
+      if (!ok.empty() && ok.at<uchar>(y, x) < 250) continue;
+      if (std::max({p[0], p[1], p[2]}) >= 250) continue;
+      cv::Vec3d& s = log_sum_.at<cv::Vec3d>(y, x);
+      for (int c = 0; c < 3; ++c) s[c] += std::log(std::max(kMinLevel, double(p[c])));
+      count_.at<double>(y, x) += 1;
+    }
+  const cv::Scalar m = usable.empty() ? cv::mean(frame) : cv::mean(frame, usable);
+  for (int c = 0; c < 3; ++c) mean_sum_[size_t(c)] += m[c];
+  ++frames_;
+}
+
+void ColourModel::Fit() const {
+  if (fitted_at_ == frames_) return;
+  fitted_at_ = frames_;
+  coefficients_.clear();
+  balance_ = {1, 1, 1};
+  if (frames_ < 8) return;
+  // Lighting: log brightness of each cell over the frames, less its channel's mean, fitted by a
+  // smooth polynomial (what is left of the seafloor's own texture averages out).
+  const int terms = static_cast<int>(Terms(0, 0, options_.degree).size());
+  std::vector<std::vector<double>> rows;
+  std::vector<cv::Vec3d> values;
+  std::vector<double> weights;
+  for (int y = 0; y < grid_.height; ++y)
+    for (int x = 0; x < grid_.width; ++x) {
+      const double n = count_.at<double>(y, x);
+      if (n < 3) continue;
+      rows.push_back(Terms(2.0 * (x + 0.5) / grid_.width - 1, 2.0 * (y + 0.5) / grid_.height - 1, options_.degree));
+      values.push_back(log_sum_.at<cv::Vec3d>(y, x) / n);
+      weights.push_back(std::sqrt(n));
+    }
+  if (options_.lighting && static_cast<int>(rows.size()) > 2 * terms) {
+    Eigen::MatrixXd A(rows.size(), terms);
+    Eigen::MatrixXd b(rows.size(), 3);
+    for (size_t r = 0; r < rows.size(); ++r) {
+      for (int k = 0; k < terms; ++k) A(Eigen::Index(r), k) = weights[r] * rows[r][size_t(k)];
+      for (int c = 0; c < 3; ++c) b(Eigen::Index(r), c) = weights[r] * values[r][c];
+    }
+    const Eigen::MatrixXd x = A.colPivHouseholderQr().solve(b);
+    coefficients_.assign(size_t(terms), {0, 0, 0});
+    for (int k = 0; k < terms; ++k)
+      for (int c = 0; c < 3; ++c) coefficients_[size_t(k)][size_t(c)] = x(k, c);
+    // The constant term is the channel's level, not lighting: the correction keeps the level.
+    coefficients_[0] = {0, 0, 0};
+  }
+  // Water colour: the survey's mean colour made grey, within bounds (a seafloor of one colour
+  // keeps most of it), and only against a clear cast.
+  if (options_.water_colour) {
+    std::array<double, 3> mean{};
+    for (int c = 0; c < 3; ++c) mean[size_t(c)] = std::max(1.0, mean_sum_[size_t(c)] / frames_);
+    const double grey = (mean[0] + mean[1] + mean[2]) / 3;
+    const double cast = *std::max_element(mean.begin(), mean.end()) / *std::min_element(mean.begin(), mean.end());
+    if (cast > 1.15)
+      for (int c = 0; c < 3; ++c) balance_[size_t(c)] = std::clamp(grey / mean[size_t(c)], 0.6, 2.5);
+  }
+}
+
+cv::Mat ColourModel::Correction(cv::Size frame) const {
+  Fit();
+  cv::Mat small(grid_, CV_32FC3, cv::Scalar::all(1));
+  if (!coefficients_.empty()) {
+    for (int y = 0; y < grid_.height; ++y)
+      for (int x = 0; x < grid_.width; ++x) {
+        const auto t = Terms(2.0 * (x + 0.5) / grid_.width - 1, 2.0 * (y + 0.5) / grid_.height - 1, options_.degree);
+        cv::Vec3f& v = small.at<cv::Vec3f>(y, x);
+        for (int c = 0; c < 3; ++c) {
+          double p = 0;
+          for (size_t k = 0; k < t.size(); ++k) p += coefficients_[k][size_t(c)] * t[k];
+          v[c] = static_cast<float>(std::clamp(std::exp(-p), 0.25, 4.0));
+        }
+      }
+  }
+  cv::Mat out;
+  cv::resize(small, out, frame, 0, 0, cv::INTER_CUBIC);
+  out = cv::max(out, 0.2);
+  cv::multiply(out, cv::Scalar(balance_[0], balance_[1], balance_[2]), out);
+  return out;
+}
+
+std::string ColourModel::ToJson() const {
+  Fit();
+  nlohmann::json j = {{"format", "rolamos-lighting"}, {"version", 1}, {"frames", frames_},
+                      {"degree", options_.degree}, {"white_balance", balance_}};
+  nlohmann::json c = nlohmann::json::array();
+  for (const auto& k : coefficients_) c.push_back(k);
+  j["coefficients"] = c;  // per term x^i y^j (i outer, j inner, i + j <= degree): log brightness, BGR
+  return j.dump(1) + "\n";
+}
+
+ColourModel ColourModel::FromJson(const std::string& text, const ColourOptions& options, const std::string& where) {
+  const nlohmann::json j = nlohmann::json::parse(text, nullptr, false);
+  if (j.is_discarded() || j.value("format", "") != "rolamos-lighting") Fail(where, "is not a rolamos lighting file");
+  ColourOptions o = options;
+  try {
+    o.degree = j.at("degree").get<int>();
+    ColourModel m(o);
+    m.frames_ = std::max(o.freeze_frames, j.at("frames").get<int>());  // frozen as written
+    for (const auto& k : j.at("coefficients")) m.coefficients_.push_back({k.at(0), k.at(1), k.at(2)});
+    for (int c = 0; c < 3; ++c) m.balance_[size_t(c)] = j.at("white_balance").at(size_t(c)).get<double>();
+    if (!m.coefficients_.empty() && m.coefficients_.size() != Terms(0, 0, o.degree).size())
+      Fail(where, "has " + std::to_string(m.coefficients_.size()) + " coefficients for degree " + std::to_string(o.degree));
+    m.fitted_at_ = m.frames_;
+    return m;
+  } catch (const nlohmann::json::exception& e) {
+    Fail(where, std::string("malformed lighting: ") + e.what());
+  }
+}
+
+std::vector<double> SolveExposureGains(const std::vector<cv::Mat>& images, double scale,
+                                       const std::vector<cv::Matx33d>& placements, double prior) {
+  const size_t n = images.size();
+  std::vector<double> gains(n, 1.0);
+  if (n < 2) return gains;
+  // Each frame's brightness on the patch at the images' resolution, with where it is.
+  const cv::Matx33d S(scale, 0, 0.5 * (scale - 1), 0, scale, 0.5 * (scale - 1), 0, 0, 1);
+  struct Placed {
+    cv::Rect box;
+    cv::Mat lum, mask;
+  };
+  std::vector<Placed> placed(n);
+  for (size_t k = 0; k < n; ++k) {
+    cv::Mat gray;
+    cv::cvtColor(images[k], gray, cv::COLOR_BGR2GRAY);
+    gray.convertTo(gray, CV_32F);
+    const cv::Matx33d H = S * placements[k] * S.inv();
+    const cv::Rect2d b = WarpedBounds(H, gray.size());
+    placed[k].box = cv::Rect(int(std::floor(b.x)), int(std::floor(b.y)), int(std::ceil(b.width)) + 1, int(std::ceil(b.height)) + 1);
+    const cv::Matx33d T(1, 0, -placed[k].box.x, 0, 1, -placed[k].box.y, 0, 0, 1);
+    cv::warpPerspective(gray, placed[k].lum, cv::Mat(T * H), placed[k].box.size(), cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+    cv::Mat ones(gray.size(), CV_8U, cv::Scalar(255));
+    cv::warpPerspective(ones, placed[k].mask, cv::Mat(T * H), placed[k].box.size(), cv::INTER_NEAREST, cv::BORDER_CONSTANT);
+    cv::erode(placed[k].mask, placed[k].mask, cv::Mat());
+  }
+  // log g_k + log m_k(kj) = log g_j + log m_j(kj) for every overlapping pair, and the gains held
+  // to their average.
+  std::vector<std::array<double, 4>> eq;  // k, j, log(m_j / m_k), weight
+  for (size_t k = 0; k < n; ++k)
+    for (size_t j = k + 1; j < n; ++j) {
+      const cv::Rect common = placed[k].box & placed[j].box;
+      if (common.area() < 50) continue;
+      const cv::Mat mk = placed[k].mask(common - placed[k].box.tl()), mj = placed[j].mask(common - placed[j].box.tl());
+      const cv::Mat both = mk & mj;
+      const int count = cv::countNonZero(both);
+      if (count < 50) continue;
+      const double lk = cv::mean(placed[k].lum(common - placed[k].box.tl()), both)[0];
+      const double lj = cv::mean(placed[j].lum(common - placed[j].box.tl()), both)[0];
+      if (!(lk > 1 && lj > 1)) continue;
+      eq.push_back({double(k), double(j), std::log(lj / lk), std::sqrt(double(count))});
+    }
+  if (eq.empty()) return gains;
+  Eigen::MatrixXd A = Eigen::MatrixXd::Zero(Eigen::Index(eq.size() + n + 1), Eigen::Index(n));
+  Eigen::VectorXd b = Eigen::VectorXd::Zero(A.rows());
+  for (size_t r = 0; r < eq.size(); ++r) {
+    const auto& [k, j, d, w] = eq[r];
+    A(Eigen::Index(r), Eigen::Index(k)) = w;
+    A(Eigen::Index(r), Eigen::Index(j)) = -w;
+    b(Eigen::Index(r)) = w * d;
+  }
+  double wmean = 0;
+  for (const auto& e : eq) wmean += e[3];
+  wmean /= eq.size();
+  for (size_t k = 0; k < n; ++k) A(Eigen::Index(eq.size() + k), Eigen::Index(k)) = prior * wmean;
+  for (size_t k = 0; k < n; ++k) A(Eigen::Index(eq.size() + n), Eigen::Index(k)) = wmean;  // mean log gain 0
+  const Eigen::VectorXd x = A.colPivHouseholderQr().solve(b);
+  for (size_t k = 0; k < n; ++k) gains[k] = std::clamp(std::exp(x(Eigen::Index(k))), 0.5, 2.0);
+  return gains;
+}
+
+}  // namespace rolamos
