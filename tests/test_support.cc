@@ -124,6 +124,29 @@ double MaskedPsnr(const cv::Mat& a, const cv::Mat& b) {
 
 double Psnr(const cv::Mat& a, const cv::Mat& b) { return cv::PSNR(a, b, a.depth() == CV_16U ? 65535 : 255); }
 
+double PsnrAfterColourFit(const cv::Mat& a, const cv::Mat& b) {
+  std::vector<cv::Mat> ac, bc;
+  cv::split(a, ac);
+  cv::split(b, bc);
+  std::vector<cv::Mat> fitted;
+  for (size_t c = 0; c < ac.size(); ++c) {
+    cv::Mat x, y;
+    ac[c].convertTo(x, CV_64F);
+    bc[c].convertTo(y, CV_64F);
+    cv::Scalar mx, sx, my, sy;
+    cv::meanStdDev(x, mx, sx);
+    cv::meanStdDev(y, my, sy);
+    const double cov = cv::mean((x - mx[0]).mul(y - my[0]))[0];
+    const double gain = sx[0] > 0 ? cov / (sx[0] * sx[0]) : 1.0;
+    cv::Mat f = (x - mx[0]) * gain + my[0];
+    f.convertTo(f, b.depth());
+    fitted.push_back(f);
+  }
+  cv::Mat merged;
+  cv::merge(fitted, merged);
+  return Psnr(merged, b);
+}
+
 cv::Mat ShapeSample(const std::string& cls, uint32_t seed) {
   cv::RNG rng(seed);
   cv::Mat img = RenderSeafloor(rng.uniform(0, 50000), rng.uniform(0, 50000), 160, 160);

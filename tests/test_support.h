@@ -40,6 +40,9 @@ bool HaveCommand(const std::string& name);
 std::string SharedData();
 
 double Psnr(const cv::Mat& a, const cv::Mat& b);
+// PSNR after one colour fit of a to b (per channel, gain and offset): geometry, not colour, as
+// the map corrects lighting, exposure and the water's colour.
+double PsnrAfterColourFit(const cv::Mat& a, const cv::Mat& b);
 
 // The message of the rolamos::Error that `f` throws ("" if it throws none).
 std::string ErrorOf(const std::function<void()>& f);

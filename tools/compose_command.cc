@@ -21,6 +21,7 @@ struct ComposeSwitches {
   LinkOptions link;
   bool relink = true;
   bool restart = false;
+  bool no_exposure = false;
   double altitude_m = 0;
   bool quiet = false;
 };
@@ -37,6 +38,7 @@ static int RunCompose(const ComposeSwitches& s) {
   o.tiff = ToWriteOptions(s.tiff);
   o.threads = s.tiff.threads;
   o.restart = s.restart;
+  o.exposure = !s.no_exposure;
   if (s.relink) {
     // Patches that lost the thread are placed by recognising where their first frames were seen.
     Progress linking("link", s.quiet);
@@ -90,6 +92,7 @@ void AddComposeCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--frames", s->link.frames_dir, "folder of the frames (place recognition reads them), when moved since `mosaic`");
   cmd->add_flag("--restart", s->restart, "start over instead of finishing an interrupted compose");
   cmd->add_flag("!--no-link", s->relink, "do not look for where unlinked patches belong");
+  cmd->add_flag("--no-exposure", s->no_exposure, "no matching of each patch's brightness to its neighbours'");
   AddTiffSwitches(cmd, &s->tiff);
   cmd->add_flag("-q,--quiet", s->quiet, "no progress bar");
   cmd->callback([s, run] { *run = [s] { return RunCompose(*s); }; });

@@ -26,6 +26,7 @@ struct ComposeOptions {
   TiffWriteOptions tiff;     // the mosaic's codec and tiles
   double cache_mb = 256;     // tile cache for reading the patches
   int feather_px = 64;       // blend width across patch seams, in patch pixels
+  bool exposure = true;      // each patch's brightness matched to its neighbours' where they overlap
   int threads = 0;           // 0: one per core
   bool restart = false;      // ignore a partial compose left by an interrupted run
   int chunk_px = 4096;       // mosaic pixels per chunk side (power of two >= the tile size):

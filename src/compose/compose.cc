@@ -11,6 +11,7 @@
 #include "rolamos/error.hpp"
 #include "rolamos/tiled_image.hpp"
 #include "compose/patch_blender.h"
+#include "util/exposure_gains.h"
 #include "compose/quadtree_pyramid.h"
 #include "compose/tile_journal.h"
 #include "util/homography.h"
@@ -62,6 +63,7 @@ std::string Fingerprint(const std::vector<PlacedPatch>& placed, const ComposeRes
     for (int k = 0; k < 9; ++k) f << ' ' << p.to_mosaic.val[k];
     for (const auto& l : p.local)
       for (int k = 0; k < 9; ++k) f << ' ' << l.to_mosaic.val[k];
+    f << " gain " << p.gain;
   }
   return FingerprintHex(f.str());
 }
@@ -179,6 +181,26 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
       p.bounds = cv::Rect2d(p.bounds.x - grow, p.bounds.y - grow, p.bounds.width + 2 * grow, p.bounds.height + 2 * grow);
       p.local_sigma *= scale;
     }
+  }
+
+  // 2b. Exposure across the map: each patch's gain so that overlapping patches agree (read at
+  //     1/16 of full resolution; the gains average 1, so the map keeps its brightness).
+  if (options.exposure && placed.size() > 1) {
+    constexpr double kGainScale = 1.0 / 16;
+    std::vector<cv::Mat> small;
+    std::vector<cv::Matx33d> to_mosaic;
+    for (const auto& p : placed) {
+      const int level = p.image->LevelForScale(kGainScale);
+      const auto& L = p.image->info().levels[static_cast<size_t>(level)];
+      cv::Mat img = p.image->ReadRegion(level, cv::Rect(0, 0, int(L.width), int(L.height)));
+      if (img.channels() != 4) cv::cvtColor(img, img, img.channels() == 3 ? cv::COLOR_BGR2BGRA : cv::COLOR_GRAY2BGRA);
+      cv::resize(img, img, cv::Size(std::max(1, int(std::lround(p.size.width * kGainScale))),
+                                    std::max(1, int(std::lround(p.size.height * kGainScale)))), 0, 0, cv::INTER_AREA);
+      small.push_back(img);
+      to_mosaic.push_back(cv::Matx33d(1.0 / scale, 0, 0, 0, 1.0 / scale, 0, 0, 0, 1) * p.to_mosaic);
+    }
+    const std::vector<double> gains = SolveExposureGains(small, kGainScale, to_mosaic, 0.05);
+    for (size_t k = 0; k < placed.size(); ++k) placed[k].gain = gains[k];
   }
 
   // 3. Chunk by chunk on all cores, journaled so that an interrupted run resumes.

@@ -89,7 +89,7 @@ TEST_F(ComposeTest, PatchesLandWhereTheGroundTruthSays) {
   cv::cvtColor(seen, seen, cv::COLOR_BGRA2BGR);
   cv::Mat frame = cv::imread(dir_ / ("survey/frames/" + sample.second));
   const cv::Rect centre(140, 105, 200, 150);
-  EXPECT_GT(test::Psnr(seen(centre), frame(centre)), 30.0);
+  EXPECT_GT(test::PsnrAfterColourFit(seen(centre), frame(centre)), 30.0);
 }
 
 TEST_F(ComposeTest, ScaledMosaicFitsThePixelLimit) {

@@ -158,23 +158,30 @@ cv::Mat PatchBlender::Render(const cv::Rect& rect) const {
       // A region well inside a single patch, where every weight is 1 (the common case on a large
       // survey): the 8-bit warp is the blend, and 4x faster than the sums.
       cv::Mat out;
+      const cv::Scalar gain(p.gain, p.gain, p.gain, 1.0);
       if (p.local.empty()) {
         cv::warpPerspective(px, out, cv::Mat(to_region * R), rect.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+        if (p.gain != 1.0) cv::multiply(out, gain, out);
         return out;
       }
       if (roi == cv::Rect(0, 0, rect.width, rect.height)) {
         cv::remap(px, out, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+        if (p.gain != 1.0) cv::multiply(out, gain, out);
         return out;
       }
     }
     const cv::Mat weight = FeatherFromAlpha(alpha, feather);
-    // Weighted colour and the weight, warped together.
+    // Weighted colour (times the patch's exposure gain) and the weight, warped together.
     cv::Mat weighted = Scratch(weighted_buffer, px.rows, px.cols, CV_32FC4);
+    const float g = static_cast<float>(p.gain);
     for (int r = 0; r < px.rows; ++r) {
       const cv::Vec4b* s4 = px.ptr<cv::Vec4b>(r);
       const float* w = weight.ptr<float>(r);
       cv::Vec4f* c = weighted.ptr<cv::Vec4f>(r);
-      for (int x = 0; x < px.cols; ++x) c[x] = cv::Vec4f(s4[x][0] * w[x], s4[x][1] * w[x], s4[x][2] * w[x], w[x]);
+      for (int x = 0; x < px.cols; ++x) {
+        const float gw = g * w[x];
+        c[x] = cv::Vec4f(s4[x][0] * gw, s4[x][1] * gw, s4[x][2] * gw, w[x]);
+      }
     }
     const cv::Matx33d T(1, 0, -roi.x, 0, 1, -roi.y, 0, 0, 1);
     cv::Mat warped = Scratch(warped_buffer, roi.height, roi.width, CV_32FC4);

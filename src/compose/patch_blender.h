@@ -34,6 +34,8 @@ struct PlacedPatch {
   // distance from each frame's centre, so the pieces join without a step).
   std::vector<LocalPlacement> local;
   double local_sigma = 1;  // mosaic pixels
+  double gain = 1.0;       // exposure: the patch's brightness matched to its neighbours'
+
 };
 
 class PatchBlender {

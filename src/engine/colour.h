@@ -59,10 +59,4 @@ class ColourModel {
   void Fit() const;
 };
 
-// Exposure gains of a patch's frames: frame k's brightness times gain[k] agrees with its
-// neighbours' where they overlap. `images` are the corrected frames (BGR, any depth) reduced to
-// `scale` of full resolution, `placements` full-resolution frame -> patch. Gains average 1 (in log).
-std::vector<double> SolveExposureGains(const std::vector<cv::Mat>& images, double scale,
-                                       const std::vector<cv::Matx33d>& placements, double prior);
-
 }  // namespace rolamos

@@ -1,4 +1,5 @@
 #include "engine/colour.h"
+#include "util/exposure_gains.h"
 
 #include <cmath>
 #include <random>

@@ -2,7 +2,7 @@
 
 #include <opencv2/imgproc.hpp>
 
-#include "engine/colour.h"
+#include "util/exposure_gains.h"
 
 #include <chrono>
 #include <filesystem>
