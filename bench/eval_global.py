@@ -37,7 +37,7 @@ Ta, Tb = norm(ours), norm(theirs)
 A = []
 for (x, y), (u, v) in zip((Ta @ np.c_[ours, np.ones(len(ours))].T).T[:, :2], (Tb @ np.c_[theirs, np.ones(len(theirs))].T).T[:, :2]):
     A.append([-x, -y, -1, 0, 0, 0, u * x, u * y, u]); A.append([0, 0, 0, -x, -y, -1, v * x, v * y, v])
-Hn = np.linalg.svd(np.array(A))[2][-1].reshape(3, 3)
+Hn = np.linalg.svd(np.array(A), full_matrices=False)[2][-1].reshape(3, 3)
 H = np.linalg.inv(Tb) @ Hn @ Ta
 m = (H @ np.c_[ours, np.ones(len(ours))].T).T
 m = m[:, :2] / m[:, 2:]

@@ -297,12 +297,20 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
     const Node& a = nodes[size_t(e.a)];
     const Node& b = nodes[size_t(e.b)];
     if (a.patch == b.patch) continue;
-    const cv::Mat H = cv::findHomography(e.in_a, e.in_b, 0);  // a -> b
-    if (H.empty()) continue;
+    // A similarity between the two patches' coordinates: chained over hundreds of patches, a
+    // homography's projective terms would run away; level cameras need no more.
+    std::vector<cv::Point2f> in_p, in_q;
+    for (size_t i = 0; i < e.in_a.size(); ++i) {
+      in_p.push_back(cv::Point2f(ApplyHomography(a.to_patch, e.in_a[i])));
+      in_q.push_back(cv::Point2f(ApplyHomography(b.to_patch, e.in_b[i])));
+    }
+    const cv::Mat S = cv::estimateAffinePartial2D(in_p, in_q, cv::noArray(), cv::LMEDS);
+    if (S.empty()) continue;
+    const cv::Matx23d T(S);
     PatchEdge pe;
     pe.p = a.patch;
     pe.q = b.patch;
-    pe.p_to_q = b.to_patch * cv::Matx33d(H) * a.to_patch.inv();
+    pe.p_to_q = cv::Matx33d(T(0, 0), T(0, 1), T(0, 2), T(1, 0), T(1, 1), T(1, 2), 0, 0, 1);
     pe.kind = e.kind;
     pe.inliers = e.in_a.size();
     auto key = std::make_pair(std::min(pe.p, pe.q), std::max(pe.p, pe.q));
@@ -431,8 +439,10 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
   summary.edges_dropped += adjust({});
   report(0.55);
 
-  // 6. Loop closures: frames the solution puts over the same ground, apart in the sequence.
-  if (o.loops_per_frame > 0) {
+  // 6. Loop closures: frames the solution puts over the same ground, apart in the sequence;
+  //    twice, as the first ones straighten the map and bring more neighbours into view.
+  for (int loop_round = 0; loop_round < 2 && o.loops_per_frame > 0; ++loop_round) {
+    const int found_before = summary.loop_edges;
     std::vector<cv::Matx33d> P(static_cast<size_t>(N));
     std::vector<cv::Point2d> centre(static_cast<size_t>(N));
     for (int i = 0; i < N; ++i) {
@@ -462,7 +472,7 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
       std::sort(near.rbegin(), near.rend());
       for (size_t k = 0; k < near.size() && k < size_t(o.loops_per_frame); ++k) candidates.emplace_back(i, near[k].second);
     }
-    summary.loop_tried = static_cast<int>(candidates.size());
+    summary.loop_tried += static_cast<int>(candidates.size());
     std::vector<Edge> found(candidates.size());
     std::vector<char> ok(candidates.size(), 0);
     ParallelFor(static_cast<long long>(candidates.size()), [&](long long k, int) {
@@ -483,7 +493,9 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
         dropped.push_back(0);
         ++summary.loop_edges;
       }
-    if (summary.loop_edges > 0) summary.edges_dropped += adjust({});
+    if (summary.loop_edges == found_before) break;
+    summary.edges_dropped += adjust({});
+    report(0.6 + 0.1 * loop_round);
   }
   report(0.8);
 

@@ -224,6 +224,53 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
   return result;
 }
 
+// Links whose loss would split the frames they tie together (bridges of the graph, Tarjan's
+// algorithm, iterative: surveys are long chains). Such a link is never dropped: without it, part
+// of the map would float free, however well each part fits.
+std::vector<char> Bridges(size_t n, const std::vector<PlaneLink>& links, const std::vector<char>& dropped) {
+  std::vector<std::vector<std::pair<int, size_t>>> adj(n);  // (neighbour, link)
+  for (size_t k = 0; k < links.size(); ++k) {
+    if (dropped[k] || links[k].a == links[k].b) continue;
+    adj[size_t(links[k].a)].emplace_back(links[k].b, k);
+    adj[size_t(links[k].b)].emplace_back(links[k].a, k);
+  }
+  std::vector<char> bridge(links.size(), 0);
+  std::vector<int> order(n, -1), low(n, 0);
+  int counter = 0;
+  struct Frame {
+    int node;
+    size_t via;   // the link it was reached by (SIZE_MAX at a root)
+    size_t next;  // next neighbour to look at
+  };
+  for (size_t root = 0; root < n; ++root) {
+    if (order[root] >= 0) continue;
+    std::vector<Frame> stack{{int(root), SIZE_MAX, 0}};
+    order[root] = low[root] = counter++;
+    while (!stack.empty()) {
+      Frame& f = stack.back();
+      if (f.next < adj[size_t(f.node)].size()) {
+        const auto [v, k] = adj[size_t(f.node)][f.next++];
+        if (k == f.via) continue;
+        if (order[size_t(v)] < 0) {
+          order[size_t(v)] = low[size_t(v)] = counter++;
+          stack.push_back({v, k, 0});
+        } else {
+          low[size_t(f.node)] = std::min(low[size_t(f.node)], order[size_t(v)]);
+        }
+        continue;
+      }
+      const Frame done = f;
+      stack.pop_back();
+      if (!stack.empty()) {
+        const int parent = stack.back().node;
+        low[size_t(parent)] = std::min(low[size_t(parent)], low[size_t(done.node)]);
+        if (low[size_t(done.node)] > order[size_t(parent)]) bridge[done.via] = 1;
+      }
+    }
+  }
+  return bridge;
+}
+
 double LinkRms(const std::vector<PlanePose>& poses, double focal, cv::Size frame, const PlaneLink& l) {
   return PlaneTransferRms(poses, focal, frame, {l});
 }
@@ -271,11 +318,12 @@ PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, c
     const double typical = all_rms[all_rms.size() / 2];
     bad.erase(std::remove_if(bad.begin(), bad.end(), [&](const auto& b) { return b.first < 4 * typical; }), bad.end());
     std::sort(bad.rbegin(), bad.rend());
-    bad.resize(std::min(bad.size(), std::max<size_t>(1, all_rms.size() / 10)));
+    bad.resize(std::min({bad.size(), std::max<size_t>(1, all_rms.size() / 10), size_t(200)}));
     int dropped_now = 0;
     for (const auto& [rms, k] : bad) {
       const PlaneLink& l = links[k];
       if (degree[size_t(l.a)] <= 1 || degree[size_t(l.b)] <= 1) continue;
+      if (Bridges(n, links, result.dropped)[k]) continue;
       --degree[size_t(l.a)];
       --degree[size_t(l.b)];
       result.dropped[k] = 1;
