@@ -1,5 +1,6 @@
 // The rolamos binary as a user runs it: each subcommand's happy path and its bad-input errors
 // (clear message naming the file, non-zero exit, nothing half-written).
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 
@@ -152,6 +153,96 @@ TEST(Cli, BadInputGivesAClearErrorAndNonZeroExit) {
   EXPECT_EQ(RunCli("frobnicate").exit_code, 2);
   EXPECT_EQ(RunCli("--version").exit_code, 0);
   EXPECT_FALSE(fs::exists(dir / "new.rolamos/store.json"));
+}
+
+}  // namespace
+}  // namespace rolamos
+
+namespace rolamos {
+namespace {
+
+// mosaic, align, compose as a user runs them; then an align killed (kill -9) at random moments
+// leaves a store that opens, with every sidecar from before or every one from after.
+TEST(Cli, MosaicAlignComposeAndAnAlignKilledMidway) {
+  test::ScratchDir dir;
+  auto r = test::RunCli("synth -q -o " + (dir / "survey") + " --frames 40 --width 480 --height 360 --focal 420 --lanes 2");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const std::string store = dir / "s.rolamos";
+  r = test::RunCli("mosaic -q " + (dir / "survey/frames") + " -o " + store + " --patch-megapixels 0.5 --compression zstd");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (const double after : {0.3, 0.8, 1.5}) {
+    char cmd[512];
+    std::snprintf(cmd, sizeof cmd, "timeout -s KILL %.1f %s align -q %s", after, ROLAMOS_CLI, store.c_str());
+    test::RunShell(cmd);
+    r = test::RunCli("info --json " + store);
+    ASSERT_EQ(r.exit_code, 0) << "after a kill at " << after << " s: " << r.output;
+    const auto j = nlohmann::json::parse(r.output);
+    int aligned = 0, total = 0;
+    for (const auto& p : j["patches"]) {
+      EXPECT_FALSE(p.contains("problem")) << p.dump();
+      ++total;
+      aligned += p.contains("component");
+    }
+    EXPECT_TRUE(aligned == 0 || aligned == total) << aligned << " of " << total << " patches aligned";
+  }
+  r = test::RunCli("align -q " + store);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("40 frames in 1 part"), std::string::npos) << r.output;
+  r = test::RunCli("compose -q " + store + " --compression zstd");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(r.output.find("left out"), std::string::npos) << r.output;
+  r = test::RunCli("info " + store);
+  EXPECT_NE(r.output.find("map: 1 part"), std::string::npos) << r.output;
+}
+
+}  // namespace
+}  // namespace rolamos
+
+namespace rolamos {
+namespace {
+
+// Two dives (the two lanes of one survey, mosaicked into two stores) merged and aligned: one map.
+TEST(Cli, MergeTwoDivesThenAlignMakesOneMap) {
+  test::ScratchDir dir;
+  auto r = test::RunCli("synth -q -o " + (dir / "survey") + " --frames 40 --width 480 --height 360 --focal 420 --lanes 2");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::vector<fs::path> frames;
+  for (const auto& e : fs::directory_iterator(dir / "survey/frames")) frames.push_back(e.path());
+  std::sort(frames.begin(), frames.end());
+  ASSERT_EQ(frames.size(), 40u);
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const fs::path d = dir / (i < 20 ? "dive1" : "dive2");
+    fs::create_directories(d);
+    fs::create_symlink(frames[i], d / frames[i].filename());
+  }
+  for (const char* dive : {"dive1", "dive2"}) {
+    r = test::RunCli("mosaic -q " + (dir / dive) + " -o " + (dir / (std::string(dive) + ".rolamos")) + " --compression zstd");
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  const std::string merged = dir / "all.rolamos";
+  // Bad input first: a store that does not exist is named, and nothing is written.
+  r = test::RunCli("merge " + (dir / "dive1.rolamos") + " " + (dir / "nowhere.rolamos") + " -o " + merged);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.output.find("nowhere.rolamos"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(merged));
+
+  r = test::RunCli("merge -q " + (dir / "dive1.rolamos") + " " + (dir / "dive2.rolamos") + " -o " + merged);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("40 frames from 2 stores"), std::string::npos) << r.output;
+  // The output exists now: a second merge into it refuses.
+  r = test::RunCli("merge " + (dir / "dive1.rolamos") + " " + (dir / "dive2.rolamos") + " -o " + merged);
+  EXPECT_NE(r.exit_code, 0) << r.output;
+
+  r = test::RunCli("align -q " + merged);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("40 frames in 1 part"), std::string::npos) << r.output;
+  r = test::RunCli("compose -q " + merged + " --compression zstd");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(r.output.find("left out"), std::string::npos) << r.output;
+  // The inputs are untouched by the merged store's alignment.
+  r = test::RunCli("info --json " + (dir / "dive1.rolamos"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  for (const auto& p : nlohmann::json::parse(r.output)["patches"]) EXPECT_FALSE(p.contains("component")) << p.dump();
 }
 
 }  // namespace

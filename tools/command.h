@@ -25,6 +25,7 @@ void AddServeCommand(CLI::App& app, Runner* run);
 void AddTilesCommand(CLI::App& app, Runner* run);
 void AddObjectsCommand(CLI::App& app, Runner* run);
 void AddAlignCommand(CLI::App& app, Runner* run);
+void AddMergeCommand(CLI::App& app, Runner* run);
 
 // --compression/--quality/--tile shared by every command that writes a TIFF.
 struct TiffSwitches {

@@ -22,6 +22,7 @@ int main(int argc, char** argv) {
   rolamos::cli::AddMosaicCommand(app, &run);
   rolamos::cli::AddComposeCommand(app, &run);
   rolamos::cli::AddAlignCommand(app, &run);
+  rolamos::cli::AddMergeCommand(app, &run);
   rolamos::cli::AddServeCommand(app, &run);
   rolamos::cli::AddTilesCommand(app, &run);
   rolamos::cli::AddObjectsCommand(app, &run);
