@@ -4,8 +4,17 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <set>
 #include <sstream>
 
+#include <fcntl.h>
+#include <signal.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <ctime>
+
+#include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "rolamos/error.hpp"
@@ -14,6 +23,7 @@
 #include "util/exposure_gains.h"
 #include "compose/quadtree_pyramid.h"
 #include "compose/tile_journal.h"
+#include "util/files.h"
 #include "util/homography.h"
 
 namespace rolamos {
@@ -30,6 +40,16 @@ bool ComposeOptions::IsValid(std::string* error) const {
   if (chunk_px < tiff.tile_size || chunk_px > 65536 || (chunk_px & (chunk_px - 1)) != 0) {
     *error = "chunk size " + std::to_string(chunk_px) + " must be a power of two from the tile size (" +
              std::to_string(tiff.tile_size) + ") to 65536";
+    return false;
+  }
+  if (shards < 0 || shards > 100000 || (shards > 0 && !finish && (shard < 1 || shard > shards)) ||
+      (shards == 0 && shard != 0) || (finish && shard != 0)) {
+    *error = "shard " + std::to_string(shard) + " of " + std::to_string(shards) + " is not one of 1.." + std::to_string(shards);
+    return false;
+  }
+  if (shards > 0 && restart) {
+    *error = "a shard cannot restart the split on its own (the other shards share it): delete the partial "
+             "mosaic folder, or compose without shards";
     return false;
   }
   if (threads < 0) {
@@ -52,14 +72,15 @@ std::string Fingerprint(const std::vector<PlacedPatch>& placed, const ComposeRes
                         const ComposeOptions& o) {
   std::ostringstream f;
   f.precision(17);
-  f << r.width << 'x' << r.height << " scale " << r.scale << " feather " << o.feather_px << " codec "
+  f << r.width << 'x' << r.height << " scale " << r.scale << " feather " << o.feather_px << " chunk " << o.chunk_px << " codec "
     << CompressionName(o.tiff.compression) << ' ' << o.tiff.quality << ' ' << o.tiff.tile_size << ' '
     << o.tiff.pyramid << ' ' << o.tiff.zstd_level << ' ' << o.tiff.deflate_level << ' ' << o.tiff.webp_method;
   for (const auto& p : placed) {
     std::error_code ec;
     const auto bytes = std::filesystem::file_size(p.path, ec);
     const auto time = std::filesystem::last_write_time(p.path, ec).time_since_epoch().count();
-    f << '\n' << p.id << ' ' << p.path << ' ' << bytes << ' ' << time;
+    // The file's name, not its path: shards on other machines may reach the store by other paths.
+    f << '\n' << p.id << ' ' << std::filesystem::path(p.path).filename().string() << ' ' << bytes << ' ' << time;
     for (int k = 0; k < 9; ++k) f << ' ' << p.to_mosaic.val[k];
     for (const auto& l : p.local)
       for (int k = 0; k < 9; ++k) f << ' ' << l.to_mosaic.val[k];
@@ -90,6 +111,82 @@ std::string PlacementProblem(const cv::Matx33d& G, const PatchSidecar& s, const 
   }
   return "";
 }
+
+// The split of a sharded compose, recorded by its first shard: what every later shard and the
+// finish must agree with. Created with link(2), which is atomic on local and network file systems.
+// Returns the number of shards of the split (`shards` 0: whatever the plan says).
+int CheckPlan(const std::string& partial, const std::string& fingerprint, int shards, long long chunks, bool create) {
+  namespace fs = std::filesystem;
+  const std::string path = (fs::path(partial) / "plan.json").string();
+  std::error_code ec;
+  if (!fs::exists(path, ec)) {
+    if (!create) Fail(partial, "holds no shards: no shard of this compose has run (plan.json is missing)");
+    fs::create_directories(partial, ec);
+    const nlohmann::json plan = {{"fingerprint", fingerprint}, {"shards", shards}, {"chunks", chunks},
+                                 {"created", static_cast<long long>(std::time(nullptr))}};
+    const std::string tmp = TemporarySibling(path);
+    WriteFileAtomic(tmp, plan.dump() + "\n");
+    const int rc = ::link(tmp.c_str(), path.c_str());  // fails if another shard was first: fine
+    (void)rc;
+    fs::remove(tmp, ec);
+  }
+  const nlohmann::json plan = nlohmann::json::parse(ReadSmallFile(path, 1 << 20), nullptr, false);
+  if (plan.is_discarded() || !plan.contains("fingerprint") || !plan.contains("shards"))
+    Fail(path, "is not a compose plan; delete " + partial + " to split the compose anew");
+  char when[64] = "?";
+  const std::time_t t = plan.value("created", 0LL);
+  std::strftime(when, sizeof when, "%Y-%m-%d %H:%M:%S UTC", std::gmtime(&t));
+  if (plan["fingerprint"].get<std::string>() != fingerprint)
+    Fail(partial, std::string("was split into shards on ") + when +
+                      " for other patches, placements or options than the store has now (the store changed "
+                      "since the split); its shards cannot be mixed with new ones: delete that folder to split anew");
+  const int planned = plan["shards"].get<int>();
+  if (shards != 0 && planned != shards)
+    Fail(partial, "was split into " + std::to_string(planned) + " shards on " + when + ", not " + std::to_string(shards));
+  if (planned < 1) Fail(path, "names no shards");
+  return planned;
+}
+
+// One finish at a time: a lock file made with O_EXCL, naming its host and process. A lock left by
+// a dead process on this host is taken over; one from another host must be deleted by hand.
+class FinishLock {
+ public:
+  explicit FinishLock(const std::string& partial) : path_((std::filesystem::path(partial) / "finish.lock").string()) {
+    char host[256] = {};
+    ::gethostname(host, sizeof host - 1);
+    for (int attempt = 0; attempt < 2; ++attempt) {
+      const int fd = ::open(path_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+      if (fd >= 0) {
+        const std::string me = std::string(host) + " " + std::to_string(::getpid()) + " " + std::to_string(std::time(nullptr)) + "\n";
+        const ssize_t n = ::write(fd, me.data(), me.size());
+        (void)n;
+        ::close(fd);
+        return;
+      }
+      std::string text;
+      try {
+        text = ReadSmallFile(path_, 4096);
+      } catch (const Error&) {
+      }
+      std::istringstream in(text);
+      std::string other_host;
+      long long pid = 0, since = 0;
+      in >> other_host >> pid >> since;
+      if (attempt == 0 && other_host == host && pid > 0 && ::kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH) {
+        ::unlink(path_.c_str());  // its process is gone
+        continue;
+      }
+      Fail(path_, "another finish of this compose is running (host " + other_host + ", process " + std::to_string(pid) +
+                      "); if it died on another machine, delete this file");
+    }
+  }
+  ~FinishLock() { ::unlink(path_.c_str()); }
+  FinishLock(const FinishLock&) = delete;
+  FinishLock& operator=(const FinishLock&) = delete;
+
+ private:
+  std::string path_;
+};
 
 }  // namespace
 
@@ -210,19 +307,43 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
   layout.channels = 4;
   {
     const std::string partial = store.MosaicPath() + ".partial";
-    TileJournal journal(partial, Fingerprint(placed, result, options), options.restart);
-    result.discarded = journal.discarded();
-    const PatchBlender blender(placed, scale, options.feather_px);
+    const std::string fingerprint = Fingerprint(placed, result, options);
     QuadtreeOptions qo;
     qo.threads = options.threads;
     qo.chunk_px = options.chunk_px;
     qo.block_px = std::min(qo.block_px, options.chunk_px);
+    std::string part;
+    std::unique_ptr<FinishLock> lock;
+    const bool sharded = options.shards > 0 || options.finish;
+    if (sharded) {
+      qo.shard = options.shard - 1;
+      qo.stage = options.finish ? QuadtreeOptions::Stage::kFinish : QuadtreeOptions::Stage::kChunks;
+      const long long chunks = QuadtreeChunks(layout.width, layout.height, options.tiff, qo);
+      qo.shards = CheckPlan(partial, fingerprint, options.shards, chunks, /*create=*/!options.finish);
+      if (options.finish) {
+        lock = std::make_unique<FinishLock>(partial);
+        part = "finish";
+      } else {
+        part = "shard-" + std::to_string(options.shard) + "-of-" + std::to_string(options.shards);
+        for (long long c = 0; c < chunks; ++c) result.shard_chunks += ShardOfChunk(c, qo.shards) == qo.shard;
+      }
+    }
+    TileJournal journal(partial, fingerprint, options.restart, part);
+    // Shards' files stay whole until the finish has written the file (a finish that dies is re-run).
+    journal.set_free_while_writing(!sharded);
+    result.discarded = journal.discarded();
+    const PatchBlender blender(placed, scale, options.feather_px);
     const QuadtreeStats q = BuildQuadtreePyramid(
         store.MosaicPath(), layout, options.tiff, qo, [&](const cv::Rect& r) { return blender.Render(r); },
         journal, progress);
     result.chunks = q.chunks;
     result.chunks_resumed = q.chunks_resumed;
+    result.chunks_rendered = q.chunks_rendered;
+    result.patches_used = static_cast<int>(placed.size());
+    if (sharded && !options.finish) return result;  // the finish does the rest
     journal.Remove();
+    lock.reset();
+    result.written = true;
   }
   cache->Invalidate(store.MosaicPath());
 
@@ -243,6 +364,27 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
   store.SetGlobal(global);
   result.patches_used = static_cast<int>(placed.size());
   return result;
+}
+
+ShardStatus ComposeShardStatus(const Store& store) {
+  namespace fs = std::filesystem;
+  ShardStatus st;
+  const std::string partial = store.MosaicPath() + ".partial";
+  const std::string path = (fs::path(partial) / "plan.json").string();
+  std::error_code ec;
+  if (!fs::exists(path, ec)) return st;
+  const nlohmann::json plan = nlohmann::json::parse(ReadSmallFile(path, 1 << 20), nullptr, false);
+  if (plan.is_discarded() || !plan.contains("fingerprint") || !plan.contains("shards") || !plan.contains("chunks"))
+    Fail(path, "is not a compose plan");
+  st.split = true;
+  st.shards = plan["shards"].get<int>();
+  st.chunks = plan["chunks"].get<long long>();
+  const std::set<long long> done = TileJournal::DoneChunks(partial, plan["fingerprint"].get<std::string>());
+  std::set<int> pending;
+  for (long long c = 0; c < st.chunks; ++c)
+    if (!done.count(c)) pending.insert(ShardOfChunk(c, st.shards) + 1);
+  st.pending.assign(pending.begin(), pending.end());
+  return st;
 }
 
 }  // namespace rolamos

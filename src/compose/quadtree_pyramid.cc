@@ -6,6 +6,7 @@
 #include <condition_variable>
 #include <cstring>
 #include <exception>
+#include <map>
 #include <mutex>
 #include <thread>
 
@@ -181,6 +182,12 @@ class Builder {
 
 }  // namespace
 
+long long QuadtreeChunks(long long width, long long height, const TiffWriteOptions& tiff, const QuadtreeOptions& options) {
+  const PyramidGeometry g(width, height, tiff.tile_size, tiff.pyramid);
+  const int top = g.levels() - 1;
+  return g.tiles(std::min(top, std::max(0, Log2Ceil(options.chunk_px / g.tile))));
+}
+
 QuadtreeStats BuildQuadtreePyramid(const std::string& path, const PixelLayout& layout,
                                    const TiffWriteOptions& tiff, const QuadtreeOptions& options,
                                    const RenderFn& render, TileJournal& journal,
@@ -200,15 +207,37 @@ QuadtreeStats BuildQuadtreePyramid(const std::string& path, const PixelLayout& l
   parallel.on_progress = [&](long long done) {
     if (progress) progress(0.97 * double(done) / double(std::max(1LL, stats.chunks)));  // resumed chunks count as done
   };
-  ParallelFor(stats.chunks, [&](long long c, int t) {
-    if (journal.IsDone(c)) return;
-    auto& w = workers[static_cast<size_t>(t)];
-    if (!w) w = std::make_unique<Builder::Worker>(layout, tiff);
-    builder.RunChunk(c, *w);
-  }, parallel);
+  using Stage = QuadtreeOptions::Stage;
+  if (options.stage == Stage::kFinish) {
+    std::map<int, long long> missing;  // shard -> chunks not done
+    for (long long c = 0; c < stats.chunks; ++c)
+      if (!journal.IsDone(c)) ++missing[ShardOfChunk(c, options.shards)];
+    if (!missing.empty()) {
+      std::string list;
+      for (const auto& [shard, n] : missing)
+        list += (list.empty() ? "" : ", ") + std::to_string(shard + 1) + "/" + std::to_string(options.shards) +
+                " (" + std::to_string(n) + " chunks)";
+      Fail(path, "cannot be finished: shards not done: " + list + "; run those shards again");
+    }
+  } else {
+    std::atomic<long long> rendered{0};
+    ParallelFor(stats.chunks, [&](long long c, int t) {
+      if (options.stage == Stage::kChunks && ShardOfChunk(c, options.shards) != options.shard) return;
+      if (journal.IsDone(c)) return;
+      auto& w = workers[static_cast<size_t>(t)];
+      if (!w) w = std::make_unique<Builder::Worker>(layout, tiff);
+      builder.RunChunk(c, *w);
+      ++rendered;
+    }, parallel);
+    stats.chunks_rendered = rendered;
+  }
   long long blocks = 0;
   for (const auto& w : workers) blocks += w ? w->blocks : 0;
   stats.blocks_rendered = blocks;
+  if (options.stage == Stage::kChunks) {
+    if (progress) progress(1.0);
+    return stats;
+  }
 
   if (!journal.IsDone(stats.chunks)) {
     Builder::Worker w(layout, tiff);

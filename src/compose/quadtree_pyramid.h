@@ -36,7 +36,17 @@ struct QuadtreeOptions {
   int block_px = 1024;  // level-0 pixels rendered at once (a power of two >= the tile size)
   int chunk_px = 4096;  // level-0 pixels per chunk, the unit of parallel work and of resuming
   int threads = 0;      // 0: one per core
+  // Sharded work (several processes, possibly on several machines, sharing one journal folder):
+  // kChunks renders only the chunks c with c % shards == shard and stops; kFinish renders none,
+  // requires every chunk in the journal, and builds the levels above the chunks and the file.
+  enum class Stage { kAll, kChunks, kFinish };
+  Stage stage = Stage::kAll;
+  int shard = 0, shards = 1;
 };
+
+// The shard (0-based) that renders `chunk` of `shards`: chunks are dealt out in turn, so that each
+// shard gets dense and empty parts of the map alike.
+inline int ShardOfChunk(long long chunk, int shards) { return static_cast<int>(chunk % shards); }
 
 // Renders level-0 pixels `rect` as 8-bit BGRA (alpha 0 where there is no data), or returns an
 // empty Mat when nothing is there. Called from several threads at once.
@@ -46,9 +56,14 @@ struct QuadtreeStats {
   long long chunks = 0;
   long long chunks_resumed = 0;  // found done in the journal
   long long blocks_rendered = 0;
+  long long chunks_rendered = 0;  // by this call
 };
 
-// Renders and encodes every tile of every level into `journal`, then writes `path`.
+// The chunks of a pyramid of `width` x `height` with these options.
+long long QuadtreeChunks(long long width, long long height, const TiffWriteOptions& tiff, const QuadtreeOptions& options);
+
+// Renders and encodes every tile of every level into `journal`, then writes `path` (by stage:
+// see QuadtreeOptions). kFinish throws Error naming the shards whose chunks are missing.
 // `layout` must be 4-channel 8-bit. Progress is reported from the calling thread.
 QuadtreeStats BuildQuadtreePyramid(const std::string& path, const PixelLayout& layout,
                                    const TiffWriteOptions& tiff, const QuadtreeOptions& options,

@@ -5,6 +5,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cinttypes>
 #include <cstring>
@@ -58,9 +59,18 @@ std::string FingerprintHex(const std::string& text) {
   return out;
 }
 
-TileJournal::TileJournal(const std::string& dir, const std::string& fingerprint, bool restart)
-    : dir_(dir), data_path_((fs::path(dir) / "tiles.bin").string()),
-      journal_path_((fs::path(dir) / "journal.txt").string()) {
+namespace {
+
+// A part's two files: tiles.bin + journal.txt, or tiles.PART.bin + journal.PART.txt.
+std::string PartFile(const std::string& dir, const char* stem, const std::string& part, const char* ext) {
+  return (fs::path(dir) / (std::string(stem) + (part.empty() ? "" : "." + part) + ext)).string();
+}
+
+}  // namespace
+
+TileJournal::TileJournal(const std::string& dir, const std::string& fingerprint, bool restart, const std::string& part)
+    : dir_(dir), data_path_(PartFile(dir, "tiles", part, ".bin")),
+      journal_path_(PartFile(dir, "journal", part, ".txt")) {
   std::error_code ec;
   if (restart && fs::exists(journal_path_, ec)) discarded_ = "a restart was asked for";
   if (restart) fs::remove_all(dir, ec);
@@ -70,6 +80,7 @@ TileJournal::TileJournal(const std::string& dir, const std::string& fingerprint,
   data_fd_ = ::open(data_path_.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
   journal_fd_ = ::open(journal_path_.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
   if (data_fd_ < 0 || journal_fd_ < 0) Fail(dir, std::string("cannot open the partial mosaic: ") + std::strerror(errno));
+  parts_[0].data_fd = data_fd_;
   struct stat st {};
   if (::fstat(journal_fd_, &st) == 0 && st.st_size == 0)
     AppendAll(journal_fd_, std::string(kMagic) + " " + fingerprint + "\n", journal_path_);
@@ -78,19 +89,58 @@ TileJournal::TileJournal(const std::string& dir, const std::string& fingerprint,
 }
 
 TileJournal::~TileJournal() {
+  for (auto& p : parts_)
+    if (p.data_fd >= 0 && p.data_fd != data_fd_) ::close(p.data_fd);
   if (data_fd_ >= 0) ::close(data_fd_);
   if (journal_fd_ >= 0) ::close(journal_fd_);
 }
 
 void TileJournal::Load(const std::string& fingerprint) {
+  parts_.push_back({data_path_, journal_path_, -1});
   std::error_code ec;
+  // Other writers' parts: every journal*.txt but this one's.
+  std::vector<std::string> others;
+  for (const auto& e : fs::directory_iterator(dir_, ec)) {
+    const std::string name = e.path().filename().string();
+    if (name.rfind("journal", 0) == 0 && e.path().extension() == ".txt" && e.path().string() != journal_path_)
+      others.push_back(e.path().string());
+  }
+  std::sort(others.begin(), others.end());
+  std::string why;
   if (!fs::exists(journal_path_, ec)) {
     fs::remove(data_path_, ec);
-    return;
+  } else if (!LoadPart(0, fingerprint, &why)) {
+    if (discarded_.empty()) discarded_ = why;
+    done_.clear();
+    levels_.clear();
+    fs::remove(journal_path_, ec);
+    fs::remove(data_path_, ec);
   }
+  for (const auto& j : others) {
+    const std::string name = fs::path(j).filename().string();  // journal[.PART].txt
+    const std::string part = name.size() > 12 ? name.substr(8, name.size() - 12) : "";
+    Part p{PartFile(dir_, "tiles", part, ".bin"), j, -1};
+    p.data_fd = ::open(p.data_path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (p.data_fd < 0) continue;  // nothing written yet
+    parts_.push_back(p);
+    // Records of a part are kept aside until the whole part is known good.
+    const auto done_before = done_;
+    const auto levels_before = levels_;
+    if (!LoadPart(static_cast<int>(parts_.size() - 1), fingerprint, &why)) {
+      done_ = done_before;
+      levels_ = levels_before;
+      stale_parts_.push_back(name + ": " + why);
+      ::close(parts_.back().data_fd);
+      parts_.pop_back();
+    }
+  }
+}
+
+bool TileJournal::LoadPart(int part, const std::string& fingerprint, std::string* why) {
+  const Part& p = parts_[static_cast<size_t>(part)];
   std::string text;
   try {
-    text = ReadSmallFile(journal_path_, size_t(1) << 30);
+    text = ReadSmallFile(p.journal_path, size_t(1) << 30);
   } catch (const Error&) {
     text.clear();  // unreadable: treated as foreign below
   }
@@ -98,26 +148,18 @@ void TileJournal::Load(const std::string& fingerprint) {
   std::string header;
   std::getline(in, header);
   if (header != std::string(kMagic) + " " + fingerprint) {
-    if (discarded_.empty())
-      discarded_ = header.rfind(kMagic, 0) == 0
-                       ? "the partial mosaic there was for other patches or options"
-                       : "the partial mosaic there was unreadable";
-    fs::remove(journal_path_, ec);
-    fs::remove(data_path_, ec);
-    return;
+    *why = header.rfind(kMagic, 0) == 0 ? "the partial mosaic there was for other patches or options"
+                                        : "the partial mosaic there was unreadable";
+    return false;
   }
   struct stat st {};
-  const uint64_t data_size = ::stat(data_path_.c_str(), &st) == 0 ? uint64_t(st.st_size) : 0;
+  const uint64_t data_size = ::stat(p.data_path.c_str(), &st) == 0 ? uint64_t(st.st_size) : 0;
   std::string line;
   while (std::getline(in, line)) {
     if (line == "assembling") {
       // WriteTiff frees the tiles it has copied: a run that died then left holes, not tiles.
-      discarded_ = "the interrupted run was already writing mosaic.tif, whose tiles it had freed";
-      done_.clear();
-      levels_.clear();
-      fs::remove(journal_path_, ec);
-      fs::remove(data_path_, ec);
-      return;
+      *why = "the interrupted run was already writing mosaic.tif, whose tiles it had freed";
+      return false;
     }
     // "chunk ID N level,index,offset,size ... end": a line cut short by a crash has no "end".
     if (line.size() < 4 || line.compare(line.size() - 4, 4, " end") != 0) continue;
@@ -136,17 +178,18 @@ void TileJournal::Load(const std::string& fingerprint) {
       tiles.push_back(t);
     }
     if (!ok) continue;
-    for (const auto& t : tiles) Record(t);
+    for (const auto& t : tiles) Record(part, t);
     done_.insert(chunk);
   }
+  return true;
 }
 
-void TileJournal::Record(const JournalTile& t) {
+void TileJournal::Record(int part, const JournalTile& t) {
   const size_t k = static_cast<size_t>(t.level + 1);
   if (levels_.size() <= k) levels_.resize(k + 1);
   auto& v = levels_[k];
-  if (v.size() <= static_cast<size_t>(t.index)) v.resize(static_cast<size_t>(t.index) + 1, {0, 0});
-  v[static_cast<size_t>(t.index)] = {t.offset, t.size};
+  if (v.size() <= static_cast<size_t>(t.index)) v.resize(static_cast<size_t>(t.index) + 1);
+  v[static_cast<size_t>(t.index)] = {part, t.offset, t.size};
 }
 
 JournalTile TileJournal::Put(int level, long long index, const void* data, size_t size) {
@@ -171,7 +214,7 @@ void TileJournal::Commit(long long chunk, const std::vector<JournalTile>& tiles)
   line += " end\n";
   std::lock_guard<std::mutex> lock(mutex_);
   AppendAll(journal_fd_, line, journal_path_);
-  for (const auto& t : tiles) Record(t);
+  for (const auto& t : tiles) Record(0, t);
   done_.insert(chunk);
 }
 
@@ -186,21 +229,22 @@ long long TileJournal::chunks_done() const {
 }
 
 std::vector<uint8_t> TileJournal::Read(int level, long long index) const {
-  std::pair<uint64_t, uint32_t> e{0, 0};
+  Where e;
   {
     std::lock_guard<std::mutex> lock(mutex_);
     const size_t k = static_cast<size_t>(level + 1);
     if (k < levels_.size() && static_cast<size_t>(index) < levels_[k].size())
       e = levels_[k][static_cast<size_t>(index)];
   }
-  if (e.second == 0)
+  if (e.size == 0)
     Fail(dir_, "tile " + std::to_string(index) + " of level " + std::to_string(level) + " was never written");
-  std::vector<uint8_t> buf(e.second);
+  const Part& part = parts_[static_cast<size_t>(e.part)];
+  std::vector<uint8_t> buf(e.size);
   size_t done = 0;
   while (done < buf.size()) {
-    const ssize_t n = ::pread(data_fd_, buf.data() + done, buf.size() - done, static_cast<off_t>(e.first + done));
+    const ssize_t n = ::pread(part.data_fd, buf.data() + done, buf.size() - done, static_cast<off_t>(e.offset + done));
     if (n < 0 && errno == EINTR) continue;
-    if (n <= 0) Fail(data_path_, "cannot read back tile " + std::to_string(index) + " of level " + std::to_string(level));
+    if (n <= 0) Fail(part.data_path, "cannot read back tile " + std::to_string(index) + " of level " + std::to_string(level));
     done += static_cast<size_t>(n);
   }
   return buf;
@@ -215,7 +259,7 @@ void TileJournal::WriteTiff(const std::string& path, const PixelLayout& layout,
   const std::string tmp = TemporarySibling(path);
   // Each tile's bytes are freed once copied (a hole punched in the data file), so the disk holds
   // about one copy of the mosaic, not two; the journal says so first, for a run that dies here.
-  {
+  if (free_while_writing_) {
     std::lock_guard<std::mutex> lock(mutex_);
     AppendAll(journal_fd_, "assembling\n", journal_path_);
   }
@@ -234,7 +278,7 @@ void TileJournal::WriteTiff(const std::string& path, const PixelLayout& layout,
         std::vector<uint8_t> bytes = Read(static_cast<int>(k), i);
         if (TIFFWriteRawTile(tif, static_cast<uint32_t>(i), bytes.data(), static_cast<tmsize_t>(bytes.size())) < 0)
           Fail(path, "cannot write tile " + std::to_string(i) + " of level " + std::to_string(k) + ": " + file->TakeError());
-        Free(static_cast<int>(k), i);
+        if (free_while_writing_) Free(static_cast<int>(k), i);
       }
     }
     file->Close();
@@ -246,12 +290,26 @@ void TileJournal::WriteTiff(const std::string& path, const PixelLayout& layout,
 }
 
 void TileJournal::Free(int level, long long index) const {
-  const auto& e = levels_[static_cast<size_t>(level + 1)][static_cast<size_t>(index)];
+  const Where& e = levels_[static_cast<size_t>(level + 1)][static_cast<size_t>(index)];
+  if (e.part != 0) return;  // another writer's file: not ours to change
   // Only whole blocks are released; filesystems without holes keep the bytes (no error).
-  ::fallocate(data_fd_, FALLOC_FL_PUNCH_HOLE | FALLOC_FL_KEEP_SIZE, static_cast<off_t>(e.first), static_cast<off_t>(e.second));
+  ::fallocate(data_fd_, FALLOC_FL_PUNCH_HOLE | FALLOC_FL_KEEP_SIZE, static_cast<off_t>(e.offset), static_cast<off_t>(e.size));
+}
+
+std::set<long long> TileJournal::DoneChunks(const std::string& dir, const std::string& fingerprint) {
+  TileJournal reader;  // a part of its own that never exists: Load reads all the others
+  reader.dir_ = dir;
+  reader.data_path_ = PartFile(dir, "tiles", "~reader", ".bin");
+  reader.journal_path_ = PartFile(dir, "journal", "~reader", ".txt");
+  std::error_code ec;
+  if (fs::is_directory(dir, ec)) reader.Load(fingerprint);
+  return reader.done_;
 }
 
 void TileJournal::Remove() {
+  for (auto& p : parts_)
+    if (p.data_fd >= 0 && p.data_fd != data_fd_) ::close(p.data_fd);
+  parts_.clear();
   if (data_fd_ >= 0) ::close(data_fd_);
   if (journal_fd_ >= 0) ::close(journal_fd_);
   data_fd_ = journal_fd_ = -1;
