@@ -7,6 +7,8 @@
 #include <fstream>
 #include <map>
 
+#include <unistd.h>
+
 #include <gtest/gtest.h>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgcodecs.hpp>
@@ -159,6 +161,89 @@ TEST_F(ComposeTest, AnInterruptedComposeResumesWhereItStopped) {
 }
 
 // Without navigation: metres in a local frame from altitude / focal, origin at the first frame.
+// A compose split into shards (as cluster jobs run it) gives the one-process mosaic pixel for
+// pixel; a finish before every shard is done, a second finish while one runs, and a shard run
+// after the store changed are refused with the reason.
+TEST_F(ComposeTest, ShardsThenFinishEqualOneProcess) {
+  ComposeOptions o;
+  o.tiff.compression = Compression::kZstd;
+  o.chunk_px = 256;
+  o.threads = 1;
+  ComposeMosaic(*store_, o);
+  const fs::path mosaic = dir_ / "s.rolamos/mosaic.tif";
+  fs::rename(mosaic, dir_ / "whole.tif");
+
+  ComposeOptions shard = o;
+  shard.shards = 3;
+  shard.shard = 1;
+  const ComposeResult first = ComposeMosaic(*store_, shard);
+  EXPECT_FALSE(first.written);
+  EXPECT_GT(first.chunks_rendered, 0);
+  EXPECT_EQ(first.chunks_rendered, first.shard_chunks);
+  EXPECT_FALSE(fs::exists(mosaic));
+  ComposeOptions finish = o;
+  finish.finish = true;
+  try {
+    ComposeMosaic(*store_, finish);
+    ADD_FAILURE() << "finished with shards 2 and 3 missing";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("2/3"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("3/3"), std::string::npos) << e.what();
+  }
+  ShardStatus st = ComposeShardStatus(*store_);
+  EXPECT_TRUE(st.split);
+  EXPECT_EQ(st.pending, (std::vector<int>{2, 3}));
+  // Another split of the same partial mosaic is refused.
+  ComposeOptions four = shard;
+  four.shards = 4;
+  EXPECT_THROW(ComposeMosaic(*store_, four), Error);
+  for (int k : {2, 3}) {
+    shard.shard = k;
+    ComposeMosaic(*store_, shard);
+  }
+  EXPECT_TRUE(ComposeShardStatus(*store_).pending.empty());
+  // A finish that is running (its lock held by a live process on this host) keeps a second out.
+  const fs::path lock = dir_ / "s.rolamos/mosaic.tif.partial/finish.lock";
+  char host[256] = {};
+  gethostname(host, sizeof host - 1);
+  { std::ofstream(lock) << host << " " << getpid() << " 0\n"; }
+  try {
+    ComposeMosaic(*store_, finish);
+    ADD_FAILURE() << "a second finish ran";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("another finish"), std::string::npos) << e.what();
+  }
+  // One whose process is gone is taken over.
+  { std::ofstream(lock) << host << " 999999999 0\n"; }
+  const ComposeResult done = ComposeMosaic(*store_, finish);
+  EXPECT_TRUE(done.written);
+  EXPECT_FALSE(fs::exists(dir_ / "s.rolamos/mosaic.tif.partial"));
+  auto cache = std::make_shared<TileCache>();
+  TiledImage a = TiledImage::Open(dir_ / "whole.tif", cache), b = TiledImage::Open(mosaic, cache);
+  ASSERT_EQ(a.num_levels(), b.num_levels());
+  for (int k = 0; k < a.num_levels(); ++k) {
+    const auto& L = a.info().levels[size_t(k)];
+    const cv::Rect all(0, 0, static_cast<int>(L.width), static_cast<int>(L.height));
+    cv::Mat d;
+    cv::absdiff(a.ReadRegion(k, all), b.ReadRegion(k, all), d);
+    EXPECT_EQ(cv::countNonZero(d.reshape(1)), 0) << "level " << k;
+  }
+
+  // The store changes between two shards of a new split: the later shard refuses.
+  shard.shard = 1;
+  ComposeMosaic(*store_, shard);
+  PatchSidecar s = store_->ReadSidecar(store_->patches().back().id);
+  (*s.patch_to_global)[2] += 5;  // the patch moved (a new alignment)
+  store_->UpdateSidecar(s);
+  shard.shard = 2;
+  try {
+    ComposeMosaic(*store_, shard);
+    ADD_FAILURE() << "a shard ran against a changed store";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("changed since the split"), std::string::npos) << e.what();
+  }
+}
+
 TEST_F(ComposeTest, ALocalEngineeringFrameWithoutNavigation) {
   EXPECT_THROW(GeoreferenceLocal(*store_, 0.002), Error);  // no mosaic yet
   ComposeMosaic(*store_, ComposeOptions{});

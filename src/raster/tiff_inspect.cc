@@ -49,7 +49,7 @@ TiffStructure InspectTiff(const std::string& path) {
   if (ec) Fail(path, "cannot read: " + ec.message());
   std::unique_ptr<TiffFile> file;
   try {
-    file = TiffFile::Open(path, "r");
+    file = TiffFile::Open(path, "rm");
   } catch (const Error& e) {
     Fail(path, "is not a readable TIFF (" + std::to_string(s.file_size) +
                    " bytes: truncated or damaged?): " + std::string(e.what()).substr(path.size() + 2));
