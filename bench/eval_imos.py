@@ -16,6 +16,12 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 DATA = os.path.join(ROOT, "..", "shared", "data", "imos_auv_seabed")
 
 
+
+def sidecars(store):
+    """The patches' sidecars, as the manifest names them (align versions their file names)."""
+    m = json.load(open(os.path.join(store, "store.json")))
+    return [os.path.join(store, p["sidecar"]) for p in m["patches"]]
+
 def main():
     extra = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
     out = os.path.join(ROOT, "bench", "out", "imos")
@@ -39,7 +45,7 @@ def main():
             continue
         n = len(glob.glob(os.path.join(frames_dir, "*.tif")))
         stitched, rejected, errors, patches = 0, [], [], 0
-        for side in sorted(glob.glob(os.path.join(store, "patches", "*.json"))):
+        for side in sidecars(store):
             s = json.load(open(side))
             patches += 1
             stitched += len(s["frames"])

@@ -19,10 +19,12 @@ EVAL = os.path.join(ROOT, "build", "colour_bench")
 SURVEY = ["--width", "800", "--height", "600", "--fov", "60", "--frames", "200", "--lanes", "4", "--overlap", "0.75",
           "--side-overlap", "0.35", "--light-cone", "0.5", "--exposure-jitter", "0.15", "--vignetting", "0.35",
           "--attenuation", "1", "--backscatter", "0.08", "--attitude-jitter", "0.5"]
-STEPS = [("none", ["--no-flat-field", "--no-exposure", "--no-water-colour"]),
-         ("lighting (flat field)", ["--no-exposure", "--no-water-colour"]),
-         ("lighting + exposure", ["--no-water-colour"]),
-         ("lighting + exposure + water colour (default)", [])]
+# (label, mosaic flags, compose flags)
+STEPS = [("none", ["--no-flat-field", "--no-exposure", "--no-water-colour"], ["--no-exposure"]),
+         ("lighting (flat field)", ["--no-exposure", "--no-water-colour"], ["--no-exposure"]),
+         ("lighting + exposure", ["--no-water-colour"], []),
+         ("lighting + exposure + water colour (default)", [], []),
+         ("default + multi-band compose", [], ["--blend", "multiband"])]
 
 
 def main():
@@ -36,14 +38,14 @@ def main():
         timed([CLI, "synth", "-o", survey, "-q"] + SURVEY, check=True)
     lines = ["| colour steps | patch colour error (median) | patch seam visibility | mosaic colour error | mosaic seam visibility | frames/s | compose Mpx/s |",
              "|---|---|---|---|---|---|---|"]
-    for label, flags in STEPS:
+    for label, flags, compose_flags in STEPS:
         fps, mpx = [], []
         for _ in range(a.runs):
             store = os.path.join(a.out, "store.rolamos")
             shutil.rmtree(store, ignore_errors=True)
             r, _, _ = timed([CLI, "mosaic", os.path.join(survey, "frames"), "-o", store, "-q"] + flags, check=True)
             fps.append(float(re.search(r"\(([\d.]+) frames/s\)", r.stdout).group(1)))
-            r, t, _ = timed([CLI, "compose", store, "-q", "--no-link"], check=True)
+            r, t, _ = timed([CLI, "compose", store, "-q", "--no-link"] + compose_flags, check=True)
             size = re.search(r"(\d+) x (\d+)", r.stdout)
             mpx.append(int(size.group(1)) * int(size.group(2)) / 1e6 / t if size else float("nan"))
         rows = [json.loads(l) for l in subprocess.run([EVAL, survey, store], capture_output=True, text=True,

@@ -66,7 +66,7 @@ def synth_args(args):
 def closures(store):
     """How the patches closed, from their sidecars."""
     counts = {}
-    for side in sorted(glob.glob(os.path.join(store, "patches", "*.json"))):
+    for side in sorted(glob.glob(os.path.join(store, "patches", "[0-9]*[0-9].json"))):  # not .links.json
         s = json.load(open(side))
         why = s.get("closed_by", "?")
         counts[why] = counts.get(why, 0) + 1

@@ -17,6 +17,12 @@ DATA = os.path.join(ROOT, "..", "shared", "data", "imos_auv_seabed")
 OUT = os.path.join(ROOT, "bench", "out", "imos_georef")
 
 
+
+def sidecars(store):
+    """The patches' sidecars, as the manifest names them (align versions their file names)."""
+    m = json.load(open(os.path.join(store, "store.json")))
+    return [os.path.join(store, p["sidecar"]) for p in m["patches"]]
+
 def run(cmd):
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
@@ -29,7 +35,7 @@ def navigation_scatter(store, seq, nav):
     online homography and the navigation put frame i's centre in frame j (as bench/eval_imos.py),
     in metres at the navigation's pixel size; the median over pairs."""
     d = []
-    for side in sorted(glob.glob(os.path.join(store, "patches", "*.json"))):
+    for side in sidecars(store):
         fr = json.load(open(side))["frames"]
         for a, b in zip(fr, fr[1:]):
             Ma, Mb = nav[(seq, os.path.basename(a["source"]))], nav[(seq, os.path.basename(b["source"]))]

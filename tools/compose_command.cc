@@ -24,6 +24,8 @@ struct ComposeSwitches {
   bool no_exposure = false;
   double altitude_m = 0;
   int chunk_px = 4096;
+  std::string blend = "feather";
+  int bands = 5;
   std::string shard;  // "I/N"
   bool finish = false;
   bool status = false;
@@ -62,6 +64,7 @@ static int RunCompose(const ComposeSwitches& s) {
   }
   o.finish = s.finish;
   o.chunk_px = s.chunk_px;
+  o.bands = s.blend == "multiband" ? s.bands : 0;
   const bool sharded = o.shards > 0 || o.finish;
   if (sharded && !o.finish && (!s.navigation.empty() || s.altitude_m > 0))
     throw rolamos::Error("compose: --navigation and --altitude go with --finish, which writes the mosaic");
@@ -138,6 +141,12 @@ void AddComposeCommand(CLI::App& app, Runner* run) {
                   "I/N: render only shard I of N into the partial mosaic (one cluster job each; the first records "
                   "the split, a shard run again does only what is missing); then --finish")
       ->check([](const std::string& v) { return v.find('/') == std::string::npos ? "expected I/N" : ""; });
+  cmd->add_option("--blend", s->blend,
+                  "feather (weights fading over 64 px at patch borders) or multiband (Laplacian pyramids across "
+                  "seams placed where the patches' weights cross; hides exposure and colour steps)")
+      ->check(CLI::IsMember({"feather", "multiband"}))
+      ->capture_default_str();
+  cmd->add_option("--bands", s->bands, "pyramid levels of --blend multiband")->capture_default_str();
   cmd->add_option("--chunk", s->chunk_px,
                   "mosaic pixels per chunk side (power of two): the unit of parallel work, of resuming and of shards")
       ->capture_default_str();

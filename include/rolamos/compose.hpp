@@ -33,6 +33,8 @@ struct ComposeOptions {
   TiffWriteOptions tiff;     // the mosaic's codec and tiles
   double cache_mb = 256;     // tile cache for reading the patches
   int feather_px = 64;       // blend width across patch seams, in patch pixels
+  int bands = 0;             // > 0: multi-band blending where patches meet (Laplacian pyramids of
+                             // this many levels, seams where the feather weights cross); 0: feather
   bool exposure = true;      // each patch's brightness matched to its neighbours' where they overlap
   int threads = 0;           // 0: one per core
   bool restart = false;      // ignore a partial compose left by an interrupted run

@@ -52,6 +52,10 @@ bool ComposeOptions::IsValid(std::string* error) const {
              "mosaic folder, or compose without shards";
     return false;
   }
+  if (bands < 0 || bands > 10) {
+    *error = "multi-band levels " + std::to_string(bands) + " must be 0 (feathering) to 10";
+    return false;
+  }
   if (threads < 0) {
     *error = "thread count cannot be negative";
     return false;
@@ -72,7 +76,7 @@ std::string Fingerprint(const std::vector<PlacedPatch>& placed, const ComposeRes
                         const ComposeOptions& o) {
   std::ostringstream f;
   f.precision(17);
-  f << r.width << 'x' << r.height << " scale " << r.scale << " feather " << o.feather_px << " chunk " << o.chunk_px << " codec "
+  f << r.width << 'x' << r.height << " scale " << r.scale << " feather " << o.feather_px << " bands " << o.bands << " chunk " << o.chunk_px << " codec "
     << CompressionName(o.tiff.compression) << ' ' << o.tiff.quality << ' ' << o.tiff.tile_size << ' '
     << o.tiff.pyramid << ' ' << o.tiff.zstd_level << ' ' << o.tiff.deflate_level << ' ' << o.tiff.webp_method;
   for (const auto& p : placed) {
@@ -332,7 +336,7 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
     // Shards' files stay whole until the finish has written the file (a finish that dies is re-run).
     journal.set_free_while_writing(!sharded);
     result.discarded = journal.discarded();
-    const PatchBlender blender(placed, scale, options.feather_px);
+    const PatchBlender blender(placed, scale, options.feather_px, options.bands);
     const QuadtreeStats q = BuildQuadtreePyramid(
         store.MosaicPath(), layout, options.tiff, qo, [&](const cv::Rect& r) { return blender.Render(r); },
         journal, progress);

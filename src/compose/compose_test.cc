@@ -244,6 +244,42 @@ TEST_F(ComposeTest, ShardsThenFinishEqualOneProcess) {
   }
 }
 
+// Multi-band blending, rendered block by block: the same coverage as feathering, close to it in
+// colour, and blocks of other sizes agree where they meet (each block's pyramid sees a margin).
+TEST_F(ComposeTest, MultibandCoversTheSameGroundAndBlocksAgree) {
+  ComposeOptions o;
+  o.tiff.compression = Compression::kZstd;
+  o.chunk_px = 256;
+  o.exposure = false;
+  auto read = [&](const ComposeOptions& opts) {
+    ComposeMosaic(*store_, opts);
+    auto cache = std::make_shared<TileCache>();
+    TiledImage m = TiledImage::Open(dir_ / "s.rolamos/mosaic.tif", cache);
+    return m.ReadRegion(0, cv::Rect(0, 0, static_cast<int>(m.width()), static_cast<int>(m.height()))).clone();
+  };
+  const cv::Mat feather = read(o);
+  o.bands = 5;
+  const cv::Mat small_blocks = read(o);
+  o.chunk_px = 1024;
+  const cv::Mat large_blocks = read(o);
+  ASSERT_EQ(feather.size(), small_blocks.size());
+  std::vector<cv::Mat> f, a, b;
+  cv::split(feather, f);
+  cv::split(small_blocks, a);
+  cv::split(large_blocks, b);
+  // (The same coverage but for single pixels at the outer border, where the two round differently.)
+  EXPECT_LE(cv::countNonZero(f[3] != a[3]), static_cast<int>(f[3].total() / 1000)) << "coverage differs from feathering";
+  const cv::Mat inside = f[3] > 0;
+  for (int c = 0; c < 3; ++c) {
+    cv::Mat d;
+    cv::absdiff(a[c], f[c], d);
+    EXPECT_LT(cv::mean(d, inside)[0], 4.0) << "channel " << c << ": far from the feathered colours";
+    cv::absdiff(a[c], b[c], d);
+    EXPECT_LT(cv::mean(d, inside)[0], 0.5) << "channel " << c << ": blocks of 256 and 1024 disagree";
+    EXPECT_LE(cv::countNonZero(d > 4), d.total() / 1000) << "channel " << c;
+  }
+}
+
 TEST_F(ComposeTest, ALocalEngineeringFrameWithoutNavigation) {
   EXPECT_THROW(GeoreferenceLocal(*store_, 0.002), Error);  // no mosaic yet
   ComposeMosaic(*store_, ComposeOptions{});

@@ -1,7 +1,7 @@
 // Renders any region of the global mosaic from the patches that cover it: each patch is read at
 // the pyramid level its scale needs (through the bounded tile cache), warped into the region and
 // blended with weights that fade to zero over `feather_px` at its no-data border, as the engine
-// feathers frames. Thread-safe: compose renders blocks on all cores.
+// feathers frames, or by multi-band blending across seams. Thread-safe: compose renders blocks on all cores.
 #pragma once
 
 #include <memory>
@@ -40,7 +40,10 @@ struct PlacedPatch {
 
 class PatchBlender {
  public:
-  PatchBlender(std::vector<PlacedPatch> patches, double scale, int feather_px);
+  // `bands` > 0: multi-band blending (Burt & Adelson's Laplacian pyramids, `bands` levels) where
+  // patches meet, with the seam where their feather weights cross (far from either's border);
+  // 0: feathering only.
+  PatchBlender(std::vector<PlacedPatch> patches, double scale, int feather_px, int bands = 0);
   // 8-bit BGRA of `rect` (mosaic pixels; alpha 255 where a patch has data), or an empty Mat when
   // no patch reaches it.
   cv::Mat Render(const cv::Rect& rect) const;
@@ -49,10 +52,21 @@ class PatchBlender {
  private:
   // Whether patch k is the only one whose bounds reach `area`.
   bool OnlyOne(size_t k, const cv::Rect2d& area) const;
+  struct Source;
+  // Patch k's pixels for mosaic region `rect` and how they map onto it; false when it does not
+  // reach the region.
+  bool Read(size_t k, const cv::Rect& rect, Source* src) const;
+  // Its weighted colour and weight (CV_32FC4: w*B, w*G, w*R, w) warped over the source's roi.
+  void Warp(size_t k, const Source& src, cv::Mat* warped) const;
+  cv::Mat RenderFeather(const cv::Rect& rect) const;
+  // Multi-band over `rect` grown by a margin the pyramid's reach needs, so that neighbouring
+  // blocks agree where they meet; the margin is cut off.
+  cv::Mat RenderMultiband(const cv::Rect& rect) const;
 
   std::vector<PlacedPatch> patches_;
   double scale_;
   int feather_px_;
+  int bands_;
 };
 
 }  // namespace rolamos
