@@ -242,7 +242,8 @@ TEST(Cli, MergeTwoDivesThenAlignMakesOneMap) {
   // The inputs are untouched by the merged store's alignment.
   r = test::RunCli("info --json " + (dir / "dive1.rolamos"));
   ASSERT_EQ(r.exit_code, 0) << r.output;
-  for (const auto& p : nlohmann::json::parse(r.output)["patches"]) EXPECT_FALSE(p.contains("component")) << p.dump();
+  const auto info = nlohmann::json::parse(r.output);  // kept: the loop must not walk a temporary
+  for (const auto& p : info["patches"]) EXPECT_FALSE(p.contains("component")) << p.dump();
 }
 
 }  // namespace

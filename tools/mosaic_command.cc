@@ -1,9 +1,17 @@
+#include <atomic>
+#include <csignal>
 #include <cstdio>
+#include <filesystem>
+
+#include <signal.h>
+
+#include <nlohmann/json.hpp>
 
 #include "command.h"
 #include "rolamos/error.hpp"
 #include "rolamos/mosaicker.hpp"
 #include "rolamos/store.hpp"
+#include "util/files.h"
 #include "util/progress.h"
 
 namespace rolamos::cli {
@@ -18,10 +26,38 @@ struct MosaicSwitches {
        no_kalman = false, no_ecc = false, no_cross_check = false, no_recover = false, no_patch_fit = false, no_adjust = false,
        no_flat_field = false, no_exposure = false, no_water_colour = false;
   bool quiet = false;
+  bool live = false;
+  LiveOptions live_options;
 };
+
+// SIGINT/SIGTERM end a live run cleanly (the open patch is written); a second one kills.
+static std::atomic<bool> g_stop{false};
+static void OnStopSignal(int sig) {
+  if (g_stop.exchange(true)) {
+    std::signal(sig, SIG_DFL);
+    std::raise(sig);
+  }
+}
+
+static std::string StatusJson(const LiveStatus& st) {
+  nlohmann::json j = {{"running", st.running},
+                      {"frames_received", st.frames_received},
+                      {"frames_registered", st.frames_registered},
+                      {"frames_rejected", st.frames_rejected},
+                      {"frames_skipped", st.frames_skipped},
+                      {"patches", st.patches},
+                      {"open_patch", st.open_patch},
+                      {"last_frame_time", st.last_frame_time},
+                      {"latency_ms_p50", st.latency_ms_p50},
+                      {"latency_ms_p95", st.latency_ms_p95},
+                      {"started", st.started},
+                      {"updated", st.updated}};
+  return j.dump() + "\n";
+}
 
 static int RunMosaic(MosaicSwitches s) {
   MosaickerOptions& o = s.options;
+  if (s.live && o.checkpoint_frames == 0) o.checkpoint_frames = 150;
   o.bilateral = !s.no_bilateral;
   o.temporal = !s.no_temporal;
   o.clahe = !s.no_clahe;
@@ -43,13 +79,28 @@ static int RunMosaic(MosaicSwitches s) {
   if (!o.calibration.empty()) so.camera = {{"calibration_file", o.calibration}};
   Store store = Store::LooksLikeStore(s.output) ? Store::Open(s.output) : Store::Create(s.output, so);
   Progress progress("mosaic", s.quiet);
-  MosaicSummary sum = MosaicInput(s.input, store, o, [&](const FrameReport& r, int total) {
+  auto on_frame = [&](const FrameReport& r, int total) {
     char detail[200];
     std::snprintf(detail, sizeof detail, "frame %d %s%s%s patch %d, %d/%d inliers", r.index,
                   r.status.c_str(), r.reason.empty() ? "" : " (", r.reason.empty() ? "" : (r.reason + ")").c_str(),
                   r.patch_id, r.inliers, r.matches);
     progress.Update(total > 0 ? double(r.index + 1) / total : 0.0, detail);
-  });
+  };
+  MosaicSummary sum;
+  if (s.live) {
+    struct sigaction sa {};
+    sa.sa_handler = OnStopSignal;
+    sigaction(SIGINT, &sa, nullptr);
+    sigaction(SIGTERM, &sa, nullptr);
+    s.live_options.stop = &g_stop;
+    const std::string status_dir = store.dir() + "/live";
+    std::filesystem::create_directories(status_dir);
+    sum = MosaicLive(s.input, store, o, s.live_options,
+                     [&](const LiveStatus& st) { WriteFileAtomic(status_dir + "/status.json", StatusJson(st)); },
+                     on_frame);
+  } else {
+    sum = MosaicInput(s.input, store, o, on_frame);
+  }
   progress.Done();
   if (!sum.calibration_note.empty()) std::printf("%s\n", sum.calibration_note.c_str());
   if (!sum.mask_note.empty()) std::printf("%s\n", sum.mask_note.c_str());
@@ -57,6 +108,9 @@ static int RunMosaic(MosaicSwitches s) {
               "peak memory %.0f MiB\n",
               s.output.c_str(), sum.frames, sum.stitched, sum.recovered, sum.rejected, sum.patches, sum.seconds,
               sum.frames / std::max(sum.seconds, 1e-9), sum.peak_rss_mb);
+  if (s.live)
+    std::printf("live: %d frames skipped to keep up%s\n", sum.frames_skipped,
+                g_stop ? "; stopped by a signal, the open patch written" : "");
   std::string stages;
   for (const auto& [name, sec] : sum.stage_seconds) {
     char b[64];
@@ -74,7 +128,19 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
   auto s = std::make_shared<MosaicSwitches>();
   auto& o = s->options;
   auto* cmd = app.add_subcommand("mosaic", "Mosaic frames (folder, list or video) into a store, online");
-  cmd->add_option("input", s->input, "folder of frames, .txt list of frames, or a video")->required();
+  cmd->add_option("input", s->input,
+                  "folder of frames, .txt list of frames, or a video; with --live: a folder that grows, a camera "
+                  "(/dev/videoN), a stream (rtsp://, udp://) or a GStreamer pipeline ending in appsink")
+      ->required();
+  cmd->add_flag("--live", s->live,
+                "map frames as they arrive until the stream ends, SIGINT/SIGTERM (the open patch is written) or "
+                "--idle-timeout; frames that arrive while the engine is busy are skipped; STORE/live/status.json "
+                "says where it stands");
+  cmd->add_option("--idle-timeout", s->live_options.idle_timeout_s, "live: end after this many seconds without a frame (0 = never)")
+      ->capture_default_str();
+  cmd->add_option("--checkpoint-frames", o.checkpoint_frames,
+                  "close (write) the open patch after this many frames, so a crash loses at most these (default 0; "
+                  "150 with --live)");
   cmd->add_option("-o,--output", s->output, "store to create (or add to)")->required();
   cmd->add_option("--mask", o.mask,
                   "static overlays to leave out of matching and blending: an image of the frames' size, white where "

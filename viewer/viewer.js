@@ -45,16 +45,47 @@
                                                              dzi: i.dzi.replace(/^\//, ''),
                                                              overlays: 'api/overlays/' + i.name }));
     }
+    addOptions(state.images);
+    if (!state.images.length) { status('the store has no images yet'); return; }
+    const wanted = new URLSearchParams(location.search).get('image');
+    open(state.images.find((i) => i.name === wanted) || state.images[0]);
+  }
+
+  function addOptions(images) {
     const select = $('image');
-    for (const i of state.images) {
+    for (const i of images) {
       const o = document.createElement('option');
       o.value = i.name;
       o.textContent = i.name + ' (' + i.width + ' x ' + i.height + ')';
       select.appendChild(o);
     }
-    if (!state.images.length) { status('the store has no images'); return; }
-    const wanted = new URLSearchParams(location.search).get('image');
-    open(state.images.find((i) => i.name === wanted) || state.images[0]);
+  }
+
+  // A store being written (mosaic --live): every 2 s the run's status, new patches added to the
+  // list as they are written and, when following, the newest opened.
+  state.live = null;
+  async function pollLive() {
+    let st;
+    try { st = await json('api/status'); } catch (e) { return; }
+    if (!st.running && !state.live) return;  // a finished store: nothing to follow
+    state.live = st;
+    $('follow-label').hidden = false;
+    const age = st.last_frame_time ? Math.max(0, Date.now() / 1000 - st.last_frame_time) : null;
+    $('live').textContent = (st.running ? 'live: ' : 'live run ended: ') + st.frames_received + ' frames, ' +
+      st.frames_registered + ' registered, ' + st.frames_rejected + ' rejected, ' + st.frames_skipped + ' skipped, ' +
+      st.patches + ' patches' + (st.open_patch ? ', patch ' + st.open_patch + ' open' : '') +
+      (st.latency_ms_p50 ? ', latency ' + Math.round(st.latency_ms_p50) + ' ms' : '') +
+      (age !== null && st.running ? ', last frame ' + age.toFixed(1) + ' s ago' : '') + ' \u00a0 ';
+    if (st.images_served === state.images.length) return;
+    const listed = new Set(state.images.map((i) => i.name));
+    const fresh = (await json('api/images')).filter((i) => !listed.has(i.name)).map((i) => ({
+      name: i.name, width: i.width, height: i.height, dzi: i.dzi.replace(/^\//, ''), overlays: 'api/overlays/' + i.name }));
+    if (!fresh.length) return;
+    state.images.push(...fresh);
+    addOptions(fresh);
+    const patches = state.images.filter((i) => i.name.startsWith('patch'))
+      .sort((a, b) => parseInt(a.name.slice(6), 10) - parseInt(b.name.slice(6), 10));
+    if ((!state.current || $('follow').checked) && patches.length) open(patches[patches.length - 1]);
   }
 
   function open(image) {
@@ -199,4 +230,8 @@
     });
   }
   loadImages().catch((e) => status(e.message));
+  if (!statics) {
+    pollLive();
+    setInterval(pollLive, 2000);
+  }
 })();

@@ -5,6 +5,7 @@
 // background thread) when the next frame would take it past its pixel budget or tracking is lost.
 #pragma once
 
+#include <atomic>
 #include <functional>
 #include <memory>
 #include <string>
@@ -74,6 +75,9 @@ struct MosaickerOptions {
   double patch_megapixels = 5.0;
   double patch_memory_mb = 0;     // if > 0, also bounds the patch canvas (16 bytes a pixel)
   int max_lost_frames = 3;        // consecutive failures that close a patch
+  // Live: the open patch is closed (written, and the next one linked to it) after this many
+  // frames, so that a crash or power cut loses at most these; 0 = only by the pixel budget.
+  int checkpoint_frames = 0;
   TiffWriteOptions tiff = PatchWriteOptions();  // patch images
 
   // WebP at libwebp effort 0: patches are intermediate, and the writer must keep up with the camera.
@@ -112,6 +116,29 @@ struct MosaicSummary {
   std::vector<std::pair<std::string, double>> stage_seconds;
   std::string calibration_note;  // what --calibration auto found, when used
   std::string mask_note;         // what --mask auto found, when used
+  int frames_skipped = 0;        // live: frames that arrived while the engine was busy, skipped
+};
+
+// Live input (MosaicLive): a folder that grows, or a stream (camera device, rtsp://, udp://, a
+// GStreamer pipeline). See src/engine/live_source.h.
+struct LiveOptions {
+  double idle_timeout_s = 0;  // 0: wait for frames until stopped
+  double poll_s = 0.1;        // how often a folder is listed
+  int max_waiting = 2;        // frames waiting beyond this many are skipped (oldest first)
+  const std::atomic<bool>* stop = nullptr;  // set (e.g. by SIGINT) to end the run cleanly
+
+  bool IsValid(std::string* error) const;
+};
+
+// Where a live run stands (STORE/live/status.json, GET /api/status).
+struct LiveStatus {
+  bool running = false;
+  long long frames_received = 0, frames_registered = 0, frames_rejected = 0, frames_skipped = 0;
+  int patches = 0;             // written by this run
+  int open_patch = 0;          // id of the patch being built (0: none)
+  double last_frame_time = 0;  // Unix seconds of the newest frame received
+  double latency_ms_p50 = 0, latency_ms_p95 = 0;  // arrival to integration, last 600 frames
+  double started = 0, updated = 0;
 };
 
 class Mosaicker {
@@ -142,6 +169,13 @@ class Mosaicker {
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
+
+// Maps frames as they arrive (LiveOptions) into the store until the source ends or is stopped;
+// the open patch is then written as at the end of a survey. `on_status` is called at least twice a
+// second while frames come, at each patch written, and at the end.
+MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerOptions& options,
+                         const LiveOptions& live, const std::function<void(const LiveStatus&)>& on_status = nullptr,
+                         const std::function<void(const FrameReport&, int total)>& on_frame = nullptr);
 
 // Reads INPUT (folder, list, video) and mosaics it into the store; `on_frame` sees every frame.
 MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& options,

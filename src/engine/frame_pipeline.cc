@@ -1,13 +1,17 @@
 // MosaicInput: a frame source run through the engine on every core. Frames are prepared
 // (decoded, filtered, features found and matched to the frame before) by one worker per core,
 // several at once, while the calling thread integrates them in order.
+#include <algorithm>
+#include <chrono>
 #include <condition_variable>
+#include <filesystem>
 #include <cstdio>
 #include <map>
 #include <mutex>
 #include <thread>
 
 #include "engine/frame_source.h"
+#include "engine/live_source.h"
 #include "engine/prepared_frame.h"
 #include "engine/self_calibration.h"
 #include "engine/preprocess.h"
@@ -21,7 +25,13 @@
 
 namespace rolamos {
 
+namespace fs = std::filesystem;
+
 namespace {
+
+double UnixSeconds() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
 
 // Automatic calibration: radial distortion from the first frames, written into the store so the
 // run can be repeated with it. Returns the options to use and a one-line account.
@@ -72,14 +82,13 @@ MosaickerOptions AutoMask(const std::string& input, const Store& store, Mosaicke
 
 }  // namespace
 
-MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& given,
-                          const std::function<void(const FrameReport&, int)>& on_frame) {
-  std::string note;
-  MosaickerOptions options = given.calibration == "auto" ? AutoCalibrate(input, store, given, &note) : given;
-  std::string mask_note;
-  if (options.mask == "auto") options = AutoMask(input, store, options, &mask_note);
-  auto source = FrameSource::Open(input);
-  Mosaicker mosaicker(store, options);
+namespace {
+
+// Frames from `source` through `mosaicker`: prepared on every core, integrated in order.
+// `on_taken(i)` is called as frame i leaves the source; `on_frame` after it is integrated.
+void RunPipeline(FrameSource* source, Mosaicker& mosaicker,
+                 const std::function<void(const FrameReport&, int)>& on_frame,
+                 const std::function<void(long)>& on_taken) {
   // Frames are prepared (decoded, filtered, features found and matched to the frame before) by
   // one worker per core, several frames at once, while this thread integrates them in order
   // (registration, gate, ECC, blending); the writer compresses closed patches meanwhile. Only
@@ -114,6 +123,7 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
             return;
           }
           index = taken++;
+          if (on_taken) on_taken(index);
         }
         auto prepared = mosaicker.Prepare(f.image, f.source, f.error);
         const bool has_features = prepared->own && !prepared->own->empty();
@@ -173,9 +183,114 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
   }
   stop();
   if (failure) std::rethrow_exception(failure);
+}
+
+}  // namespace
+
+MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& given,
+                          const std::function<void(const FrameReport&, int)>& on_frame) {
+  std::string note;
+  MosaickerOptions options = given.calibration == "auto" ? AutoCalibrate(input, store, given, &note) : given;
+  std::string mask_note;
+  if (options.mask == "auto") options = AutoMask(input, store, options, &mask_note);
+  auto source = FrameSource::Open(input);
+  Mosaicker mosaicker(store, options);
+  RunPipeline(source.get(), mosaicker, on_frame, nullptr);
   MosaicSummary summary = mosaicker.Finish();
   summary.calibration_note = note;
   summary.mask_note = mask_note;
+  return summary;
+}
+
+MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerOptions& given,
+                         const LiveOptions& live, const std::function<void(const LiveStatus&)>& on_status,
+                         const std::function<void(const FrameReport&, int)>& on_frame) {
+  MosaickerOptions options = given;
+  std::string note, mask_note;
+  const std::string dir = store.dir();
+  // What needs the first frames before mapping (self-calibration, the overlay search) cannot wait
+  // for them live: an earlier run's results in the store are used, or none.
+  if (options.calibration == "auto") {
+    if (!fs::exists(dir + "/calibration.yml"))
+      Fail(dir, "has no calibration.yml from an earlier run; live mapping cannot self-calibrate first "
+                "(give a calibration file, or none)");
+    options.calibration = dir + "/calibration.yml";
+    note = "calibration from " + options.calibration;
+  }
+  if (options.mask == "auto") {
+    if (fs::exists(dir + "/static_mask.png")) {
+      options.mask = dir + "/static_mask.png";
+      mask_note = "overlay mask from " + options.mask;
+    } else {
+      options.mask = "";
+      mask_note = "no overlay mask (live mapping does not search the first frames for one; give --mask FILE)";
+    }
+  }
+  auto source = LiveSource::Open(input, live);
+  Mosaicker mosaicker(store, options);
+  LiveStatus status;
+  status.started = UnixSeconds();
+  std::mutex mutex;
+  std::map<long, std::chrono::steady_clock::time_point> arrivals;
+  std::vector<double> latencies;  // ms, every frame integrated
+  long integrated = 0;
+  auto last_report = std::chrono::steady_clock::now();
+  auto report = [&](bool running) {
+    // Under `mutex`.
+    status.running = running;
+    status.frames_received = source->counters().received;
+    status.frames_skipped = source->counters().skipped;
+    status.last_frame_time = source->counters().last_arrival;
+    if (!latencies.empty()) {
+      std::vector<double> l(latencies.end() - std::min<size_t>(latencies.size(), 600), latencies.end());
+      std::sort(l.begin(), l.end());
+      status.latency_ms_p50 = l[l.size() / 2];
+      status.latency_ms_p95 = l[std::min(l.size() - 1, l.size() * 95 / 100)];
+    }
+    status.updated = UnixSeconds();
+    if (on_status) on_status(status);
+  };
+  mosaicker.OnPatch([&](const PatchSidecar&) {
+    std::lock_guard<std::mutex> lock(mutex);
+    ++status.patches;
+    report(true);
+  });
+  report(true);
+  RunPipeline(
+      source.get(), mosaicker,
+      [&](const FrameReport& r, int total) {
+        {
+          std::lock_guard<std::mutex> lock(mutex);
+          auto it = arrivals.find(integrated);
+          if (it != arrivals.end()) {
+            latencies.push_back(1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - it->second).count());
+            arrivals.erase(it);
+          }
+          ++integrated;
+          if (r.status == "stitched") ++status.frames_registered;
+          else ++status.frames_rejected;
+          status.open_patch = r.patch_id;
+          const auto now = std::chrono::steady_clock::now();
+          if (now - last_report > std::chrono::milliseconds(500)) {
+            last_report = now;
+            report(true);
+          }
+        }
+        if (on_frame) on_frame(r, total);
+      },
+      [&](long index) {
+        std::lock_guard<std::mutex> lock(mutex);
+        arrivals[index] = source->arrival();
+      });
+  MosaicSummary summary = mosaicker.Finish();
+  {
+    std::lock_guard<std::mutex> lock(mutex);
+    status.open_patch = 0;
+    report(false);
+  }
+  summary.calibration_note = note;
+  summary.mask_note = mask_note;
+  summary.frames_skipped = static_cast<int>(source->counters().skipped);
   return summary;
 }
 

@@ -14,7 +14,6 @@
 namespace fs = std::filesystem;
 
 namespace rolamos {
-namespace {
 
 bool IsImageName(const std::string& name) {
   static const char* exts[] = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".ppm", ".pgm"};
@@ -44,7 +43,7 @@ bool LooksTruncated(const std::string& path) {
   return tail.find("IEND") == std::string::npos;
 }
 
-cv::Mat ReadImage(const std::string& path, std::string* error) {
+cv::Mat ReadFrameImage(const std::string& path, std::string* error) {
   std::error_code ec;
   if (!fs::exists(path, ec)) {
     *error = "missing";
@@ -65,6 +64,8 @@ cv::Mat ReadImage(const std::string& path, std::string* error) {
   return m;
 }
 
+namespace {
+
 class FileListSource : public FrameSource {
  public:
   explicit FileListSource(std::vector<std::string> paths) : paths_(std::move(paths)) {}
@@ -73,7 +74,7 @@ class FileListSource : public FrameSource {
     f->index = static_cast<int>(next_);
     f->source = paths_[next_];
     f->error.clear();
-    f->image = ReadImage(paths_[next_], &f->error);
+    f->image = ReadFrameImage(paths_[next_], &f->error);
     ++next_;
     return true;
   }

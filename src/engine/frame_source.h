@@ -28,4 +28,11 @@ class FrameSource {
   static std::unique_ptr<FrameSource> Open(const std::string& input);
 };
 
+// Helpers shared with the live sources.
+bool IsImageName(const std::string& name);
+// A JPEG or PNG whose end-of-image marker is missing (cut off, or still being written).
+bool LooksTruncated(const std::string& path);
+// BGR 8-bit, or empty with the reason in `error`.
+cv::Mat ReadFrameImage(const std::string& path, std::string* error);
+
 }  // namespace rolamos

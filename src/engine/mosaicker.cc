@@ -112,6 +112,10 @@ bool MosaickerOptions::IsValid(std::string* error) const {
     *error = "patch memory budget cannot be negative";
     return false;
   }
+  if (checkpoint_frames < 0 || checkpoint_frames == 1) {
+    *error = "checkpoint every " + std::to_string(checkpoint_frames) + " frames: 0 (none) or at least 2";
+    return false;
+  }
   if (max_lost_frames < 1) {
     *error = "max lost frames must be at least 1";
     return false;
@@ -750,7 +754,9 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
   const size_t frame_bytes = spatial.total() * spatial.elemSize();
   const bool memory_full =
       m.image_bytes + frame_bytes > static_cast<size_t>(m.options.patch_frames_mb * 1024 * 1024);
-  if (memory_full || !m.canvas->Fits(PatchCanvas::FrameBounds(to_patch, m.frame_size))) {
+  const bool checkpoint = m.options.checkpoint_frames > 0 &&
+                          static_cast<int>(m.frames.size()) >= m.options.checkpoint_frames;
+  if (memory_full || checkpoint || !m.canvas->Fits(PatchCanvas::FrameBounds(to_patch, m.frame_size))) {
     // The pixel budget is reached: close the patch, start the next one with this frame, and
     // remember how the two join (consecutive patches are linked by this frame's homography).
     const int old_id = m.patch_id;
@@ -760,7 +766,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared)
     closing.links = fitted_links;
     PatchLink join;
     join.previous_patch = old_id;
-    join.to_previous = ToArray9(m.ClosePatch(memory_full ? "frame_memory" : "pixel_budget", closing));
+    join.to_previous = ToArray9(m.ClosePatch(memory_full ? "frame_memory" : checkpoint ? "checkpoint" : "pixel_budget", closing));
     m.StartPatch(p, join);
     r.started_patch = true;
     m.Stitch(spatial, cv::Matx33d::eye(), features, r);

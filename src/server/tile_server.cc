@@ -7,6 +7,9 @@
 #include <map>
 #include <atomic>
 #include <cstdio>
+#include <chrono>
+#include <mutex>
+#include <shared_mutex>
 #include <thread>
 
 #include <unistd.h>
@@ -67,6 +70,11 @@ struct TileServer::Impl {
   TileServerOptions options;
   std::shared_ptr<TileCache> cache;
   std::map<std::string, Served> images;
+  // A store being written (mosaic --live): patches appear; Refresh adds them. Served entries are
+  // never removed, so a pointer found under the lock stays valid after it.
+  mutable std::shared_mutex images_mutex;
+  std::mutex refresh_mutex;
+  std::chrono::steady_clock::time_point refreshed{};
   httplib::Server http;
   std::thread thread;
   int port = 0;
@@ -100,7 +108,39 @@ struct TileServer::Impl {
                     ext == "png" ? "image/png" : ext == "webp" ? "image/webp" : "image/jpeg");
   }
 
+  void Add(const std::string& name, const std::string& path) {
+    Served s;
+    s.name = name;
+    s.path = path;
+    s.tiles = std::make_unique<TilePyramid>(std::make_shared<TiledImage>(TiledImage::Open(path, cache)));
+    std::error_code ec;
+    const auto t = std::filesystem::last_write_time(path, ec).time_since_epoch().count();
+    s.version = std::to_string(t) + "-" + std::to_string(std::filesystem::file_size(path, ec));
+    std::unique_lock<std::shared_mutex> lock(images_mutex);
+    images.emplace(name, std::move(s));
+  }
+
+  // New patches (and a mosaic) written since the server started; at most twice a second.
+  void Refresh() {
+    std::lock_guard<std::mutex> lock(refresh_mutex);
+    const auto now = std::chrono::steady_clock::now();
+    if (now - refreshed < std::chrono::milliseconds(500)) return;
+    refreshed = now;
+    try {
+      for (const auto& [name, path] : StoreImages(Store::Open(store.dir()))) {
+        {
+          std::shared_lock<std::shared_mutex> read(images_mutex);
+          if (images.count(name)) continue;
+        }
+        Add(name, path);
+      }
+    } catch (const Error&) {
+      // A manifest being replaced, or a patch not yet readable: the next refresh sees it.
+    }
+  }
+
   const Served* Find(const std::string& name, httplib::Response& res) const {
+    std::shared_lock<std::shared_mutex> lock(images_mutex);
     auto it = images.find(name);
     if (it == images.end()) {
       res.status = 404;
@@ -111,8 +151,29 @@ struct TileServer::Impl {
   }
 
   void Routes() {
+    http.Get("/api/status", [this](const httplib::Request&, httplib::Response& res) {
+      // What a live run (`mosaic --live`) last wrote; {"running": false} for a finished store.
+      nlohmann::json st = {{"running", false}};
+      const std::string path = store.dir() + "/live/status.json";
+      std::error_code ec;
+      if (std::filesystem::exists(path, ec)) {
+        try {
+          st = nlohmann::json::parse(ReadSmallFile(path, 1 << 20));
+        } catch (const std::exception&) {
+        }
+      }
+      Refresh();
+      {
+        std::shared_lock<std::shared_mutex> lock(images_mutex);
+        st["images_served"] = images.size();
+      }
+      res.set_header("Cache-Control", "no-store");
+      res.set_content(st.dump(), "application/json");
+    });
     http.Get("/api/images", [this](const httplib::Request&, httplib::Response& res) {
+      Refresh();
       nlohmann::json list = nlohmann::json::array();
+      std::shared_lock<std::shared_mutex> lock(images_mutex);
       for (const auto& [name, s] : images) {
         nlohmann::json levels = nlohmann::json::array();
         const TiledImage& image = s.tiles->image();
@@ -183,7 +244,8 @@ struct TileServer::Impl {
     http.Get(R"(/api/overlays/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
       const Served* s = Find(req.matches[1], res);
       if (!s) return;
-      res.set_content(ImageOverlays(store, s->name, s->path).dump(), "application/json");
+      // The store read afresh: a live run adds patches (and align replaces sidecars) meanwhile.
+      res.set_content(ImageOverlays(Store::Open(store.dir()), s->name, s->path).dump(), "application/json");
     });
     // Full-resolution export of a region through the export code: ?region=x,y,w,h
     // [&scale=s][&format=png|jpg|tif]. Bounded, so a request cannot fill the disk or memory.
@@ -243,18 +305,11 @@ TileServer::TileServer(Store store, const TileServerOptions& options)
   TileCacheOptions co;
   co.max_memory_mb = options.cache_mb;
   m.cache = std::make_shared<TileCache>(co);
-  auto add = [&](const std::string& name, const std::string& path) {
-    Served s;
-    s.name = name;
-    s.path = path;
-    s.tiles = std::make_unique<TilePyramid>(std::make_shared<TiledImage>(TiledImage::Open(path, m.cache)));
-    std::error_code ec;
-    const auto t = std::filesystem::last_write_time(path, ec).time_since_epoch().count();
-    s.version = std::to_string(t) + "-" + std::to_string(std::filesystem::file_size(path, ec));
-    m.images[name] = std::move(s);
-  };
-  for (const auto& [name, path] : StoreImages(store)) add(name, path);
-  if (m.images.empty()) Fail(store.dir(), "has no mosaic and no patches to serve");
+  for (const auto& [name, path] : StoreImages(store)) m.Add(name, path);
+  std::error_code ec;
+  const bool live = std::filesystem::exists(store.dir() + "/live/status.json", ec);
+  if (m.images.empty() && !live) Fail(store.dir(), "has no mosaic and no patches to serve");
+  m.refreshed = std::chrono::steady_clock::now();
   m.Routes();
   // Browsers keep ~6 connections open per site and cpp-httplib holds a thread per open
   // connection: with fewer threads than that, a page waits on idle keep-alive sockets.

@@ -1,0 +1,143 @@
+// Live mapping as a vehicle runs it: a logger writes frames into a folder at 10 frames/s while
+// `rolamos mosaic --live` maps them and `rolamos serve` reports the run; SIGINT ends the run with
+// the open patch written; kill -9 leaves a store that opens; a later live run continues the store.
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <thread>
+
+#include <gtest/gtest.h>
+#include <httplib.h>
+#include <nlohmann/json.hpp>
+
+#include "test_support.h"
+
+namespace rolamos {
+namespace {
+
+namespace fs = std::filesystem;
+
+// Copies the survey's frames into `to` at `fps`, each written under a temporary name and renamed
+// (as loggers do) or, with `in_place`, written in two halves (a frame caught half-written).
+void Feed(const fs::path& from, const fs::path& to, double fps, int first, int count, bool in_place = false) {
+  std::vector<fs::path> frames;
+  for (const auto& e : fs::directory_iterator(from)) frames.push_back(e.path());
+  std::sort(frames.begin(), frames.end());
+  fs::create_directories(to);
+  for (int i = first; i < std::min<int>(first + count, static_cast<int>(frames.size())); ++i) {
+    const fs::path target = to / frames[size_t(i)].filename();
+    if (in_place) {
+      std::ifstream in(frames[size_t(i)], std::ios::binary);
+      const std::string bytes((std::istreambuf_iterator<char>(in)), {});
+      std::ofstream out(target, std::ios::binary);
+      out.write(bytes.data(), static_cast<std::streamsize>(bytes.size() / 2));
+      out.flush();
+      std::this_thread::sleep_for(std::chrono::milliseconds(150));  // longer than one poll
+      out.write(bytes.data() + bytes.size() / 2, static_cast<std::streamsize>(bytes.size() - bytes.size() / 2));
+    } else {
+      fs::copy_file(frames[size_t(i)], to / ".incoming");
+      fs::rename(to / ".incoming", target);
+    }
+    std::this_thread::sleep_for(std::chrono::duration<double>(1.0 / fps));
+  }
+}
+
+nlohmann::json Status(const fs::path& store) {
+  std::ifstream in(store / "live/status.json");
+  return nlohmann::json::parse(in);
+}
+
+class LiveTest : public testing::Test {
+ protected:
+  void SetUp() override {
+    auto r = test::RunCli("synth -q -o " + (dir_ / "survey") + " --frames 40 --width 480 --height 360 --focal 420 --lanes 2");
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+  }
+  test::ScratchDir dir_;
+};
+
+TEST_F(LiveTest, AGrowingFolderIsMappedAndServedAsItArrives) {
+  const std::string store = dir_ / "live.rolamos";
+  std::thread logger([&] {
+    Feed(dir_ / "survey/frames", dir_ / "incoming", 10, 0, 20);
+    Feed(dir_ / "survey/frames", dir_ / "incoming", 10, 20, 20, /*in_place=*/true);
+  });
+  // The viewer's server on the same store while it is written, started before its first patch.
+  const int port = 18000 + static_cast<int>(::getpid() % 1000);
+  std::thread server([&] {
+    for (int i = 0; i < 200 && !fs::exists(fs::path(store) / "live/status.json"); ++i)
+      std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    test::RunShell(std::string(ROLAMOS_CLI) + " serve " + store + " --port " + std::to_string(port) +
+                   " > " + (dir_ / "serve.log") + " 2>&1 & echo $! > " + (dir_ / "serve.pid"));
+  });
+  auto r = test::RunCli("mosaic -q " + (dir_ / "incoming") + " -o " + store + " --live --idle-timeout 3 --patch-megapixels 0.5 "
+                        "--checkpoint-frames 15");
+  logger.join();
+  server.join();
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("frames skipped"), std::string::npos) << r.output;
+  const auto st = Status(store);
+  EXPECT_EQ(st["frames_received"], 40) << st.dump();  // every frame, the half-written ones once complete
+  EXPECT_EQ(st["frames_registered"].get<int>() + st["frames_rejected"].get<int>() + st["frames_skipped"].get<int>(), 40)
+      << st.dump();
+  EXPECT_GE(st["frames_registered"].get<int>(), 30) << st.dump();
+  EXPECT_FALSE(st["running"].get<bool>());
+  EXPECT_GE(st["patches"].get<int>(), 3) << "checkpoints every 15 frames: " << st.dump();
+  for (const char* key : {"frames_received", "frames_registered", "frames_rejected", "frames_skipped", "patches",
+                          "open_patch", "last_frame_time", "latency_ms_p50", "latency_ms_p95"})
+    EXPECT_TRUE(st.contains(key)) << key;
+  // The server, started before the first patch existed, serves what the run wrote.
+  httplib::Client http("127.0.0.1", port);
+  std::string body;
+  for (int i = 0; i < 50 && body.empty(); ++i) {
+    if (auto res = http.Get("/api/status")) body = res->body;
+    else std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  ASSERT_FALSE(body.empty()) << test::RunShell("cat " + (dir_ / "serve.log")).output;
+  EXPECT_EQ(nlohmann::json::parse(body)["frames_received"], 40) << body;
+  std::this_thread::sleep_for(std::chrono::milliseconds(600));  // the server refreshes twice a second
+  auto images = http.Get("/api/images");
+  ASSERT_TRUE(images);
+  EXPECT_EQ(nlohmann::json::parse(images->body).size(), st["patches"].get<size_t>()) << images->body;
+  test::RunShell("kill $(cat " + (dir_ / "serve.pid") + ")");
+}
+
+TEST_F(LiveTest, SigintWritesTheOpenPatchAndKillLeavesAStoreThatOpens) {
+  const std::string store = dir_ / "s.rolamos";
+  std::thread logger([&] { Feed(dir_ / "survey/frames", dir_ / "incoming", 10, 0, 25); });
+  test::RunShell(std::string(ROLAMOS_CLI) + " mosaic -q " + (dir_ / "incoming") + " -o " + store +
+                 " --live --patch-megapixels 4 > " + (dir_ / "run.log") + " 2>&1 & echo $! > " + (dir_ / "run.pid"));
+  logger.join();
+  std::this_thread::sleep_for(std::chrono::seconds(2));
+  test::RunShell("kill -INT $(cat " + (dir_ / "run.pid") + ")");
+  for (int i = 0; i < 100 && test::RunShell("kill -0 $(cat " + (dir_ / "run.pid") + ") 2>/dev/null").exit_code == 0; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  const std::string log = test::RunShell("cat " + (dir_ / "run.log")).output;
+  EXPECT_NE(log.find("stopped by a signal"), std::string::npos) << log;
+  auto r = test::RunCli("info --json " + store);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  int frames = 0;
+  const auto info = nlohmann::json::parse(r.output);
+  for (const auto& p : info["patches"]) frames += p.value("n_images", 0);
+  EXPECT_EQ(frames + Status(store)["frames_rejected"].get<int>() + Status(store)["frames_skipped"].get<int>(), 25)
+      << Status(store).dump() << "\n" << log;
+
+  // A second run continues the store; kill -9 mid-run leaves it readable with the first run's patches.
+  std::thread more([&] { Feed(dir_ / "survey/frames", dir_ / "incoming2", 10, 25, 15); });
+  test::RunShell(std::string(ROLAMOS_CLI) + " mosaic -q " + (dir_ / "incoming2") + " -o " + store +
+                 " --live --checkpoint-frames 5 > /dev/null 2>&1 & echo $! > " + (dir_ / "run2.pid"));
+  more.join();
+  test::RunShell("kill -9 $(cat " + (dir_ / "run2.pid") + ")");
+  r = test::RunCli("info --json " + store);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  int after = 0;
+  const auto info2 = nlohmann::json::parse(r.output);
+  for (const auto& p : info2["patches"]) {
+    EXPECT_FALSE(p.contains("problem")) << p.dump();
+    after += p.value("n_images", 0);
+  }
+  EXPECT_GE(after, frames) << "the first run's patches are still there";
+}
+
+}  // namespace
+}  // namespace rolamos
