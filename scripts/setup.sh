@@ -10,7 +10,7 @@ PACKAGES=(
   libopenimageio-dev openimageio-tools libvips-tools
   libgtest-dev libgmock-dev libbenchmark-dev libcli11-dev nlohmann-json3-dev libcpp-httplib-dev
   libzstd-dev libwebp-dev libjpeg-dev time wrk curl
-  slurm-wlm munge
+  slurm-wlm munge python3-numpy
   chromium
 )
 

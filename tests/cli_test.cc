@@ -161,11 +161,16 @@ TEST(Cli, BadInputGivesAClearErrorAndNonZeroExit) {
 namespace rolamos {
 namespace {
 
+// The small survey of the workflow tests: 40 frames of 480 x 360 in two lanes.
+test::CommandResult TwoLaneSurvey(const std::string& dir) {
+  return test::RunCli("synth -q -o " + dir + " --frames 40 --width 480 --height 360 --focal 420 --lanes 2");
+}
+
 // mosaic, align, compose as a user runs them; then an align killed (kill -9) at random moments
 // leaves a store that opens, with every sidecar from before or every one from after.
 TEST(Cli, MosaicAlignComposeAndAnAlignKilledMidway) {
   test::ScratchDir dir;
-  auto r = test::RunCli("synth -q -o " + (dir / "survey") + " --frames 40 --width 480 --height 360 --focal 420 --lanes 2");
+  auto r = TwoLaneSurvey(dir / "survey");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const std::string store = dir / "s.rolamos";
   r = test::RunCli("mosaic -q " + (dir / "survey/frames") + " -o " + store + " --patch-megapixels 0.5 --compression zstd");
@@ -204,7 +209,7 @@ namespace {
 // Two dives (the two lanes of one survey, mosaicked into two stores) merged and aligned: one map.
 TEST(Cli, MergeTwoDivesThenAlignMakesOneMap) {
   test::ScratchDir dir;
-  auto r = test::RunCli("synth -q -o " + (dir / "survey") + " --frames 40 --width 480 --height 360 --focal 420 --lanes 2");
+  auto r = TwoLaneSurvey(dir / "survey");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   std::vector<fs::path> frames;
   for (const auto& e : fs::directory_iterator(dir / "survey/frames")) frames.push_back(e.path());

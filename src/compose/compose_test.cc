@@ -26,6 +26,20 @@ namespace {
 
 namespace fs = std::filesystem;
 
+// Every level of two pyramids holds the same pixels.
+void ExpectSamePixels(const std::string& a_path, const std::string& b_path) {
+  auto cache = std::make_shared<TileCache>();
+  TiledImage a = TiledImage::Open(a_path, cache), b = TiledImage::Open(b_path, cache);
+  ASSERT_EQ(a.num_levels(), b.num_levels());
+  for (int k = 0; k < a.num_levels(); ++k) {
+    const auto& L = a.info().levels[size_t(k)];
+    const cv::Rect all(0, 0, static_cast<int>(L.width), static_cast<int>(L.height));
+    cv::Mat d;
+    cv::absdiff(a.ReadRegion(k, all), b.ReadRegion(k, all), d);
+    EXPECT_EQ(cv::countNonZero(d.reshape(1)), 0) << "level " << k;
+  }
+}
+
 class ComposeTest : public testing::Test {
  protected:
   void SetUp() override {
@@ -139,15 +153,7 @@ TEST_F(ComposeTest, AnInterruptedComposeResumesWhereItStopped) {
   EXPECT_GT(resumed.chunks_resumed, 0);
   EXPECT_LT(resumed.chunks_resumed, resumed.chunks);
   EXPECT_FALSE(fs::exists(dir_ / "s.rolamos/mosaic.tif.partial"));
-  auto cache = std::make_shared<TileCache>();
-  TiledImage a = TiledImage::Open(dir_ / "whole.tif", cache), b = TiledImage::Open(mosaic, cache);
-  for (int k = 0; k < a.num_levels(); ++k) {
-    const auto& L = a.info().levels[size_t(k)];
-    const cv::Rect all(0, 0, static_cast<int>(L.width), static_cast<int>(L.height));
-    cv::Mat d;
-    cv::absdiff(a.ReadRegion(k, all), b.ReadRegion(k, all), d);
-    EXPECT_EQ(cv::countNonZero(d.reshape(1)), 0) << "level " << k;
-  }
+  ExpectSamePixels(dir_ / "whole.tif", mosaic);
   // Other options are other pixels: a partial compose for them is not resumed.
   reports = 0;
   EXPECT_THROW(ComposeMosaic(*store_, o, [&](double) {
@@ -218,16 +224,7 @@ TEST_F(ComposeTest, ShardsThenFinishEqualOneProcess) {
   const ComposeResult done = ComposeMosaic(*store_, finish);
   EXPECT_TRUE(done.written);
   EXPECT_FALSE(fs::exists(dir_ / "s.rolamos/mosaic.tif.partial"));
-  auto cache = std::make_shared<TileCache>();
-  TiledImage a = TiledImage::Open(dir_ / "whole.tif", cache), b = TiledImage::Open(mosaic, cache);
-  ASSERT_EQ(a.num_levels(), b.num_levels());
-  for (int k = 0; k < a.num_levels(); ++k) {
-    const auto& L = a.info().levels[size_t(k)];
-    const cv::Rect all(0, 0, static_cast<int>(L.width), static_cast<int>(L.height));
-    cv::Mat d;
-    cv::absdiff(a.ReadRegion(k, all), b.ReadRegion(k, all), d);
-    EXPECT_EQ(cv::countNonZero(d.reshape(1)), 0) << "level " << k;
-  }
+  ExpectSamePixels(dir_ / "whole.tif", mosaic);
 
   // The store changes between two shards of a new split: the later shard refuses.
   shard.shard = 1;

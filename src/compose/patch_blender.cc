@@ -91,12 +91,10 @@ void LocalMaps(const PlacedPatch& p, const cv::Rect& rect, const cv::Rect& roi, 
   }
 }
 
-}  // namespace
-
 // How near each pixel of mosaic region `rect` is to the patch's nearest frame centre (its bounds'
 // centre when its frames were not placed one by one), in (0, 1): on a grid of 8 mosaic pixels
 // anchored to the mosaic, so that every block computes the same values.
-static cv::Mat Closeness(const PlacedPatch* p, const cv::Rect& rect) {
+cv::Mat Closeness(const PlacedPatch* p, const cv::Rect& rect) {
   constexpr int kCell = 8;
   std::vector<cv::Point2d> centres;
   for (const auto& l : p->local) centres.push_back(l.centre);
@@ -116,6 +114,8 @@ static cv::Mat Closeness(const PlacedPatch* p, const cv::Rect& rect) {
   cv::resize(coarse, fine, cv::Size(coarse.cols * kCell, coarse.rows * kCell), 0, 0, cv::INTER_NEAREST);
   return fine(cv::Rect(rect.x - x0 * kCell, rect.y - y0 * kCell, rect.width, rect.height)).clone();
 }
+
+}  // namespace
 
 PatchBlender::PatchBlender(std::vector<PlacedPatch> patches, double scale, int feather_px, int bands)
     : patches_(std::move(patches)), scale_(scale), feather_px_(feather_px), bands_(bands) {}
