@@ -120,7 +120,7 @@ struct MosaicSummary {
 };
 
 // Live input (MosaicLive): a folder that grows, or a stream (camera device, rtsp://, udp://, a
-// GStreamer pipeline). See src/engine/live_source.h.
+// GStreamer pipeline). See src/input/live_source.h.
 struct LiveOptions {
   double idle_timeout_s = 0;  // 0: wait for frames until stopped
   double poll_s = 0.1;        // how often a folder is listed

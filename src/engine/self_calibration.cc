@@ -1,6 +1,5 @@
 #include "engine/self_calibration.h"
 
-#include "engine/frame_source.h"
 
 #include <cmath>
 
@@ -108,25 +107,6 @@ void WriteCalibration(const std::string& path, const Calibration& c) {
   fs << "image_width" << c.image_size.width << "image_height" << c.image_size.height;
   fs << "camera_matrix" << cv::Mat(c.camera_matrix);
   fs << "distortion_coefficients" << c.distortion;
-}
-
-SelfCalibrationResult CalibrateFromInput(const std::string& input, const std::string& path,
-                                         const FeatureOptions& features) {
-  auto source = FrameSource::Open(input);
-  std::vector<cv::Mat> gray;
-  InputFrame f;
-  while (gray.size() < 10 && source->Next(&f)) {
-    if (f.image.empty()) continue;
-    cv::Mat g;
-    cv::cvtColor(f.image, g, f.image.channels() == 3 ? cv::COLOR_BGR2GRAY : cv::COLOR_BGRA2GRAY);
-    if (!gray.empty() && g.size() != gray[0].size()) continue;
-    gray.push_back(g);
-  }
-  if (gray.size() < 2)
-    Fail(input, "automatic calibration needs two readable frames of one size, found " + std::to_string(gray.size()));
-  SelfCalibrationResult r = EstimateRadialDistortion(gray, features);
-  WriteCalibration(path, r.calibration);
-  return r;
 }
 
 }  // namespace rolamos

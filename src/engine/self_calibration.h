@@ -29,12 +29,6 @@ SelfCalibrationResult EstimateRadialDistortion(const std::vector<cv::Mat>& gray,
                                                const FeatureOptions& features,
                                                double min_gain = 0.05);
 
-// Reads up to ten readable frames of one size from the start of `input` (folder, list, video),
-// estimates k1 from them and writes the calibration to `path`. Throws Error naming `input` when
-// fewer than two frames can be read.
-SelfCalibrationResult CalibrateFromInput(const std::string& input, const std::string& path,
-                                         const FeatureOptions& features);
-
 // Writes an OpenCV FileStorage calibration (what ReadCalibration reads).
 void WriteCalibration(const std::string& path, const Calibration& calibration);
 

@@ -15,7 +15,7 @@
 #include <memory>
 #include <string>
 
-#include "engine/frame_source.h"
+#include "input/frame_source.h"
 #include "rolamos/mosaicker.hpp"  // LiveOptions
 
 namespace rolamos {

@@ -1,4 +1,4 @@
-#include "engine/frame_source.h"
+#include "input/frame_source.h"
 
 #include <algorithm>
 #include <filesystem>

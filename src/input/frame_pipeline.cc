@@ -10,8 +10,8 @@
 #include <mutex>
 #include <thread>
 
-#include "engine/frame_source.h"
-#include "engine/live_source.h"
+#include "input/frame_source.h"
+#include "input/live_source.h"
 #include "engine/prepared_frame.h"
 #include "engine/self_calibration.h"
 #include "engine/preprocess.h"
@@ -19,6 +19,7 @@
 #include "util/files.h"
 
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include "engine/stage_options.h"
 #include "rolamos/error.hpp"
 #include "rolamos/mosaicker.hpp"
@@ -32,6 +33,28 @@ namespace {
 double UnixSeconds() {
   return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
+
+// Up to ten readable frames of one size from the start of `input`: k1 estimated from them and
+// the calibration written to `path`.
+SelfCalibrationResult CalibrateFromInput(const std::string& input, const std::string& path,
+                                         const FeatureOptions& features) {
+  auto source = FrameSource::Open(input);
+  std::vector<cv::Mat> gray;
+  InputFrame f;
+  while (gray.size() < 10 && source->Next(&f)) {
+    if (f.image.empty()) continue;
+    cv::Mat g;
+    cv::cvtColor(f.image, g, f.image.channels() == 3 ? cv::COLOR_BGR2GRAY : cv::COLOR_BGRA2GRAY);
+    if (!gray.empty() && g.size() != gray[0].size()) continue;
+    gray.push_back(g);
+  }
+  if (gray.size() < 2)
+    Fail(input, "automatic calibration needs two readable frames of one size, found " + std::to_string(gray.size()));
+  SelfCalibrationResult r = EstimateRadialDistortion(gray, features);
+  WriteCalibration(path, r.calibration);
+  return r;
+}
+
 
 // Automatic calibration: radial distortion from the first frames, written into the store so the
 // run can be repeated with it. Returns the options to use and a one-line account.

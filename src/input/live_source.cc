@@ -1,4 +1,4 @@
-#include "engine/live_source.h"
+#include "input/live_source.h"
 
 #include <algorithm>
 #include <condition_variable>

@@ -1,0 +1,210 @@
+#include "engine/tracker.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
+
+#include "rolamos/error.hpp"
+
+namespace rolamos {
+
+bool TrackerOptions::IsValid(std::string* error) const {
+  if (!(track_pixels >= 2e4 && track_pixels <= 1e8)) {
+    *error = "tracking image size " + std::to_string(track_pixels) + " pixels is outside 2e4..1e8";
+    return false;
+  }
+  if (max_points < 30 || window < 5 || window > 61 || levels < 0 || levels > 6) {
+    *error = "tracker settings are out of range (points >= 30, window 5..61, levels 0..6)";
+    return false;
+  }
+  if (!(max_fb_px > 0) || !(corner_quality > 0 && corner_quality < 1) || !(min_corner_eigen >= 0)) {
+    *error = "tracker thresholds must be positive (corner quality below 1)";
+    return false;
+  }
+  return true;
+}
+
+double TrackerOptions::ScaleFor(cv::Size frame) const {
+  const double area = std::max(1.0, double(frame.area()));
+  const double s = std::sqrt(track_pixels / area);
+  if (s >= 1.0) return 1.0;
+  // Halving is exact and fast (2 x 2 averages); other scales only when halving is too coarse.
+  return s >= 0.5 && s < 0.6 ? 0.5 : s;
+}
+
+namespace {
+
+// Full-resolution pixel <-> tracking pixel: q = (p + 0.5) s - 0.5.
+cv::Point2f ToTrack(cv::Point2f p, double s) {
+  return {float((p.x + 0.5) * s - 0.5), float((p.y + 0.5) * s - 0.5)};
+}
+cv::Point2f ToFull(cv::Point2f q, double s) {
+  return {float((q.x + 0.5) / s - 0.5), float((q.y + 0.5) / s - 0.5)};
+}
+cv::Matx33d ScaleMap(double s) {  // full -> tracking
+  return cv::Matx33d(s, 0, 0.5 * (s - 1), 0, s, 0.5 * (s - 1), 0, 0, 1);
+}
+
+cv::Point2f Apply(const cv::Matx33d& H, cv::Point2f p) {
+  const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1);
+  return {float(q[0] / q[2]), float(q[1] / q[2])};
+}
+
+}  // namespace
+
+FrameTracker::FrameTracker(const TrackerOptions& options) : options_(options) {
+  std::string error;
+  if (!options.IsValid(&error)) Fail("tracker", error);
+}
+
+std::shared_ptr<const TrackFrame> FrameTracker::Prepare(const cv::Mat& frame, const cv::Mat& usable) const {
+  auto t = std::make_shared<TrackFrame>();
+  t->size = frame.size();
+  t->scale = options_.ScaleFor(frame.size());
+  cv::Mat gray;
+  if (frame.channels() == 3) cv::cvtColor(frame, gray, cv::COLOR_BGR2GRAY);
+  else if (frame.channels() == 4) cv::cvtColor(frame, gray, cv::COLOR_BGRA2GRAY);
+  else gray = frame;
+  if (t->scale < 1.0) {
+    cv::Mat small;
+    cv::resize(gray, small, cv::Size(), t->scale, t->scale, cv::INTER_AREA);
+    gray = small;
+  }
+  cv::buildOpticalFlowPyramid(gray, t->pyramid, cv::Size(options_.window, options_.window), options_.levels, true);
+  if (!usable.empty()) {
+    cv::resize(usable, t->usable, gray.size(), 0, 0, cv::INTER_NEAREST);
+    // A window over an overlay's edge follows the overlay: keep a window's half away.
+    cv::erode(t->usable, t->usable, cv::Mat(), cv::Point(-1, -1), options_.window / 2);
+  }
+  return t;
+}
+
+std::vector<cv::Point2f> FrameTracker::Corners(const TrackFrame& frame, const std::vector<cv::Point2f>& existing,
+                                               int count, int* strong) const {
+  std::vector<cv::Point2f> out;
+  if (strong) *strong = 0;
+  if (frame.pyramid.empty()) return out;
+  const cv::Mat& gray = frame.pyramid[0];
+  const double s = frame.scale;
+  // Shi-Tomasi's smaller eigenvalue, local maxima only, a window's half from the border.
+  cv::Mat eig, peaks;
+  cv::cornerMinEigenVal(gray, eig, 3, 3);
+  cv::dilate(eig, peaks, cv::Mat(), cv::Point(-1, -1), 2);
+  double strongest = 0;
+  cv::minMaxLoc(eig, nullptr, &strongest);
+  const float floor = float(std::max(options_.corner_quality * strongest, 1e-7));
+  const int border = options_.window / 2 + 1;
+  // The frame in a grid of cells; each cell's best corners in turn, so points cover the frame.
+  const int cols = 8, rows = 6;
+  const float min_distance = float(std::max(gray.cols, gray.rows)) / 60.0f;
+  cv::Mat taken(gray.size(), CV_8U, cv::Scalar(0));
+  for (const auto& p : existing) cv::circle(taken, ToTrack(p, s), int(std::ceil(min_distance)), 255, -1);
+  if (!frame.usable.empty()) taken.setTo(255, frame.usable == 0);
+  std::vector<std::vector<std::pair<float, cv::Point>>> cells(size_t(cols * rows));
+  int textured = 0;
+  for (int y = border; y < gray.rows - border; ++y) {
+    const float* e = eig.ptr<float>(y);
+    const float* d = peaks.ptr<float>(y);
+    const uchar* t = taken.ptr<uchar>(y);
+    for (int x = border; x < gray.cols - border; ++x) {
+      if (e[x] < floor || e[x] < d[x]) continue;
+      if (e[x] >= options_.min_corner_eigen) ++textured;
+      if (t[x]) continue;
+      const int cx = std::min(cols - 1, x * cols / gray.cols), cy = std::min(rows - 1, y * rows / gray.rows);
+      cells[size_t(cy * cols + cx)].emplace_back(e[x], cv::Point(x, y));
+    }
+  }
+  if (strong) *strong = textured;
+  for (auto& c : cells)
+    std::sort(c.begin(), c.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+  std::vector<size_t> next(cells.size(), 0);
+  for (bool any = true; any && static_cast<int>(out.size()) < count;) {
+    any = false;
+    for (size_t k = 0; k < cells.size() && static_cast<int>(out.size()) < count; ++k) {
+      auto& c = cells[k];
+      while (next[k] < c.size()) {
+        const cv::Point q = c[next[k]++].second;
+        if (taken.at<uchar>(q)) continue;
+        cv::circle(taken, q, int(std::ceil(min_distance)), 255, -1);
+        out.push_back(ToFull(cv::Point2f(q), s));
+        any = true;
+        break;
+      }
+    }
+  }
+  // Sub-pixel corner positions: the tracked point starts where the corner is.
+  if (!out.empty()) {
+    std::vector<cv::Point2f> q;
+    for (const auto& p : out) q.push_back(ToTrack(p, s));
+    cv::cornerSubPix(gray, q, cv::Size(3, 3), cv::Size(-1, -1),
+                     cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 10, 0.03));
+    for (size_t i = 0; i < q.size(); ++i) out[i] = ToFull(q[i], s);
+  }
+  return out;
+}
+
+TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, const std::vector<cv::Point2f>& points,
+                               const cv::Matx33d& guess) const {
+  TrackFlow flow;
+  flow.to.resize(points.size());
+  flow.ok.assign(points.size(), 0);
+  if (points.empty() || from.pyramid.empty() || to.pyramid.empty()) return flow;
+  const double s = from.scale;
+  std::vector<cv::Point2f> a, b, back;
+  a.reserve(points.size());
+  b.reserve(points.size());
+  const cv::Matx33d G = ScaleMap(to.scale) * guess * ScaleMap(s).inv();
+  for (const auto& p : points) {
+    a.push_back(ToTrack(p, s));
+    b.push_back(Apply(G, a.back()));
+  }
+  back = a;
+  std::vector<uchar> forward, backward;
+  std::vector<float> err;
+  const cv::Size win(options_.window, options_.window);
+  const cv::TermCriteria until(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 20, 0.01);
+  cv::calcOpticalFlowPyrLK(from.pyramid, to.pyramid, a, b, forward, err, win, options_.levels, until,
+                           cv::OPTFLOW_USE_INITIAL_FLOW, 1e-4);
+  cv::calcOpticalFlowPyrLK(to.pyramid, from.pyramid, b, back, backward, err, win, options_.levels, until,
+                           cv::OPTFLOW_USE_INITIAL_FLOW, 1e-4);
+  const cv::Size t = to.pyramid[0].size();
+  for (size_t i = 0; i < points.size(); ++i) {
+    flow.to[i] = ToFull(b[i], to.scale);
+    const bool inside = b[i].x >= 0 && b[i].y >= 0 && b[i].x <= t.width - 1 && b[i].y <= t.height - 1;
+    const bool overlay = inside && !to.usable.empty() && !to.usable.at<uchar>(cv::Point(b[i]));
+    const float dx = back[i].x - a[i].x, dy = back[i].y - a[i].y;
+    flow.ok[i] = forward[i] && backward[i] && inside && !overlay &&
+                 dx * dx + dy * dy <= options_.max_fb_px * options_.max_fb_px;
+    flow.followed += flow.ok[i];
+  }
+  return flow;
+}
+
+cv::Matx33d FrameTracker::CoarseShift(const TrackFrame& from, const TrackFrame& to, const cv::Matx33d& guess,
+                                      double* response) const {
+  *response = 0;
+  if (from.pyramid.empty() || to.pyramid.empty()) return guess;
+  // The coarsest level with at least 48 pixels across (the pyramid interleaves images and
+  // their derivatives).
+  size_t level = 0;
+  while (2 * (level + 1) < to.pyramid.size() && to.pyramid[2 * (level + 1)].cols >= 48) ++level;
+  const cv::Mat& b = to.pyramid[2 * level];
+  const cv::Mat& a = from.pyramid[2 * std::min(level, from.pyramid.size() / 2 - 1)];
+  const double sa = from.scale / double(1 << level), sb = to.scale / double(1 << level);
+  // `from` seen through the guess, on `to`'s grid; then one shift between the two.
+  const cv::Matx33d G = ScaleMap(sb) * guess * ScaleMap(sa).inv();
+  cv::Mat warped, fa, fb;
+  cv::warpPerspective(a, warped, cv::Mat(G), b.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+  warped.convertTo(fa, CV_32F);
+  b.convertTo(fb, CV_32F);
+  cv::Mat window;
+  cv::createHanningWindow(window, b.size(), CV_32F);
+  const cv::Point2d shift = cv::phaseCorrelate(fa, fb, window, response);
+  const double k = 1.0 / sb;  // tracking pixels at this level -> full-resolution pixels
+  const cv::Matx33d T(1, 0, shift.x * k, 0, 1, shift.y * k, 0, 0, 1);
+  return T * guess;
+}
+
+}  // namespace rolamos

@@ -1,0 +1,72 @@
+// Stage 2, between keyframes: points followed from frame to frame with pyramidal Lucas-Kanade
+// (the "direct" family the paper's section 3.2 sets beside feature matching, suited to the large
+// overlap of consecutive video frames). Every frame is followed from the current keyframe, not
+// from the frame before, so tracking error does not add up between keyframes; each point is
+// checked forward and backward, and corners are topped up where the points thin out. SIFT then
+// runs only where it is needed (keyframes, recovery), not on every frame.
+#pragma once
+
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+namespace rolamos {
+
+struct TrackerOptions {
+  // Frames are followed at a reduced size of about this many pixels (never enlarged): the
+  // pyramid costs in proportion to it, a point's flow does not.
+  double track_pixels = 0.4e6;
+  int max_points = 400;     // points a keyframe hands on
+  int window = 21;          // Lucas-Kanade window, tracking pixels
+  int levels = 3;           // pyramid levels above the tracking image
+  double max_fb_px = 0.7;   // forward-backward disagreement allowed, tracking pixels
+  double corner_quality = 0.005;  // Shi-Tomasi, relative to the frame's strongest corner
+  // What counts as texture at all (Shi-Tomasi's smaller eigenvalue of 3x3 Sobel sums, 8-bit
+  // grey levels): open water, a black frame or a lens cap has none above it.
+  double min_corner_eigen = 2e-4;
+
+  bool IsValid(std::string* error) const;
+  double ScaleFor(cv::Size frame) const;
+};
+
+// A frame as the tracker sees it: its grey image at the tracking scale and that image's pyramid
+// (with derivatives), made once, on any thread.
+struct TrackFrame {
+  cv::Size size;       // the frame's full size
+  double scale = 1.0;  // tracking image / frame
+  std::vector<cv::Mat> pyramid;
+  cv::Mat usable;      // tracking scale, 0 where a static overlay is (empty: everywhere usable)
+};
+
+// Points followed from one frame into another (full-resolution pixels).
+struct TrackFlow {
+  std::vector<cv::Point2f> to;
+  std::vector<uchar> ok;  // followed both ways and back to where it started
+  int followed = 0;
+};
+
+class FrameTracker {
+ public:
+  explicit FrameTracker(const TrackerOptions& options);
+  // `bgr` or grey, 8-bit, full resolution; `usable` (optional, frame size, 0 = overlay).
+  std::shared_ptr<const TrackFrame> Prepare(const cv::Mat& frame, const cv::Mat& usable = cv::Mat()) const;
+  // Up to `count` corners of `frame` (full-resolution pixels), spread over it, away from the
+  // points it already has (`existing`); `strong`, if given, receives how many have texture.
+  std::vector<cv::Point2f> Corners(const TrackFrame& frame, const std::vector<cv::Point2f>& existing,
+                                   int count, int* strong = nullptr) const;
+  // `points` of `from` followed into `to`, starting where `guess` (from -> to pixels) puts them.
+  TrackFlow Follow(const TrackFrame& from, const TrackFrame& to, const std::vector<cv::Point2f>& points,
+                   const cv::Matx33d& guess) const;
+  // A coarse translation from `from` to `to` (full-resolution pixels) by phase correlation of
+  // the pyramids' coarsest levels, after `guess`: a start when there is no prediction.
+  cv::Matx33d CoarseShift(const TrackFrame& from, const TrackFrame& to, const cv::Matx33d& guess,
+                          double* response) const;
+  const TrackerOptions& options() const { return options_; }
+
+ private:
+  TrackerOptions options_;
+};
+
+}  // namespace rolamos
