@@ -1,7 +1,9 @@
+#include <algorithm>
 #include <atomic>
 #include <csignal>
 #include <cstdio>
 #include <filesystem>
+#include <thread>
 
 #include <signal.h>
 
@@ -104,10 +106,12 @@ static int RunMosaic(MosaicSwitches s) {
   progress.Done();
   if (!sum.calibration_note.empty()) std::printf("%s\n", sum.calibration_note.c_str());
   if (!sum.mask_note.empty()) std::printf("%s\n", sum.mask_note.c_str());
-  std::printf("%s: %d frames, %d stitched (%d on a second chance), %d rejected, %d patches, %.1f s (%.1f frames/s), "
-              "peak memory %.0f MiB\n",
-              s.output.c_str(), sum.frames, sum.stitched, sum.recovered, sum.rejected, sum.patches, sum.seconds,
-              sum.frames / std::max(sum.seconds, 1e-9), sum.peak_rss_mb);
+  std::printf("%s: %d frames, %d stitched (%d keyframes, %d on a second chance), %d rejected, %d patches, %.1f s "
+              "(%.1f frames/s), CPU %.0f %% of %u cores, peak memory %.0f MiB\n",
+              s.output.c_str(), sum.frames, sum.stitched, sum.keyframes, sum.recovered, sum.rejected, sum.patches,
+              sum.seconds, sum.frames / std::max(sum.seconds, 1e-9),
+              100.0 * sum.cpu_seconds / std::max(sum.seconds, 1e-9) / std::max(1u, std::thread::hardware_concurrency()),
+              std::max(1u, std::thread::hardware_concurrency()), sum.peak_rss_mb);
   if (s.live)
     std::printf("live: %d frames skipped to keep up%s\n", sum.frames_skipped,
                 g_stop ? "; stopped by a signal, the open patch written" : "");
@@ -118,7 +122,16 @@ static int RunMosaic(MosaicSwitches s) {
                   1000.0 * sec / std::max(1, sum.frames));
     stages += b;
   }
-  std::printf("per frame: %s\n", stages.c_str());
+  std::printf("per frame (CPU, all threads): %s\n", stages.c_str());
+  std::string per_key;
+  for (const auto& [name, sec] : sum.stage_seconds) {
+    if (std::find(sum.keyframe_stages.begin(), sum.keyframe_stages.end(), name) == sum.keyframe_stages.end()) continue;
+    char b[64];
+    std::snprintf(b, sizeof b, "%s%s %.0f ms", per_key.empty() ? "" : ", ", name.c_str(),
+                  1000.0 * sec / std::max(1, sum.keyframes));
+    per_key += b;
+  }
+  if (!per_key.empty()) std::printf("per keyframe: %s\n", per_key.c_str());
   std::printf("Look at it: build/rolamos info %s; build/rolamos export %s --patch 1 --scale 0.25 "
               "-o patch1.jpg\n", s.output.c_str(), s.output.c_str());
   return sum.stitched > 0 ? 0 : 1;

@@ -34,7 +34,18 @@ struct MosaickerOptions {
   // an image of the frames' size, white where the frames hold a fixed overlay; "" = none;
   // "auto" = found from the first frames (MosaicInput writes it to <store>/static_mask.png).
   std::string mask = "auto";
-  // 2. Egomotion
+  // 2. Egomotion. Every frame is followed from the current keyframe with pyramidal Lucas-Kanade
+  // (forward and backward), the homography and the paper's F-RANSAC / bilateral check fitted to
+  // the tracks; features (SIFT) are found only on keyframes (stored for the global map) and for
+  // recovery.
+  double track_pixels = 0.4e6;  // frames are followed at about this size (never enlarged)
+  int track_points = 300;       // points a keyframe hands on
+  // A frame becomes a keyframe (blended, adjusted, its features stored) when its overlap with
+  // the last keyframe falls below this, when the next frame is predicted to fall below
+  // keyframe_min_overlap, when the registration is doubtful or came from recovery, or when the
+  // points followed thin out. 1 = every frame is a keyframe.
+  double keyframe_overlap = 0.75;
+  double keyframe_min_overlap = 0.5;
   std::string features = "sift";  // sift | orb | akaze
   int max_features = 1000;
   double detect_scale = 0;        // 0 = by frame size (about detect_pixels)
@@ -58,7 +69,7 @@ struct MosaickerOptions {
   // placements. Its frames are kept in memory until then, at most patch_frames_mb (a patch closes
   // when the next frame would pass it, as at the pixel budget).
   bool adjust_patches = true;
-  double patch_frames_mb = 1024;
+  double patch_frames_mb = 256;
   // 4. ECC
   bool ecc = true;
   double ecc_scale = 0.25;
@@ -97,6 +108,8 @@ struct FrameReport {
   std::string source;
   std::string status;   // "stitched" or "rejected"
   std::string reason;   // why rejected
+  bool keyframe = false;  // stitched as a keyframe (blended), not only placed
+  std::string note;       // e.g. "duplicate of frame 5" (placed, not blended)
   int patch_id = 0;
   bool started_patch = false;
   int matches = 0, inliers = 0;
@@ -108,12 +121,15 @@ struct FrameReport {
 
 struct MosaicSummary {
   int frames = 0, stitched = 0, rejected = 0, patches = 0;
+  int keyframes = 0;  // of the stitched: blended (the others are placed between them)
   int recovered = 0;  // of the stitched: rejected at first, registered against a later frame
   int adjusted = 0, unadjusted = 0;  // patches whose placements the adjustment replaced, or not
   double seconds = 0;
+  double cpu_seconds = 0;  // the process's CPU time (user + system, every thread) during the run
   double peak_rss_mb = 0;
   // Time spent in each stage, summed over frames (seconds): where the time goes.
   std::vector<std::pair<std::string, double>> stage_seconds;
+  std::vector<std::string> keyframe_stages;  // the stages that run for keyframes only
   std::string calibration_note;  // what --calibration auto found, when used
   std::string mask_note;         // what --mask auto found, when used
   int frames_skipped = 0;        // live: frames that arrived while the engine was busy, skipped
@@ -151,14 +167,12 @@ class Mosaicker {
 
   // One frame (BGR 8-bit; empty = unreadable, recorded with `error` as the reason).
   FrameReport Push(const cv::Mat& frame, const std::string& source, const std::string& error = "");
-  // Push in parts, for pipelining. Prepare (pre-processing and features) is thread-safe: several
-  // frames may be prepared at once, on any threads. MatchAhead optionally matches a prepared frame
-  // against the features of the frame before it (which it will usually be registered to), also on
-  // any thread. Integrate (registration, checks, refinement, blending) takes the frames in order,
-  // from one thread at a time, and matches again itself whenever the frame was matched to another.
+  // Push in parts, for pipelining. Prepare (undistortion, the tracking image and its pyramid) is
+  // thread-safe: several frames may be prepared at once, on any threads. Integrate (tracking,
+  // registration, checks, refinement, blending) takes the frames in order, from one thread at a
+  // time; keyframes' filtering and features run on the engine's own workers meanwhile.
   std::shared_ptr<PreparedFrame> Prepare(const cv::Mat& frame, const std::string& source,
                                          const std::string& error = "");
-  void MatchAhead(PreparedFrame* frame, const std::shared_ptr<const Features>& previous);
   FrameReport Integrate(const std::shared_ptr<PreparedFrame>& frame);
   // Closes and writes the last patch, waits for the writer. Returns the totals.
   MosaicSummary Finish();

@@ -48,6 +48,11 @@ struct FrameRecord {
   std::optional<std::string> registered_by;
   std::optional<bool> doubtful;        // weakly supported, kept because the motion model agreed
   std::optional<int> patch_frames;     // frames of the patch it was fitted against (with previous)
+  // Absent (older stores) or true: the frame is blended into the patch image. false: followed
+  // between keyframes and placed, not blended; `placed_from` is the keyframe it was followed from.
+  std::optional<bool> keyframe;
+  std::optional<int> placed_from;
+  bool is_keyframe() const { return keyframe.value_or(true); }
   nlohmann::json extra = nlohmann::json::object();  // fields added by later versions, kept as read
 };
 

@@ -149,6 +149,14 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
   if (sidecars.empty()) Fail(store.dir(), "has no patches to align");
   std::vector<Node> nodes;
   std::map<FrameId, int> node_of;
+  // Frames the engine followed between keyframes: not in the graph, carried along afterwards by
+  // their keyframe (patch id, record, keyframe index).
+  struct Followed {
+    int patch = 0;
+    size_t record = 0;
+    int keyframe = -1;
+  };
+  std::vector<Followed> followed;
   cv::Size frame;
   double focal = 0;
   bool have_links = false;
@@ -164,6 +172,10 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
     }
     have_links = have_links || s.frame_links.has_value();
     for (size_t r = 0; r < s.frames.size(); ++r) {
+      if (!s.frames[r].is_keyframe()) {
+        followed.push_back({id, r, s.frames[r].placed_from.value_or(-1)});
+        continue;
+      }
       Node n;
       n.patch = id;
       n.record = r;
@@ -180,7 +192,7 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
     }
   }
   const int N = static_cast<int>(nodes.size());
-  summary.frames = N;
+  summary.frames = N + static_cast<int>(followed.size());
   if (N == 0) Fail(store.dir(), "has no frames to align");
   if (frame.area() == 0) Fail(store.dir(), "its sidecars give no frame size (written by an older rolamos?)");
   if (!(focal > 0)) focal = 0.5 * frame.width / std::tan(35.0 * CV_PI / 180);  // the engine's default camera
@@ -501,29 +513,60 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
 
   // 7. Navigation: the centres pulled towards it, through the similarity that carries the plane
   //    to the map (refitted as the solution moves).
-  std::vector<std::pair<int, cv::Point2d>> nav_centres;  // frame, map position of its centre
-  std::string nav_crs;
-  if (!o.navigation.empty()) {
-    for (int i = 0; i < N; ++i) {
-      const FrameNavigation* n = FindFrameNavigation(o.navigation, nodes[size_t(i)].source);
-      if (!n) continue;
-      const auto& g = n->geotransform;
-      const double c = (frame.width - 1) / 2.0, r = (frame.height - 1) / 2.0;
-      nav_centres.emplace_back(i, cv::Point2d(g[0] + (c + 0.5) * g[1] + (r + 0.5) * g[2],
-                                              g[3] + (c + 0.5) * g[4] + (r + 0.5) * g[5]));
-      nav_crs = n->crs;
+  // Each followed frame goes with the keyframe it was followed from (or the patch's nearest).
+  std::vector<int> followed_node(followed.size(), -1);
+  std::map<int, int> extra_frames;  // root -> followed frames in its component
+  for (size_t k = 0; k < followed.size(); ++k) {
+    const Followed& f = followed[k];
+    auto it = node_of.find({f.patch, f.keyframe});
+    if (it == node_of.end()) {
+      const int index = sidecars[f.patch].frames[f.record].index;
+      int best = -1;
+      for (const auto& [id, i] : node_of)
+        if (id.patch == f.patch && (best < 0 || std::abs(id.index - index) < std::abs(nodes[size_t(best)].index - index)))
+          best = i;
+      followed_node[k] = best;
+    } else {
+      followed_node[k] = it->second;
     }
-    summary.navigation_frames = static_cast<int>(nav_centres.size());
-    if (nav_centres.empty())
+    if (followed_node[k] >= 0) ++extra_frames[comp.Find(followed_node[k])];
+  }
+  // Each navigated frame: the node it pulls (itself, or the keyframe a followed frame goes with),
+  // its centre in that node's pixels, and the map position of its centre.
+  struct NavPoint {
+    int node = 0;
+    cv::Point2d pixel, map;
+  };
+  std::vector<NavPoint> nav_points;
+  std::string nav_crs;
+  const cv::Point2d frame_centre((frame.width - 1) / 2.0, (frame.height - 1) / 2.0);
+  if (!o.navigation.empty()) {
+    auto add = [&](const std::string& source, int node, cv::Point2d pixel) {
+      const FrameNavigation* n = FindFrameNavigation(o.navigation, source);
+      if (!n) return;
+      const auto& g = n->geotransform;
+      const double c = frame_centre.x, r = frame_centre.y;
+      nav_points.push_back({node, pixel, cv::Point2d(g[0] + (c + 0.5) * g[1] + (r + 0.5) * g[2],
+                                                     g[3] + (c + 0.5) * g[4] + (r + 0.5) * g[5])});
+      nav_crs = n->crs;
+    };
+    for (int i = 0; i < N; ++i) add(nodes[size_t(i)].source, i, frame_centre);
+    for (size_t k = 0; k < followed.size(); ++k) {
+      const int i = followed_node[k];
+      if (i < 0) continue;
+      const FrameRecord& f = sidecars[followed[k].patch].frames[followed[k].record];
+      add(f.source, i, ApplyHomography(nodes[size_t(i)].to_patch.inv() * ToMatx(f.frame_to_patch), frame_centre));
+    }
+    summary.navigation_frames = static_cast<int>(nav_points.size());
+    if (nav_points.empty())
       Fail("navigation", "none of its " + std::to_string(o.navigation.size()) +
                              " frames is a frame of this store (frames are matched by file name)");
   }
-  const cv::Point2d frame_centre((frame.width - 1) / 2.0, (frame.height - 1) / 2.0);
   auto nav_residual = [&](cv::Matx33d* to_map) {
     std::vector<cv::Point2d> from, to;
-    for (const auto& [i, m] : nav_centres) {
-      from.push_back(ApplyHomography(FrameToPlane(poses[size_t(i)], K), frame_centre));
-      to.push_back(m);
+    for (const auto& p : nav_points) {
+      from.push_back(ApplyHomography(FrameToPlane(poses[size_t(p.node)], K), p.pixel));
+      to.push_back(p.map);
     }
     const auto S = FitSimilarity(from, to);
     if (!S) return -1.0;
@@ -532,18 +575,18 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
     for (size_t k = 0; k < from.size(); ++k) d.push_back(cv::norm(ApplyHomography(*S, from[k]) - to[k]));
     return Median(d);
   };
-  if (nav_centres.size() >= 2) {
+  if (nav_points.size() >= 2) {
     cv::Matx33d to_map;
     summary.navigation_before_m = nav_residual(&to_map);
     for (int round = 0; round < 2 && summary.navigation_before_m >= 0; ++round) {
       const cv::Matx33d from_map = to_map.inv();
       const double metres_per_px = std::sqrt(std::abs(to_map(0, 0) * to_map(1, 1) - to_map(0, 1) * to_map(1, 0)));
       std::vector<GroundPrior> priors;
-      for (const auto& [i, m] : nav_centres) {
+      for (const auto& n : nav_points) {
         GroundPrior p;
-        p.frame = i;
-        p.pixel = frame_centre;
-        p.xy = ApplyHomography(from_map, m);
+        p.frame = n.node;
+        p.pixel = n.pixel;
+        p.xy = ApplyHomography(from_map, n.map);
         p.sigma_px = o.navigation_sigma_m / std::max(1e-12, metres_per_px);
         priors.push_back(p);
       }
@@ -556,7 +599,8 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
   // 8. Components side by side (largest first, left to right), each frame's placement, and each
   //    patch's best-fit placement and component.
   std::vector<std::pair<int, int>> by_size;  // (frames, root)
-  for (const auto& [root, list] : members) by_size.emplace_back(static_cast<int>(list.size()), root);
+  for (const auto& [root, list] : members)
+    by_size.emplace_back(static_cast<int>(list.size()) + extra_frames[root], root);
   std::sort(by_size.begin(), by_size.end(), [](const auto& x, const auto& y) {
     return x.first != y.first ? x.first > y.first : x.second < y.second;
   });
@@ -598,6 +642,15 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
         patch_pts[n.patch].push_back(ApplyHomography(n.to_patch, p));
         global_pts[n.patch].push_back(ApplyHomography(to_global, p));
       }
+  }
+  for (size_t k = 0; k < followed.size(); ++k) {
+    const int i = followed_node[k];
+    if (i < 0) continue;
+    const Node& key = nodes[size_t(i)];
+    PatchSidecar& s = sidecars[followed[k].patch];
+    FrameRecord& f = s.frames[followed[k].record];
+    const cv::Matx33d key_to_global = ToMatx(*sidecars[key.patch].frames[key.record].frame_to_global);
+    f.frame_to_global = ToArray9(key_to_global * key.to_patch.inv() * ToMatx(f.frame_to_patch));
   }
   std::vector<PatchSidecar> updated;
   for (auto& [id, s] : sidecars) {

@@ -71,12 +71,15 @@ LinkSummary LinkPatches(Store store, const LinkOptions& options, const ProgressF
   auto find_link = [&](size_t i) {
     const PatchSidecar& s = patches[i];
     Found best;
-    for (size_t p = 0; p < s.frames.size() && p < static_cast<size_t>(options.probe_frames); ++p) {
+    for (size_t p = 0, probed = 0; p < s.frames.size() && probed < static_cast<size_t>(options.probe_frames); ++p) {
+      if (!s.frames[p].is_keyframe()) continue;  // only keyframes have stored features
+      ++probed;
       const Features& probe = describe(s, p);
       for (size_t j = 0; j < patches.size(); ++j) {
         if (j == i || !placed[j]) continue;
         const PatchSidecar& o = patches[j];
         for (size_t k = 0; k < o.frames.size(); ++k) {
+          if (!o.frames[k].is_keyframe()) continue;
           const VerifiedMatch v = MatchVerified(probe, describe(o, k), fo, options.min_inliers);
           if (v.inliers <= best.inliers) continue;
           // this patch's pixels -> probe frame -> matched frame -> that patch's pixels

@@ -40,6 +40,7 @@ TEST(LinkPatches, RelinksAPatchAfterLostTrackingByItsFrames) {
   EXPECT_EQ(ComposeMosaic(store, co).left_out.size(), 1u);
 
   const LinkSummary r = LinkPatches(store, LinkOptions{});
+  for (const auto& [id, why] : r.unlinked) ADD_FAILURE() << "patch " << id << ": " << why;
   ASSERT_EQ(r.linked.size(), 1u);
   EXPECT_EQ(r.linked[0], std::make_pair(2, 1));
   EXPECT_TRUE(r.unlinked.empty());

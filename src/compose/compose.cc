@@ -235,12 +235,16 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
     }
     p.to_mosaic = G;  // global for now; the mosaic's offset and scale come next
     p.size = cv::Size(static_cast<int>(s.size[0]), static_cast<int>(s.size[1]));
-    // Aligned frames each have their own placement: the patch goes piecewise, frame by frame.
+    // Aligned frames each have their own placement: the patch goes piecewise, keyframe by
+    // keyframe (the frames blended into it).
     const bool per_frame = s.aligned.value_or(false) && s.frame_size && !s.frames.empty() &&
-                           std::all_of(s.frames.begin(), s.frames.end(), [](const FrameRecord& f) { return f.frame_to_global.has_value(); });
+                           std::all_of(s.frames.begin(), s.frames.end(), [](const FrameRecord& f) {
+                             return f.frame_to_global.has_value() || !f.is_keyframe();
+                           });
     if (per_frame) {
       const cv::Point2d c(((*s.frame_size)[0] - 1) / 2.0, ((*s.frame_size)[1] - 1) / 2.0);
       for (const auto& f : s.frames) {
+        if (!f.is_keyframe()) continue;
         const cv::Matx33d F = ToMatx(*f.frame_to_global);
         p.local.push_back({F * ToMatx(f.frame_to_patch).inv(), ApplyHomography(F, c)});
       }

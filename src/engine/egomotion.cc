@@ -70,6 +70,9 @@ EgomotionResult EstimateEgomotion(const std::vector<cv::Point2f>& from,
     return r;
   }
   std::vector<cv::Point2f> a = from, b = to;
+  std::vector<int> index(from.size());  // of a[i] in `from`
+  for (size_t i = 0; i < index.size(); ++i) index[i] = static_cast<int>(i);
+  const std::vector<int> all = index;
   if (o.use_fundamental) {
     std::vector<uchar> mask;
     cv::Mat F = cv::findFundamentalMat(from, to, cv::USAC_MAGSAC, o.epipolar_threshold_px, 0.999,
@@ -78,11 +81,13 @@ EgomotionResult EstimateEgomotion(const std::vector<cv::Point2f>& from,
       const cv::Matx33d Fm(F);
       a.clear();
       b.clear();
+      index.clear();
       for (size_t i = 0; i < from.size(); ++i) {
         const double e = BilateralEpipolarError(Fm, from[i], to[i]);
         if (e > 2.0 * o.epipolar_threshold_px) continue;  // each side within the threshold
         a.push_back(from[i]);
         b.push_back(to[i]);
+        index.push_back(static_cast<int>(i));
         r.bilateral_error_sum += e;
       }
     }
@@ -91,6 +96,7 @@ EgomotionResult EstimateEgomotion(const std::vector<cv::Point2f>& from,
     if (r.epipolar_inliers < o.min_inliers) {
       a = from;
       b = to;
+      index = all;
       r.bilateral_error_sum = 0;
     }
   }
@@ -109,6 +115,7 @@ EgomotionResult EstimateEgomotion(const std::vector<cv::Point2f>& from,
     if (!hmask[i]) continue;
     ia.push_back(a[i]);
     ib.push_back(b[i]);
+    r.inlier_index.push_back(index[i]);
   }
   r.inliers = static_cast<int>(ia.size());
   if (r.inliers < o.min_inliers) {

@@ -39,6 +39,7 @@ struct EgomotionResult {
   double bilateral_error_mean = 0;
   cv::Matx33d H = cv::Matx33d::eye(); // maps `from` pixels to `to` pixels
   std::vector<cv::Point2f> inlier_from, inlier_to;  // the homography's inliers
+  std::vector<int> inlier_index;                    // their places in `from`
   std::optional<PlaneMotion> motion;  // from the decomposition, when K is known
 };
 

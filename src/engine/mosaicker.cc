@@ -1,78 +1,46 @@
 #include "rolamos/mosaicker.hpp"
 
 #include <algorithm>
-#include <filesystem>
 #include <chrono>
-#include <deque>
-#include <map>
-#include <atomic>
-#include <mutex>
 #include <cmath>
+#include <deque>
+#include <filesystem>
+#include <map>
+#include <mutex>
 
+#include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "engine/colour.h"
 #include "engine/ecc_refine.h"
 #include "engine/egomotion.h"
 #include "engine/feather.h"
 #include "engine/features.h"
+#include "engine/keyframe_job.h"
 #include "engine/motion_gate.h"
+#include "engine/patch_adjustment.h"
 #include "engine/patch_canvas.h"
 #include "engine/patch_writer.h"
 #include "engine/prepared_frame.h"
 #include "engine/preprocess.h"
-#include "engine/patch_adjustment.h"
 #include "engine/registration.h"
-#include "engine/colour.h"
-#include "engine/static_mask.h"
-#include "util/files.h"
 #include "engine/stage_options.h"
+#include "engine/static_mask.h"
+#include "engine/tracker.h"
 #include "rolamos/error.hpp"
+#include "util/cpu_time.h"
+#include "util/files.h"
 #include "util/homography.h"
 #include "util/memory.h"
+#include "util/task_pool.h"
 
 namespace rolamos {
-
 
 namespace {
 
 // The working canvas (refinement and recovery against the patch) at half resolution: a quarter
 // of the blending work; the patch image is blended at full resolution when it closes.
 constexpr double kWorkingScale = 0.5;
-
-// What the store keeps for the global map: pairs a link, features a frame.
-constexpr int kStoredPairsPerLink = 48;
-constexpr int kStoredFeatures = 400;
-
-// A frame's features as the store keeps them: at most kStoredFeatures, spread over a grid of the
-// frame (each cell's in turn), SIFT descriptors as bytes (OpenCV's are whole numbers below 256).
-StoredFeatures ToStored(int index, const Features& f, cv::Size frame) {
-  StoredFeatures s;
-  s.index = index;
-  if (f.norm != cv::NORM_L2 || f.descriptors.cols != 128) return s;  // only SIFT goes to the store
-  constexpr int kCells = 8;
-  std::vector<std::vector<int>> cells(kCells * kCells);
-  for (size_t i = 0; i < f.points.size(); ++i) {
-    const int cx = std::clamp(int(f.points[i].x * kCells / std::max(1, frame.width)), 0, kCells - 1);
-    const int cy = std::clamp(int(f.points[i].y * kCells / std::max(1, frame.height)), 0, kCells - 1);
-    cells[size_t(cy * kCells + cx)].push_back(static_cast<int>(i));
-  }
-  std::vector<int> keep;
-  for (size_t round = 0; static_cast<int>(keep.size()) < kStoredFeatures; ++round) {
-    bool any = false;
-    for (const auto& c : cells) {
-      if (round >= c.size() || static_cast<int>(keep.size()) >= kStoredFeatures) continue;
-      keep.push_back(c[round]);
-      any = true;
-    }
-    if (!any) break;
-  }
-  s.descriptors = cv::Mat(static_cast<int>(keep.size()), 128, CV_8U);
-  for (size_t k = 0; k < keep.size(); ++k) {
-    s.points.push_back(f.points[size_t(keep[k])]);
-    f.descriptors.row(keep[k]).convertTo(s.descriptors.row(static_cast<int>(k)), CV_8U);
-  }
-  return s;
-}
 
 // Largest distance between where two homographies put the frame's corners.
 double MaxCornerShift(const cv::Matx33d& a, const cv::Matx33d& b, cv::Size s) {
@@ -85,13 +53,21 @@ double MaxCornerShift(const cv::Matx33d& a, const cv::Matx33d& b, cv::Size s) {
   return worst;
 }
 
+std::string SizeText(cv::Size s) { return std::to_string(s.width) + "x" + std::to_string(s.height); }
 
 }  // namespace
 
 bool MosaickerOptions::IsValid(std::string* error) const {
   if (!ToFeatureOptions(*this).IsValid(error) || !ToEgomotionOptions(*this).IsValid(error) ||
-      !ToPreprocessOptions(*this).IsValid(error) || !ToEccOptions(*this).IsValid(error))
+      !ToPreprocessOptions(*this).IsValid(error) || !ToEccOptions(*this).IsValid(error) ||
+      !ToTrackerOptions(*this).IsValid(error))
     return false;
+  if (!(keyframe_overlap > 0.1 && keyframe_overlap <= 1.0) ||
+      !(keyframe_min_overlap > 0.05 && keyframe_min_overlap <= keyframe_overlap)) {
+    *error = "keyframe overlap " + std::to_string(keyframe_overlap) + " must be in (0.1, 1] and the minimum " +
+             std::to_string(keyframe_min_overlap) + " in (0.05, keyframe overlap]";
+    return false;
+  }
   if (!(feather_sigma >= 0 && feather_sigma <= 10)) {
     *error = "feather sigma must be in [0, 10] (0 = plain averaging)";
     return false;
@@ -138,12 +114,15 @@ struct Mosaicker::Impl {
   Store store;
   Preprocessor pre;
   FeatureExtractor extractor;
+  FrameTracker tracker;
   EgomotionOptions ego_options;
   EccOptions ecc_options;
   SupportOptions support_options;
   PatchFitOptions fit_options;
-  PatchWriter writer;
+  PatchAdjustmentOptions adjust_options;
+  std::unique_ptr<ColourModel> colour;
   std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
+  double cpu_start = ProcessCpuSeconds();
 
   // The first frame fixes the size and the camera.
   cv::Size frame_size;
@@ -153,103 +132,140 @@ struct Mosaicker::Impl {
   std::mutex mask_mutex;
   cv::Mat usable, usable_small;
   std::unique_ptr<MotionGate> gate;
+  // A frame of another size waits here: a second one like it means the camera changed for good.
+  std::shared_ptr<PreparedFrame> resized;
+  FrameReport resized_report;
+
+  // A keyframe of the open patch.
+  struct Key {
+    int index = 0;
+    cv::Matx33d to_patch = cv::Matx33d::eye();
+    std::shared_ptr<PreparedFrame> frame;  // kept while recent: followed from, fitted against
+    std::vector<cv::Point2f> points;       // followed into the frames after it
+    std::vector<long long> ids;            // their tracks
+    KeyframeFuture products;
+  };
+  // The frame placed last, keyframe or not.
+  struct Placed {
+    int index = -1;
+    cv::Matx33d to_patch = cv::Matx33d::eye();
+    std::shared_ptr<PreparedFrame> frame;
+    bool keyframe = false;
+    std::vector<FrameLink> links;  // a followed frame's tracks with its keyframe
+  };
 
   // The patch in progress.
   std::unique_ptr<PatchCanvas> canvas;
   int patch_id = 0;
   int next_patch_id = 1;  // patches are committed later, by the writer thread
-  cv::Rect2d data_bounds;
   std::vector<FrameRecord> frames;       // frame_to_patch in first-frame coordinates until closed
   std::vector<RejectedFrame> rejected;
-  std::optional<PatchLink> link;         // how this patch joins the one before (first-frame coordinates)
-  std::vector<PatchFrame> patch_frames;  // the stitched frames with their features
-  // For the adjustment at closing: each stitched frame's image (as blended, aligned with
-  // `frames`) and the matches found between the patch's frames.
-  std::vector<cv::Mat> images;
-  size_t image_bytes = 0;
-  std::vector<FrameLink> links;
-  PatchAdjustmentOptions adjust_options;
-  std::unique_ptr<ColourModel> colour;
-  // The last stitched frame: what the next one is registered to.
-  PatchFrame prev;
-  std::shared_ptr<const Features> last_prepared;      // Push: of the last frame with features
+  std::optional<PatchLink> link;         // how this patch joins the one before
+  std::vector<Key> keys;
+  std::vector<FrameLink> links;          // between keyframes, from their tracks
+  size_t image_bytes = 0;                // keyframes' images held until the patch is written
+  Placed last;
+  long long next_track = 0;
   int lost = 0;
-  // Frames rejected while this patch is open, kept for a second chance against later frames.
+  // Frames rejected while this patch is open, kept for a second chance against later frames and
+  // to start the next patch from when tracking breaks.
   struct Pending {
     std::shared_ptr<PreparedFrame> frame;
     FrameReport report;
+    int tries = 0;
   };
   std::deque<Pending> pending;
   MosaicSummary summary;
-  // Stage timers, in the order of the pipeline.
-  enum Stage { kPreprocess, kDetectImage, kFeatures, kMatching, kEgomotion, kRecovery, kPatchFit,
-               kEcc, kBlend, kAdjust, kStages };
-  // Prepare runs on several threads at once: nanoseconds, added atomically.
+
+  // Stage timers, in the order of the pipeline; nanoseconds, added atomically (several threads).
+  enum Stage { kPreprocess, kTracking, kEgomotion, kFeatures, kRecovery, kKeyframeFit, kEcc, kCanvas, kFilter,
+               kLoopLinks, kStages };
   std::atomic<long long> stage_ns[kStages] = {};
+  // CPU time of the calling thread: each stage's own cost, not its waits for a core.
   struct Laps {
     Impl* m;
-    std::chrono::steady_clock::time_point t = std::chrono::steady_clock::now();
-    void operator()(Stage s) {
-      const auto now = std::chrono::steady_clock::now();
-      m->stage_ns[s] += std::chrono::duration_cast<std::chrono::nanoseconds>(now - t).count();
-      t = now;
-    }
+    CpuLaps cpu;
+    void operator()(Stage s) { m->stage_ns[s] += cpu.Lap(); }
+    void Restart() { cpu.Restart(); }
   };
+
+  PatchWriter writer;
+  // Keyframes' filtering, features and loop links, off the engine's thread; a few may wait.
+  TaskPool keyframe_pool{2, 4};
 
   Impl(Store s, const MosaickerOptions& o)
       : options(o),
         store(s),
         pre(ToPreprocessOptions(o)),
         extractor(ToFeatureOptions(o)),
+        tracker(ToTrackerOptions(o)),
         ego_options(ToEgomotionOptions(o)),
         ecc_options(ToEccOptions(o)),
         writer(s, o.tiff) {
     adjust_options.enabled = o.adjust_patches;
+    adjust_options.solver.refine_focal = getenv("ROLAMOS_REFINE_FOCAL") != nullptr;
     ColourOptions co;
     co.lighting = o.flat_field;
     co.exposure = o.exposure;
     co.water_colour = o.water_colour;
     colour = std::make_unique<ColourModel>(co);
-    adjust_options.solver.refine_focal = getenv("ROLAMOS_REFINE_FOCAL") != nullptr;
+  }
+  ~Impl() {
+    try {
+      keyframe_pool.Wait();
+    } catch (...) {
+    }
   }
 
   // A candidate placement of the frame in the patch, and what supports it.
   struct Candidate {
-    EgomotionResult ego;          // from the frame to what it was registered against
+    EgomotionResult ego;  // from the frame to what it was registered against
     cv::Matx33d to_patch = cv::Matx33d::eye();
     Support support;
     GateVerdict verdict;
-    std::string registered_by;    // "" = the previous frame
-    int target = -1;              // the frame it was registered against (-1: the patch image)
-    bool from_previous() const { return registered_by.empty(); }
-    // The link with the frame it was registered against, if any.
+    std::string registered_by;  // "" = followed from the keyframe
+    int target = -1;            // the frame it was registered against (-1: the patch image)
+    // Tracks followed into the frame that agree with the registration (when followed).
+    std::vector<long long> ids;
+    std::vector<cv::Point2f> at;
+    bool tracked() const { return registered_by.empty(); }
     std::vector<FrameLink> Links(int index) const {
       if (target < 0 || !ego.ok) return {};
       return {FrameLink{index, target, ego.inlier_from, ego.inlier_to}};
     }
   };
-  // The frame that opens the next patch when the pixel budget closes this one: adjusted with
-  // this patch's frames (not blended) to tie the two patches together.
-  struct Closing {
-    int index = 0;
-    cv::Matx33d to_patch;
-    std::vector<FrameLink> links;
-  };
 
-  void StartPatch(const PreparedFrame& p, const std::optional<PatchLink>& join);
-  // Hands the patch to the writer; returns first-frame coordinates -> patch image pixels.
-  // Returns the closing frame's pixels -> the patch image's pixels (when `closing` is given).
-  cv::Matx33d ClosePatch(const std::string& why, const std::optional<Closing>& closing = std::nullopt);
-  void Stitch(const cv::Mat& image, const cv::Matx33d& to_patch,
-              const std::shared_ptr<const Features>& f, const FrameReport& report,
-              std::vector<FrameLink> found = {});
+  void InitCamera(cv::Size size);
+  std::shared_ptr<const Features> FeaturesOf(PreparedFrame& p);
+  FrameMotion MotionFromLast(const cv::Matx33d& to_patch) const {
+    return MotionOf(last.to_patch.inv() * to_patch, frame_size);
+  }
+  Candidate Assess(EgomotionResult ego, const cv::Matx33d& target_to_patch, const std::string& by, int target);
+  Candidate Track(const std::shared_ptr<PreparedFrame>& p, bool coarse);
+  std::vector<Candidate> Recover(const std::shared_ptr<PreparedFrame>& p, Laps& lap);
+  bool Usable(const Candidate& c) const;
+  const Candidate* Pick(const std::vector<Candidate>& all) const;
+  bool WantsKeyframe(const Candidate& c, const cv::Matx33d& to_patch) const;
+  cv::Matx33d FitToKeyframes(const PreparedFrame& p, const Candidate& c, std::vector<FrameLink>* fitted, int* frames);
+
+  void StartPatch(const std::shared_ptr<PreparedFrame>& p, FrameReport& r, const std::optional<PatchLink>& join);
+  void ClosePatch(const std::string& why, const std::optional<ClosingFrame>& closing = std::nullopt);
+  // `current`: the frame the next ones are followed from (false: a frame placed late, behind it).
+  void AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, const Candidate* c,
+                   std::vector<FrameLink> found, FrameRecord rec, bool current = true);
+  // A rejected frame stitched after all: out of the rejected list, counted as recovered.
+  void AddFollowed(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, FrameRecord rec,
+                   std::vector<FrameLink> links);
+  // The last frame placed becomes a keyframe when the patch closes after it (lost tracking, end
+  // of input): the patch reaches as far as the frames it placed, and its features are stored.
+  void PromoteLast();
   FrameReport Reject(FrameReport r, const std::string& reason);
-  Candidate Register(const Matches& matches, const cv::Matx33d& target_to_patch, const std::string& by,
-                     int target);
-  // The frame against the patch's other frames and the patch image, when the previous one failed.
-  // `current`: the registration against the previous frame, if any.
-  std::vector<Candidate> Recover(const PreparedFrame& p, const Candidate* current, Laps& lap);
-  void SecondChance(Laps& lap);
+  FrameReport Lost(const std::shared_ptr<PreparedFrame>& p, FrameReport r, const std::string& reason);
+  bool BreakAt(const std::shared_ptr<PreparedFrame>& p);
+  void SecondChance(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, Laps& lap);
+  FrameReport Place(const std::shared_ptr<PreparedFrame>& p, Candidate best, FrameReport r, Laps& lap);
+  FrameRecord RecordOf(const FrameReport& r, const cv::Matx33d& to_patch) const;
+  void Unreject(int index);
   // The overlay mask at detection scale `s` (empty when there is none).
   cv::Mat ScaledUsable(double s) {
     std::lock_guard<std::mutex> lock(mask_mutex);
@@ -259,10 +275,36 @@ struct Mosaicker::Impl {
     cv::erode(small, small, cv::Mat(), cv::Point(-1, -1), 4);
     return small;
   }
-  FrameMotion MotionFromPrevious(const cv::Matx33d& to_patch) const {
-    return MotionOf(prev.to_patch.inv() * to_patch, frame_size);
-  }
 };
+
+void Mosaicker::Impl::InitCamera(cv::Size size) {
+  frame_size = size;
+  K = pre.CameraMatrix(size);
+  cv::Mat w = FeatherWeights(size, options.feather_sigma);
+  if (!usable.empty() && usable.size() == size) w.setTo(0, usable == 0);  // overlays never blend
+  weights = std::make_shared<const FeatherCode>(w);
+  MotionGateOptions g;
+  g.enabled = options.kalman;
+  gate = std::make_unique<MotionGate>(g, size);
+}
+
+std::shared_ptr<const Features> Mosaicker::Impl::FeaturesOf(PreparedFrame& p) {
+  std::call_once(p.features_once, [&] {
+    Laps lap{this};
+    const double scale = extractor.options().ScaleFor(p.size);
+    cv::Mat specks;
+    const cv::Mat detect = pre.DetectionImage(p.image, scale, &specks);
+    cv::Mat mask = specks;
+    {
+      std::lock_guard<std::mutex> lock(mask_mutex);
+      if (!usable_small.empty() && usable_small.size() == detect.size())
+        mask = mask.empty() ? usable_small : (mask & usable_small);
+    }
+    p.features = std::make_shared<const Features>(extractor.ExtractScaled(detect, scale, mask));
+    lap(kFeatures);
+  });
+  return p.features;
+}
 
 FrameReport Mosaicker::Impl::Reject(FrameReport r, const std::string& reason) {
   r.status = "rejected";
@@ -273,202 +315,97 @@ FrameReport Mosaicker::Impl::Reject(FrameReport r, const std::string& reason) {
   return r;
 }
 
-void Mosaicker::Impl::StartPatch(const PreparedFrame& p, const std::optional<PatchLink>& join) {
-  canvas = std::make_unique<PatchCanvas>(options.PixelBudget(), kWorkingScale);
-  patch_id = next_patch_id++;
-  data_bounds = cv::Rect2d();
-  frames.clear();
-  patch_frames.clear();
-  images.clear();
-  image_bytes = 0;
-  links.clear();
-  pending.clear();
-  link = join;
-  gate->Reset();
-  prev = PatchFrame{};
-  prev.features = p.own;
+void Mosaicker::Impl::Unreject(int index) {
+  rejected.erase(std::remove_if(rejected.begin(), rejected.end(), [&](const RejectedFrame& x) { return x.index == index; }),
+                 rejected.end());
+  --summary.rejected;
+  ++summary.recovered;
 }
 
-void Mosaicker::Impl::Stitch(const cv::Mat& image, const cv::Matx33d& to_patch,
-                             const std::shared_ptr<const Features>& f, const FrameReport& report,
-                             std::vector<FrameLink> found) {
-  canvas->Add(image, *weights, to_patch);
-  if (options.flat_field || options.water_colour) colour->Add(image, usable.size() == image.size() ? usable : cv::Mat());
-  images.push_back(image);
-  image_bytes += image.total() * image.elemSize();
-  if (adjust_options.enabled)
-    for (auto& l : found) links.push_back(Thin(std::move(l), adjust_options.max_pairs_per_link, frame_size));
-  const cv::Rect2d b = PatchCanvas::FrameBounds(to_patch, frame_size);
-  data_bounds = data_bounds.area() > 0 ? (data_bounds | b) : b;
+FrameRecord Mosaicker::Impl::RecordOf(const FrameReport& r, const cv::Matx33d& to_patch) const {
   FrameRecord rec;
-  rec.index = report.index;
-  rec.source = report.source;
+  rec.index = r.index;
+  rec.source = r.source;
   rec.frame_to_patch = ToArray9(to_patch);
-  rec.matches = report.matches;
-  rec.inliers = report.inliers;
-  rec.ecc = report.ecc;
+  rec.matches = r.matches;
+  rec.inliers = r.inliers;
+  rec.ecc = r.ecc;
   rec.status = "stitched";
-  frames.push_back(rec);
-  PatchFrame pf;
-  pf.index = report.index;
-  pf.features = f;
-  pf.to_patch = to_patch;
-  patch_frames.push_back(pf);
-  // Features of frames far behind are dropped beyond a bound: memory stays flat on long patches.
-  constexpr size_t kKeptFeatures = 400;
-  if (patch_frames.size() > kKeptFeatures) patch_frames[patch_frames.size() - kKeptFeatures - 1].features.reset();
-  ++summary.stitched;
+  return rec;
 }
 
-cv::Matx33d Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Closing>& closing) {
-  pending.clear();
-  if (!canvas || frames.empty()) {
-    canvas.reset();
-    return cv::Matx33d::eye();
-  }
-  // The frames placed once more, together, as cameras over the seafloor plane; the closing
-  // frame (the next patch's first) comes along, unblended, to tie the patches.
-  std::vector<int> indices;
-  std::vector<cv::Matx33d> online;
-  for (const auto& f : frames) {
-    indices.push_back(f.index);
-    online.push_back(ToMatx(f.frame_to_patch));
-  }
-  std::vector<FrameLink> all = links;
-  if (closing) {
-    indices.push_back(closing->index);
-    online.push_back(closing->to_patch);
-    for (const auto& l : closing->links) all.push_back(Thin(l, adjust_options.max_pairs_per_link, frame_size));
-  }
-  PatchAdjustment adjusted;
-  Laps lap{this};
-  if (adjust_options.enabled)
-    adjusted = AdjustPatch(indices, online, all, K(0, 0), frame_size, adjust_options);
-  lap(kAdjust);
-  ++(adjusted.used ? summary.adjusted : summary.unadjusted);
-  cv::Rect2d bounds = data_bounds;
-  if (adjusted.used) {
-    bounds = cv::Rect2d();
-    for (size_t i = 0; i < frames.size(); ++i) {
-      frames[i].frame_to_patch = ToArray9(adjusted.frame_to_patch[i]);
-      const cv::Rect2d b = PatchCanvas::FrameBounds(adjusted.frame_to_patch[i], frame_size);
-      bounds = bounds.area() > 0 ? (bounds | b) : b;
-    }
-    // This patch's coordinates are now the plane's: the link to the previous patch goes through
-    // the first frame's adjusted pose.
-    if (link) link->to_previous = ToArray9(ToMatx(link->to_previous) * adjusted.frame_to_patch[0].inv());
-  }
-  // The image covers the frames' union; frame_to_patch moves to the image's pixel grid.
-  const cv::Rect rect(static_cast<int>(std::floor(bounds.x)), static_cast<int>(std::floor(bounds.y)),
-                      static_cast<int>(std::ceil(bounds.x + bounds.width)) - static_cast<int>(std::floor(bounds.x)),
-                      static_cast<int>(std::ceil(bounds.y + bounds.height)) - static_cast<int>(std::floor(bounds.y)));
-  const cv::Matx33d T(1, 0, -rect.x, 0, 1, -rect.y, 0, 0, 1);
-  cv::Matx33d closing_to_image = cv::Matx33d::eye();
-  if (closing) closing_to_image = T * (adjusted.used ? adjusted.frame_to_patch.back() : closing->to_patch);
-  PatchJob job;
-  job.images = std::move(images);
-  for (size_t i = 0; i < frames.size(); ++i)
-    job.placements.push_back(adjusted.used ? adjusted.frame_to_patch[i] : ToMatx(frames[i].frame_to_patch));
-  job.weights = weights;
-  job.temporal = options.temporal ? &pre : nullptr;
-  if (options.flat_field || options.water_colour) job.colour = colour->Correction(frame_size);
-  job.exposure = options.exposure;
-  // Frames registered late (second chance) go back to input order.
-  std::stable_sort(frames.begin(), frames.end(), [](const FrameRecord& a, const FrameRecord& b) { return a.index < b.index; });
-  job.sidecar = AssemblePatchSidecar(patch_id, rect, frames, rejected, link, options.PixelBudget(), frame_size);
-  job.sidecar.closed_by = why;
-  if (adjusted.used) {
-    job.sidecar.extra["adjustment"] = {{"rms_px", adjusted.stats.final_rms_px},
-                                       {"online_rms_px", adjusted.stats.initial_rms_px},
-                                       {"links", static_cast<int>(all.size())},
-                                       {"links_dropped", adjusted.stats.links_dropped},
-                                       {"focal_px", adjusted.focal}};
-  } else if (adjust_options.enabled) {
-    job.sidecar.extra["adjustment"] = {{"skipped", adjusted.note}};
-  }
-  job.data_rect = rect;
-  // For the global map: the links (thinned) and each frame's strongest features, spread out.
-  std::map<int, int> patch_of;
-  for (const auto& f : frames) patch_of[f.index] = patch_id;
-  if (closing) patch_of[closing->index] = next_patch_id;
-  for (const auto& l : all) {
-    auto a = patch_of.find(l.a), b = patch_of.find(l.b);
-    if (a == patch_of.end() || b == patch_of.end()) continue;
-    const FrameLink thin = Thin(l, kStoredPairsPerLink, frame_size);
-    job.links.push_back({{a->second, l.a}, {b->second, l.b}, thin.in_a, thin.in_b});
-  }
-  for (const auto& pf : patch_frames)
-    if (pf.features) job.features.push_back(ToStored(pf.index, *pf.features, frame_size));
-  canvas.reset();
-  writer.Submit(std::move(job));
-  ++summary.patches;
-  frames.clear();
-  rejected.clear();
-  patch_frames.clear();
-  images.clear();
-  image_bytes = 0;
-  links.clear();
-  return closing_to_image;
-}
-
-Mosaicker::Impl::Candidate Mosaicker::Impl::Register(const Matches& matches, const cv::Matx33d& target_to_patch,
-                                                     const std::string& by, int target) {
+Mosaicker::Impl::Candidate Mosaicker::Impl::Assess(EgomotionResult ego, const cv::Matx33d& target_to_patch,
+                                                   const std::string& by, int target) {
   Candidate c;
+  c.ego = std::move(ego);
   c.target = target;
-  c.ego = EstimateEgomotion(matches.from, matches.to, K, ego_options);
-  c.support = AssessSupport(c.ego, frame_size, support_options);
   c.registered_by = by;
+  c.support = AssessSupport(c.ego, frame_size, support_options);
   if (c.ego.ok) {
     c.to_patch = target_to_patch * c.ego.H;
-    c.verdict = gate->Evaluate(MotionFromPrevious(c.to_patch));
+    c.verdict = gate->Evaluate(MotionFromLast(c.to_patch));
   }
   return c;
 }
 
-std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const PreparedFrame& p, const Candidate* current,
-                                                                 Laps& lap) {
-  std::vector<Candidate> found;
-  const Features& f = *p.own;
-  // 0. The previous frame again, in finer detail: a large motion over rugged ground can leave
-  //    too few matches at the usual detection scale.
-  if ((!current || !current->support.strong) && !images.empty() && patch_frames.back().index == prev.index) {
-    FeatureOptions fine = extractor.options();
-    fine.detect_scale = std::min(1.0, 1.7 * fine.ScaleFor(frame_size));
-    fine.max_features = 2 * fine.max_features;
-    const FeatureExtractor detail(fine);
-    const double s = fine.detect_scale;
-    const Features here = detail.ExtractScaled(pre.DetectionImage(p.spatial, s), s, ScaledUsable(s));
-    const Features there = detail.ExtractScaled(pre.DetectionImage(images.back(), s), s, ScaledUsable(s));
-    Candidate c = Register(MatchFeatures(here, there, fine), prev.to_patch, "", prev.index);
-    if (c.ego.ok) found.push_back(std::move(c));
-    if (!found.empty() && found.back().support.strong && found.back().verdict.consistent) {
-      lap(kRecovery);
-      return found;
-    }
+// The frame followed from the current keyframe, starting where the motion model puts it (or,
+// `coarse`, where one phase correlation of the coarsest levels does).
+Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<PreparedFrame>& p, bool coarse) {
+  Laps lap{this};
+  const Key& key = keys.back();
+  // Where the frame is expected: the last placed frame moved by the predicted motion.
+  const std::optional<FrameMotion> predicted = gate->Predicted();
+  cv::Matx33d frame_to_key = key.to_patch.inv() * last.to_patch;
+  if (predicted) frame_to_key = frame_to_key * HomographyOf(*predicted, frame_size);
+  cv::Matx33d guess = frame_to_key.inv();  // key -> frame
+  if (coarse || !predicted) {
+    double response = 0;
+    const cv::Matx33d shifted = tracker.CoarseShift(*key.frame->track, *p->track, guess, &response);
+    if (response > 0.05 || !predicted) guess = shifted;
   }
-  // 1. The patch's recent frames before the previous one that overlap it (the previous frame may
-  //    be the bad one: blurred, a fish across it), newest first.
+  const TrackFlow flow = tracker.Follow(*key.frame->track, *p->track, key.points, guess);
+  std::vector<cv::Point2f> from, to;
+  std::vector<long long> ids;
+  for (size_t i = 0; i < key.points.size(); ++i) {
+    if (!flow.ok[i]) continue;
+    from.push_back(flow.to[i]);
+    to.push_back(key.points[i]);
+    ids.push_back(key.ids[i]);
+  }
+  lap(kTracking);
+  Candidate c = Assess(EstimateEgomotion(from, to, K, ego_options), key.to_patch, "", key.index);
+  for (int i : c.ego.inlier_index) {
+    c.ids.push_back(ids[size_t(i)]);
+    c.at.push_back(from[size_t(i)]);
+  }
+  lap(kEgomotion);
+  return c;
+}
+
+// The frame against the patch's keyframes (features: rotation and scale do not matter) and the
+// patch image around the last frame, when following it failed.
+std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const std::shared_ptr<PreparedFrame>& p, Laps& lap) {
+  std::vector<Candidate> found;
+  const auto f = FeaturesOf(*p);
+  lap(kFeatures);
+  // 1. The patch's recent keyframes that overlap the last frame, newest first.
   int tried = 0;
-  for (auto it = patch_frames.rbegin(); it != patch_frames.rend() && tried < 4; ++it) {
-    if (it->index == prev.index || !it->features) continue;
-    if (FootprintOverlap(prev.to_patch, it->to_patch, frame_size) < 0.1) continue;
+  for (auto it = keys.rbegin(); it != keys.rend() && tried < 4; ++it) {
+    if (FootprintOverlap(last.to_patch, it->to_patch, frame_size) < 0.1) continue;
     ++tried;
-    Candidate c = Register(MatchFeatures(f, *it->features, extractor.options()), it->to_patch, "keyframe", it->index);
+    const auto& theirs = it->products.get().features;
+    if (!theirs) continue;
+    const Matches m = MatchFeatures(*f, *theirs, extractor.options());
+    Candidate c = Assess(EstimateEgomotion(m.from, m.to, K, ego_options), it->to_patch, "keyframe", it->index);
     if (c.ego.ok) found.push_back(std::move(c));
     if (!found.empty() && found.back().support.strong && found.back().verdict.consistent) break;
   }
   lap(kRecovery);
-  for (const auto& c : found) {
-    if (c.support.strong && c.verdict.consistent) return found;
-    // An unpredicted but strong registration that another frame confirms: a real change of
-    // course, no need to look further.
-    if (current && current->support.strong && c.support.strong &&
-        MaxCornerShift(c.to_patch, current->to_patch, frame_size) < 8.0)
-      return found;
-  }
+  for (const auto& c : found)
+    if (c.support.strong) return found;
   // 2. The patch image around the last frame, a frame's size each way: the frame may have turned
-  //    any way (features are rotation invariant) and need not overlap the previous frame.
-  const cv::Rect2d around = PatchCanvas::FrameBounds(prev.to_patch, frame_size);
+  //    any way and need not overlap the last keyframe.
+  const cv::Rect2d around = PatchCanvas::FrameBounds(last.to_patch, frame_size);
   const double grow = std::max(frame_size.width, frame_size.height);
   const cv::Rect wanted(static_cast<int>(std::floor(around.x - grow)), static_cast<int>(std::floor(around.y - grow)),
                         static_cast<int>(std::ceil(around.width + 2 * grow)), static_cast<int>(std::ceil(around.height + 2 * grow)));
@@ -483,30 +420,345 @@ std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const PreparedF
     cv::erode(mask, eroded, cv::Mat(), cv::Point(-1, -1), 2);
     const Features mosaic = wide.ExtractScaled(pre.DetectionImage(gray, 1.0), scale, eroded);
     const cv::Matx33d crop_to_patch(1, 0, origin.x, 0, 1, origin.y, 0, 0, 1);
-    Candidate c = Register(MatchFeatures(f, mosaic, extractor.options()), crop_to_patch, "patch_mosaic", -1);
+    const Matches m = MatchFeatures(*f, mosaic, extractor.options());
+    Candidate c = Assess(EstimateEgomotion(m.from, m.to, K, ego_options), crop_to_patch, "patch_mosaic", -1);
     if (c.ego.ok) found.push_back(std::move(c));
   }
   lap(kRecovery);
   return found;
 }
 
-// Frames rejected earlier in this patch, tried again against the frame just stitched: a frame
-// that failed against its predecessor (blur, a passing fish) often matches its successor.
-void Mosaicker::Impl::SecondChance(Laps& lap) {
-  for (auto it = pending.begin(); it != pending.end();) {
-    const PreparedFrame& p = *it->frame;
-    Candidate c = Register(MatchFeatures(*p.own, *prev.features, extractor.options()), prev.to_patch, "second_chance",
-                           prev.index);
-    if (!c.support.strong) {
-      ++it;
-      continue;
+// A strong registration stands even when unpredicted (a real change of course); a weak one (few
+// or clustered inliers) stands when the motion model predicted it, or, while the model is still
+// learning, when it is a plausible motion from the frame followed (a patch's first frames).
+bool Mosaicker::Impl::Usable(const Candidate& c) const {
+  if (!c.ego.ok) return false;
+  if (c.support.strong) return true;
+  if (!c.support.conditioned || !options.kalman) return false;
+  return c.verdict.informed ? c.verdict.consistent : c.tracked();
+}
+
+// Strong and predicted beats strong alone (a course change, or a texture that repeats turned
+// about), which beats weak but predicted; among equals, the one closest to the prediction.
+const Mosaicker::Impl::Candidate* Mosaicker::Impl::Pick(const std::vector<Candidate>& all) const {
+  auto rank = [](const Candidate& c) { return c.support.strong ? (c.verdict.consistent ? 3 : 2) : 1; };
+  const Candidate* pick = nullptr;
+  for (const auto& c : all) {
+    if (!Usable(c)) continue;
+    if (!pick || rank(c) > rank(*pick) || (rank(c) == rank(*pick) && c.verdict.distance2 < pick->verdict.distance2))
+      pick = &c;
+  }
+  return pick;
+}
+
+// Keyframes by predicted overlap: a frame is blended when it overlaps the last keyframe too
+// little, when the next one is predicted to, when its registration is doubtful or did not come
+// from following, or when the points followed have thinned out.
+bool Mosaicker::Impl::WantsKeyframe(const Candidate& c, const cv::Matx33d& to_patch) const {
+  if (!c.tracked() || !c.support.strong) return true;
+  const Key& key = keys.back();
+  const double overlap = FootprintOverlap(to_patch, key.to_patch, frame_size);
+  if (overlap < options.keyframe_overlap) return true;
+  if (c.at.size() < std::max<size_t>(size_t(2 * support_options.strong_inliers), key.points.size() / 3)) return true;
+  // The next frame, if the motion from the last one repeats.
+  const cv::Matx33d next = to_patch * last.to_patch.inv() * to_patch;
+  return FootprintOverlap(next, key.to_patch, frame_size) < options.keyframe_min_overlap;
+}
+
+// A new keyframe's placement fitted against the recent keyframes it overlaps besides the one it
+// was followed from (each followed into it anew: independent measurements, so error does not
+// add up from keyframe to keyframe). Returns the placement; `fitted` gets the links.
+cv::Matx33d Mosaicker::Impl::FitToKeyframes(const PreparedFrame& p, const Candidate& c, std::vector<FrameLink>* fitted,
+                                            int* frames_used) {
+  const cv::Matx33d guess = c.to_patch;
+  *fitted = c.Links(-1);
+  for (auto& l : *fitted) l.a = -1;  // set by the caller
+  *frames_used = 1;
+  if (!options.patch_fit || !c.tracked() || keys.size() < 2) return guess;
+  std::vector<cv::Point2f> src, dst;
+  std::vector<int> owner;
+  std::vector<cv::Point2f> theirs;
+  const Key& key = keys.back();
+  for (size_t i = 0; i < c.ego.inlier_from.size(); ++i) {
+    src.push_back(c.ego.inlier_from[i]);
+    dst.push_back(cv::Point2f(ApplyHomography(key.to_patch, c.ego.inlier_to[i])));
+    theirs.push_back(c.ego.inlier_to[i]);
+    owner.push_back(key.index);
+  }
+  int used = 0;
+  for (auto it = keys.rbegin() + 1; it != keys.rend() && used < 2; ++it) {
+    if (!it->frame || !it->frame->track) break;  // no longer kept: older ones are not either
+    if (FootprintOverlap(guess, it->to_patch, frame_size) < 0.3) continue;
+    const TrackFlow flow = tracker.Follow(*it->frame->track, *p.track, it->points, guess.inv() * it->to_patch);
+    int n = 0;
+    for (size_t i = 0; i < it->points.size(); ++i) {
+      if (!flow.ok[i]) continue;
+      src.push_back(flow.to[i]);
+      dst.push_back(cv::Point2f(ApplyHomography(it->to_patch, it->points[i])));
+      theirs.push_back(it->points[i]);
+      owner.push_back(it->index);
+      ++n;
     }
-    cv::Matx33d to_patch = c.to_patch;
-    PatchFit fit = FitToPatch(it->report.index, *p.own, frame_size, to_patch, prev, c.ego.inlier_from,
-                              c.ego.inlier_to, patch_frames, fit_options);
-    if (fit.ok) to_patch = fit.to_patch;
-    if (!canvas->Fits(PatchCanvas::FrameBounds(to_patch, frame_size))) {
-      ++it;
+    if (n >= 8) ++used;
+  }
+  if (used == 0) return guess;
+  // Least squares with outliers trimmed, from the guess.
+  cv::Matx33d H = guess;
+  std::vector<uchar> keep(src.size(), 1);
+  for (int round = 0; round < 3; ++round) {
+    std::vector<double> res(src.size());
+    for (size_t i = 0; i < src.size(); ++i) res[i] = cv::norm(ApplyHomography(H, src[i]) - cv::Point2d(dst[i]));
+    std::vector<double> sorted = res;
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+    const double cut = std::max(fit_options.inlier_px, 3.0 * sorted[sorted.size() / 2]);
+    std::vector<cv::Point2f> a, b;
+    for (size_t i = 0; i < src.size(); ++i) {
+      keep[i] = res[i] <= cut;
+      if (!keep[i]) continue;
+      a.push_back(src[i]);
+      b.push_back(dst[i]);
+    }
+    if (a.size() < 12) return guess;
+    const cv::Mat refined = cv::findHomography(a, b, 0);
+    if (refined.empty()) return guess;
+    H = cv::Matx33d(refined);
+    H *= 1.0 / H(2, 2);
+  }
+  if (MaxCornerShift(H, guess, frame_size) > fit_options.max_correction_px ||
+      !IsPlausibleMotion(last.to_patch.inv() * H, frame_size, support_options))
+    return guess;
+  std::map<int, FrameLink> by_frame;
+  for (size_t i = 0; i < src.size(); ++i) {
+    if (!keep[i]) continue;
+    FrameLink& l = by_frame[owner[i]];
+    l.b = owner[i];
+    l.in_a.push_back(src[i]);
+    l.in_b.push_back(theirs[i]);
+  }
+  fitted->clear();
+  for (auto& [who, l] : by_frame)
+    if (l.in_a.size() >= 8) fitted->push_back(std::move(l));
+  *frames_used = 1 + used;
+  return H;
+}
+
+void Mosaicker::Impl::StartPatch(const std::shared_ptr<PreparedFrame>& p, FrameReport& r,
+                                 const std::optional<PatchLink>& join) {
+  canvas = std::make_unique<PatchCanvas>(options.PixelBudget(), kWorkingScale);
+  patch_id = next_patch_id++;
+  frames.clear();
+  keys.clear();
+  links.clear();
+  image_bytes = 0;
+  link = join;
+  gate->Reset();
+  last = Placed{};
+  r.started_patch = true;
+  r.status = "stitched";
+  r.patch_id = patch_id;
+  r.keyframe = true;
+  AddKeyframe(p, cv::Matx33d::eye(), nullptr, {}, RecordOf(r, cv::Matx33d::eye()));
+  lost = 0;
+}
+
+void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<ClosingFrame>& closing) {
+  if (!canvas || frames.empty()) {
+    canvas.reset();
+    return;
+  }
+  if (!closing) PromoteLast();
+  PatchJob job;
+  job.id = patch_id;
+  job.next_id = next_patch_id;
+  job.closed_by = why;
+  job.frame_size = frame_size;
+  job.pixel_budget = options.PixelBudget();
+  job.focal = K(0, 0);
+  job.frames = std::move(frames);
+  job.rejected = std::move(rejected);
+  job.link = link;
+  for (const auto& k : keys) job.products.emplace_back(k.index, k.products);
+  job.links = std::move(links);
+  job.closing = closing;
+  job.adjust = adjust_options;
+  job.weights = weights;
+  if (options.flat_field || options.water_colour) job.colour = colour->Correction(frame_size);
+  job.exposure = options.exposure;
+  writer.Submit(std::move(job));
+  ++summary.patches;
+  canvas.reset();
+  frames.clear();
+  rejected.clear();
+  keys.clear();
+  links.clear();
+  pending.clear();
+  image_bytes = 0;
+}
+
+void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch,
+                                  const Candidate* c, std::vector<FrameLink> found, FrameRecord rec, bool current) {
+  Laps lap{this};
+  canvas->Add(p->image, *weights, to_patch);
+  if (options.flat_field || options.water_colour)
+    colour->Add(p->image, usable.size() == p->image.size() ? usable : cv::Mat());
+  lap(kCanvas);
+  if (adjust_options.enabled)
+    for (auto& l : found) links.push_back(Thin(std::move(l), adjust_options.max_pairs_per_link, frame_size));
+  frames.push_back(std::move(rec));
+  // The points it hands on: the tracks that reached it, topped up with corners where they thinned.
+  Key key;
+  key.index = frames.back().index;
+  key.to_patch = to_patch;
+  key.frame = p;
+  if (c) {
+    key.points = c->at;
+    key.ids = c->ids;
+  }
+  int strong = 0;
+  const int wanted = options.track_points - static_cast<int>(key.points.size());
+  if (wanted > options.track_points / 8)
+    for (const auto& q : tracker.Corners(*p->track, key.points, wanted, &strong)) {
+      key.points.push_back(q);
+      key.ids.push_back(next_track++);
+    }
+  lap(kTracking);
+  // Filtering, features and loop closures on the workers; the job keeps what it needs.
+  KeyframeJob job;
+  job.index = key.index;
+  job.frame = p;
+  if (current && last.frame && !last.keyframe && last.frame->image.size() == p->image.size()) {
+    job.before = last.frame;
+    job.to_before = last.to_patch.inv() * to_patch;
+  }
+  job.to_patch = to_patch;
+  if (adjust_options.enabled && keys.size() > size_t(fit_options.recent_frames)) {
+    std::vector<std::pair<double, const Key*>> under;
+    for (size_t k = 0; k + size_t(fit_options.recent_frames) < keys.size(); ++k) {
+      const double overlap = FootprintOverlap(to_patch, keys[k].to_patch, frame_size);
+      if (overlap >= 2 * fit_options.min_overlap) under.emplace_back(overlap, &keys[k]);
+    }
+    std::sort(under.begin(), under.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
+    for (size_t k = 0; k < under.size() && k < size_t(fit_options.max_loop_frames); ++k)
+      job.older.push_back({under[k].second->index, under[k].second->to_patch, under[k].second->products});
+  }
+  KeyframeTools tools;
+  tools.pre = &pre;
+  tools.bilateral = options.bilateral;
+  tools.temporal = options.temporal;
+  tools.features = [this](PreparedFrame& f) { return FeaturesOf(f); };
+  tools.fit = fit_options;
+  auto task = std::make_shared<std::packaged_task<KeyframeProducts()>>([this, job, tools] {
+    KeyframeProducts out = RunKeyframeJob(job, tools);
+    stage_ns[kFilter] += static_cast<long long>(1e9 * out.filter_seconds);
+    stage_ns[kLoopLinks] += static_cast<long long>(1e9 * out.link_seconds);
+    return out;
+  });
+  key.products = task->get_future().share();
+  keyframe_pool.Submit([task] { (*task)(); });
+  image_bytes += 2 * p->image.total() * p->image.elemSize();  // as followed, and as filtered
+  if (!current && !keys.empty()) {
+    key.frame.reset();
+    keys.insert(keys.end() - 1, std::move(key));
+  } else {
+    keys.push_back(std::move(key));
+    last = Placed{keys.back().index, to_patch, p, true};
+  }
+  // Keyframes behind the recent ones are not followed from again: their pyramids go.
+  if (keys.size() > 3) keys[keys.size() - 4].frame.reset();
+  ++summary.stitched;
+  ++summary.keyframes;
+}
+
+void Mosaicker::Impl::AddFollowed(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, FrameRecord rec,
+                                  std::vector<FrameLink> found) {
+  rec.keyframe = false;
+  rec.placed_from = keys.back().index;
+  frames.push_back(std::move(rec));
+  last = Placed{frames.back().index, to_patch, p, false, std::move(found)};
+  ++summary.stitched;
+}
+
+void Mosaicker::Impl::PromoteLast() {
+  if (!canvas || last.keyframe || !last.frame || frames.empty() || frames.back().index != last.index) return;
+  FrameRecord rec = frames.back();
+  frames.pop_back();
+  --summary.stitched;
+  rec.keyframe.reset();
+  rec.placed_from.reset();
+  const Placed was = last;
+  last.keyframe = true;  // no temporal term with itself
+  AddKeyframe(was.frame, was.to_patch, nullptr, was.links, std::move(rec));
+}
+
+// A frame that cannot be registered: kept for a second chance against the frames after it and
+// to start the next patch from; the patch closes only after several in a row failed.
+FrameReport Mosaicker::Impl::Lost(const std::shared_ptr<PreparedFrame>& p, FrameReport r, const std::string& reason) {
+  FrameReport rep = Reject(r, reason);
+  if (gate) gate->Skip();
+  if (canvas && options.recover && reason != "featureless") {
+    pending.push_back({p, rep, 0});
+    if (pending.size() > 6) pending.pop_front();
+  }
+  if (++lost >= options.max_lost_frames && canvas) {
+    // The thread is lost: the waiting frames may start the next patch (BreakAt), not this one.
+    // The waiting frames' rejections go with whatever comes next, which they may yet open.
+    auto waiting = std::move(pending);
+    std::vector<RejectedFrame> carried;
+    for (const auto& w : waiting)
+      for (auto it = rejected.begin(); it != rejected.end(); ++it)
+        if (it->index == w.report.index) {
+          carried.push_back(*it);
+          rejected.erase(it);
+          break;
+        }
+    ClosePatch("lost_tracking");
+    pending = std::move(waiting);
+    rejected = std::move(carried);
+    lost = 0;
+  }
+  return rep;
+}
+
+// Tracking broke (the next lane does not overlap this one, a turn too sharp): when the frame
+// registers to a frame rejected just before it, the patch closes and a new one starts from that
+// frame, so no frame is lost at a break. True when it did.
+bool Mosaicker::Impl::BreakAt(const std::shared_ptr<PreparedFrame>& p) {
+  if (pending.empty() || !options.recover) return false;
+  const auto f = FeaturesOf(*p);
+  if (!f || f->strong < options.min_inliers) return false;
+  for (auto it = pending.rbegin(); it != pending.rend(); ++it) {
+    const auto theirs = FeaturesOf(*it->frame);
+    if (!theirs || theirs->strong < options.min_inliers || it->frame->size != frame_size) continue;
+    const Matches m = MatchFeatures(*f, *theirs, extractor.options());
+    const EgomotionResult ego = EstimateEgomotion(m.from, m.to, K, ego_options);
+    if (!ego.ok || !AssessSupport(ego, frame_size, support_options).strong) continue;
+    // The frames before this one stay rejected from the old patch; this one opens the next.
+    Pending start = *it;
+    pending.clear();  // the frames before it stay rejected where they were
+    Unreject(start.report.index);
+    if (canvas) ClosePatch("lost_tracking");
+    FrameReport r = start.report;
+    r.status = "stitched";
+    r.reason.clear();
+    StartPatch(start.frame, r, std::nullopt);
+    frames.back().registered_by = "second_chance";
+    return true;
+  }
+  return false;
+}
+
+// Frames rejected earlier in this patch, tried again against the frame just placed: a frame that
+// failed against its predecessor (blur, a passing fish) often matches its successor.
+void Mosaicker::Impl::SecondChance(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, Laps& lap) {
+  if (pending.empty()) return;
+  const auto mine = FeaturesOf(*p);
+  for (auto it = pending.begin(); it != pending.end();) {
+    const auto theirs = FeaturesOf(*it->frame);
+    const Matches m = MatchFeatures(*theirs, *mine, extractor.options());
+    Candidate c = Assess(EstimateEgomotion(m.from, m.to, K, ego_options), to_patch, "second_chance", -1);
+    const bool fits = c.support.strong && canvas->Fits(PatchCanvas::FrameBounds(c.to_patch, frame_size));
+    if (!fits) {
+      it = ++it->tries >= 2 ? pending.erase(it) : std::next(it);
       continue;
     }
     FrameReport r = it->report;
@@ -514,23 +766,100 @@ void Mosaicker::Impl::SecondChance(Laps& lap) {
     r.reason.clear();
     r.matches = c.ego.matches;
     r.inliers = c.ego.inliers;
-    Stitch(p.spatial, to_patch, p.own, r, fit.ok ? fit.links : c.Links(r.index));  // the chain goes on from the newest
-    frames.back().registered_by = "second_chance";
-    frames.back().patch_frames = fit.ok ? fit.frames : 1;
-    rejected.erase(std::remove_if(rejected.begin(), rejected.end(),
-                                  [&](const RejectedFrame& x) { return x.index == r.index; }),
-                   rejected.end());
-    --summary.rejected;
-    ++summary.recovered;
+    FrameRecord rec = RecordOf(r, c.to_patch);
+    rec.registered_by = "second_chance";
+    std::vector<FrameLink> found = c.Links(r.index);
+    for (auto& l : found) l.b = last.index;
+    Unreject(r.index);
+    AddKeyframe(it->frame, c.to_patch, nullptr, std::move(found), std::move(rec), false);
     it = pending.erase(it);
   }
   lap(kRecovery);
 }
 
+// The frame placed: a keyframe (fitted against the recent keyframes, refined by ECC, blended)
+// or a frame followed between keyframes (placed only).
+FrameReport Mosaicker::Impl::Place(const std::shared_ptr<PreparedFrame>& p, Candidate best, FrameReport r, Laps& lap) {
+  const bool doubtful = !best.support.strong;
+  r.matches = best.ego.matches;
+  r.inliers = best.ego.inliers;
+  r.bilateral_error = best.ego.bilateral_error_mean;
+  r.status = "stitched";
+  r.patch_id = patch_id;
+  lost = 0;
+  auto fill = [&](FrameRecord& rec) {
+    if (best.ego.motion && best.tracked()) {
+      Egomotion e;
+      for (int i = 0; i < 9; ++i) e.R[static_cast<size_t>(i)] = best.ego.motion->R.val[i];
+      for (int i = 0; i < 3; ++i) {
+        e.t[static_cast<size_t>(i)] = best.ego.motion->t[i];
+        e.n[static_cast<size_t>(i)] = best.ego.motion->n[i];
+      }
+      rec.egomotion = e;
+    }
+    rec.bilateral_error = best.ego.bilateral_error_mean;
+    if (!best.tracked()) rec.registered_by = best.registered_by;
+    if (doubtful) rec.doubtful = true;
+  };
+  // The same view again (a vehicle holding still, a repeated frame): placed, nothing to blend.
+  const bool duplicate = best.support.strong && MaxCornerShift(best.to_patch, last.to_patch, frame_size) < 0.25;
+  if (duplicate) r.note = "duplicate of frame " + std::to_string(last.index);
+  if (duplicate || !WantsKeyframe(best, best.to_patch)) {
+    gate->Accept(MotionFromLast(best.to_patch));
+    FrameRecord rec = RecordOf(r, best.to_patch);
+    fill(rec);
+    AddFollowed(p, best.to_patch, std::move(rec), best.Links(r.index));
+    if (!pending.empty()) SecondChance(p, best.to_patch, lap);
+    return r;
+  }
+  r.keyframe = true;
+  std::vector<FrameLink> found;
+  int fitted = 1;
+  cv::Matx33d to_patch = FitToKeyframes(*p, best, &found, &fitted);
+  for (auto& l : found) l.a = r.index;
+  lap(kKeyframeFit);
+  const size_t frame_bytes = 2 * p->image.total() * p->image.elemSize();
+  const bool memory_full = image_bytes + frame_bytes > static_cast<size_t>(options.patch_frames_mb * 1024 * 1024);
+  const bool checkpoint = options.checkpoint_frames > 0 && static_cast<int>(frames.size()) >= options.checkpoint_frames;
+  if (memory_full || checkpoint || !canvas->Fits(PatchCanvas::FrameBounds(to_patch, frame_size))) {
+    // The pixel budget is reached: close the patch, start the next one with this frame, and
+    // remember how the two join (this frame, adjusted with both).
+    ClosingFrame closing;
+    closing.index = r.index;
+    closing.to_patch = to_patch;
+    closing.links = found;
+    PatchLink join;
+    join.previous_patch = patch_id;
+    ClosePatch(memory_full ? "frame_memory" : checkpoint ? "checkpoint" : "pixel_budget", closing);
+    StartPatch(p, r, join);
+    return r;
+  }
+  if (options.ecc) {
+    cv::Mat gray;
+    cv::cvtColor(p->image, gray, cv::COLOR_BGR2GRAY);
+    const EccResult ecc = RefineWithEcc(gray, to_patch, *canvas, ecc_options,
+                                        usable.size() == frame_size ? usable : cv::Mat());
+    r.ecc = ecc.correlation;
+    if (ecc.applied) {
+      r.ecc_shift = MaxCornerShift(to_patch, ecc.frame_to_patch, frame_size);
+      to_patch = ecc.frame_to_patch;
+    }
+  }
+  lap(kEcc);
+  gate->Accept(MotionFromLast(to_patch));
+  FrameRecord rec = RecordOf(r, to_patch);
+  fill(rec);
+  rec.ecc_shift_px = r.ecc_shift;
+  if (options.patch_fit) rec.patch_frames = fitted;
+  if (found.empty()) found = best.Links(r.index);
+  AddKeyframe(p, to_patch, best.tracked() ? &best : nullptr, std::move(found), std::move(rec));
+  if (!pending.empty()) SecondChance(p, to_patch, lap);
+  return r;
+}
+
 Mosaicker::Mosaicker(Store store, const MosaickerOptions& options) {
   std::string error;
   if (!options.IsValid(&error)) Fail("mosaic options", error);
-
   // "auto" needs the first frames before the first is prepared: MosaicInput finds the mask and
   // gives the engine its file. Pushed frames have nobody to look ahead: no mask, and said so.
   MosaickerOptions o = options;
@@ -559,277 +888,145 @@ std::shared_ptr<PreparedFrame> Mosaicker::Prepare(const cv::Mat& input, const st
   if (input.empty()) return p;
   Impl::Laps lap{&m};
   cv::Mat frame = input;
-  if (frame.depth() != CV_8U) frame.convertTo(frame, CV_8U, 1.0 / 257.0);
+  if (frame.depth() != CV_8U) frame.convertTo(frame, CV_8U, frame.depth() == CV_16U ? 1.0 / 257.0 : 255.0);
   if (frame.channels() == 1) cv::cvtColor(frame, frame, cv::COLOR_GRAY2BGR);
   if (frame.channels() == 4) cv::cvtColor(frame, frame, cv::COLOR_BGRA2BGR);
   p->size = frame.size();
-  // A frame of another size than the survey's is rejected by Integrate, which knows the survey.
-  p->spatial = m.pre.Spatial(frame);
-  lap(Impl::kPreprocess);
-  const double scale = m.extractor.options().ScaleFor(p->size);
-  cv::Mat usable_small;
-  p->detect = m.pre.DetectionImage(p->spatial, scale, &usable_small);
+  try {
+    p->image = m.pre.Undistort(frame);
+  } catch (const Error& e) {
+    // A frame the calibration does not fit: rejected with the reason, the run goes on.
+    p->error = e.what();
+    p->image.release();
+    return p;
+  }
+  cv::Mat usable;
   if (!m.options.mask.empty()) {
     std::lock_guard<std::mutex> lock(m.mask_mutex);
     if (m.usable.empty() || m.usable.size() != p->size) {
       m.usable = 255 - ReadStaticMask(m.options.mask, p->size);
-      cv::resize(m.usable, m.usable_small, p->detect.size(), 0, 0, cv::INTER_NEAREST);
+      const double scale = m.extractor.options().ScaleFor(p->size);
+      cv::resize(m.usable, m.usable_small, cv::Size(), scale, scale, cv::INTER_NEAREST);
       // Features need a margin around an overlay: their descriptors reach out.
       cv::erode(m.usable_small, m.usable_small, cv::Mat(), cv::Point(-1, -1), 4);
     }
-    usable_small = usable_small.empty() ? m.usable_small : (usable_small & m.usable_small);
+    usable = m.usable;
   }
-  lap(Impl::kDetectImage);
-  p->own = std::make_shared<const Features>(m.extractor.ExtractScaled(p->detect, scale, usable_small));
-  lap(Impl::kFeatures);
+  p->track = m.tracker.Prepare(p->image, usable);
+  lap(Impl::kPreprocess);
   return p;
 }
 
-void Mosaicker::MatchAhead(PreparedFrame* frame, const std::shared_ptr<const Features>& previous) {
-  if (!frame->own || frame->own->empty() || !previous || previous->empty()) return;
-  Impl::Laps lap{impl_.get()};
-  frame->matches = MatchFeatures(*frame->own, *previous, impl_->extractor.options());
-  frame->matched_to = previous;
-  lap(Impl::kMatching);
-}
-
 FrameReport Mosaicker::Push(const cv::Mat& frame, const std::string& source, const std::string& error) {
-  auto prepared = Prepare(frame, source, error);
-  MatchAhead(prepared.get(), impl_->last_prepared);
-  if (prepared->own && !prepared->own->empty()) impl_->last_prepared = prepared->own;
-  return Integrate(prepared);
+  return Integrate(Prepare(frame, source, error));
 }
 
-FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& prepared) {
+FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   Impl& m = *impl_;
-  const PreparedFrame& p = *prepared;
   const auto t0 = std::chrono::steady_clock::now();
   Impl::Laps lap{&m};
   FrameReport r;
   r.index = m.summary.frames++;
-  r.source = p.source;
+  r.source = p->source;
   auto done = [&](FrameReport rep) {
     rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return rep;
   };
-  if (!p.error.empty()) return done(m.Reject(r, p.error));
-  if (m.frame_size.area() == 0) {
-    m.frame_size = p.size;
-    m.K = m.pre.CameraMatrix(p.size);
-    cv::Mat w = FeatherWeights(p.size, m.options.feather_sigma);
-    if (!m.usable.empty() && m.usable.size() == p.size) w.setTo(0, m.usable == 0);  // overlays never blend
-    m.weights = std::make_shared<const FeatherCode>(w);
-    MotionGateOptions g;
-    g.enabled = m.options.kalman;
-    m.gate = std::make_unique<MotionGate>(g, p.size);
+  if (!p->error.empty()) return done(m.Reject(r, p->error));
+  if (m.frame_size.area() == 0) m.InitCamera(p->size);
+  if (p->size != m.frame_size) {
+    // One frame of another size is rejected; two in a row mean the camera changed: the patch
+    // closes and the frames go on at the new size.
+    const bool again = m.resized && m.resized->size == p->size;
+    if (!again) {
+      m.resized = p;
+      m.resized_report = m.Reject(r, "size_changed: " + SizeText(p->size) + ", the survey is " + SizeText(m.frame_size));
+      return done(m.resized_report);
+    }
+    m.Unreject(m.resized_report.index);
+    m.ClosePatch("size_changed");
+    m.InitCamera(p->size);
+    FrameReport first = m.resized_report;
+    first.reason.clear();
+    const auto f = m.FeaturesOf(*m.resized);
+    if (f->strong >= m.options.min_inliers) {
+      m.StartPatch(m.resized, first, std::nullopt);
+    } else {
+      m.Reject(first, "featureless");
+    }
+    m.resized.reset();
+    if (!m.canvas) {
+      if (m.FeaturesOf(*p)->strong < m.options.min_inliers) return done(m.Lost(p, r, "featureless"));
+      m.StartPatch(p, r, std::nullopt);
+      return done(r);
+    }
   }
-  if (p.size != m.frame_size)
-    return done(m.Reject(r, "size_changed: " + std::to_string(p.size.width) + "x" +
-                                std::to_string(p.size.height) + ", the survey is " +
-                                std::to_string(m.frame_size.width) + "x" +
-                                std::to_string(m.frame_size.height)));
-  const cv::Mat& spatial = p.spatial;
-  const auto& features = p.own;
-  // A frame that cannot be registered: kept for a second chance against the frames after it;
-  // the patch closes only after several in a row failed against every frame of it and its image.
-  auto lost_one = [&](const std::string& reason) {
-    FrameReport rep = m.Reject(r, reason);
-    if (m.gate) m.gate->Skip();
-    if (m.canvas && m.options.recover && features && !features->empty()) {
-      m.pending.push_back({prepared, rep});
-      if (m.pending.size() > 6) m.pending.pop_front();
-    }
-    if (++m.lost >= m.options.max_lost_frames && m.canvas) {
-      m.ClosePatch("lost_tracking");  // the next good frame starts a new patch
-      m.lost = 0;
-    }
-    return done(rep);
-  };
-  if (features->strong < m.options.min_inliers) return lost_one("featureless");
+  m.resized.reset();
   if (!m.canvas) {
-    m.StartPatch(p, std::nullopt);
-    r.started_patch = true;
-    m.Stitch(spatial, cv::Matx33d::eye(), features, r);
-    m.prev = m.patch_frames.back();
-    r.status = "stitched";
-    r.patch_id = m.patch_id;
-    m.lost = 0;
+    const auto f = m.FeaturesOf(*p);
+    if (f->strong < m.options.min_inliers) return done(m.Lost(p, r, "featureless"));
+    if (m.BreakAt(p)) {  // a frame rejected before it opens the patch
+      m.gate->Predict(r.index - m.last.index);
+      Impl::Candidate again = m.Track(p, true);
+      if (m.Usable(again)) return done(m.Place(p, std::move(again), r, lap));
+      m.ClosePatch("lost_tracking");
+    }
+    m.StartPatch(p, r, std::nullopt);
     return done(r);
   }
-  m.gate->Predict(r.index - m.prev.index);
-  // 1. Against the previous frame (usually matched by Prepare already).
-  Matches matches = p.matched_to == m.prev.features
-                        ? p.matches
-                        : MatchFeatures(*features, *m.prev.features, m.extractor.options());
-  lap(Impl::kMatching);
-  Impl::Candidate best = m.Register(matches, m.prev.to_patch, "", m.prev.index);
-  lap(Impl::kEgomotion);
-  r.matches = best.ego.matches;
-  r.inliers = best.ego.inliers;
-  r.bilateral_error = best.ego.bilateral_error_mean;
-  // The same view again (a repeated frame, a vehicle holding still): nothing to add.
-  if (best.ego.ok && best.support.strong &&
-      MaxCornerShift(best.ego.H, cv::Matx33d::eye(), m.frame_size) < 0.25) {
-    m.gate->Skip();
-    return done(m.Reject(r, "duplicate of frame " + std::to_string(m.prev.index)));
+  m.gate->Predict(r.index - m.last.index);
+  // 1. Followed from the current keyframe, from where the motion model expects it; again from a
+  //    coarse correlation when that failed.
+  Impl::Candidate best = m.Track(p, false);
+  if (!m.Usable(best) || !best.support.strong) {
+    Impl::Candidate coarse = m.Track(p, true);
+    if (m.Usable(coarse) && (!m.Usable(best) || coarse.support.strong)) best = std::move(coarse);
   }
-  // 2. The motion model arbitrates: a strong registration stands even when unpredicted (a real
-  //    change of course); a weak one stands only when predicted. Otherwise the frame is tried
-  //    against the patch's other frames and its image, and the best candidate is chosen: strong
-  //    ones first, closest to the prediction among them.
-  // A weak registration (few or clustered inliers) stands when the motion model predicted it, or,
-  // while the model is still learning, when it is a plausible motion from the previous frame
-  // (a patch's first frames: nothing else to go by). Either way it is flagged doubtful.
-  auto usable = [&](const Impl::Candidate& c) {
-    if (!c.ego.ok) return false;
-    if (c.support.strong) return true;
-    if (!c.support.conditioned || !m.options.kalman) return false;
-    return c.verdict.informed ? c.verdict.consistent : c.from_previous();
-  };
-  bool accept = usable(best);
-  // Strong and predicted beats strong alone (a course change, or a texture that repeats turned
-  // about), which beats weak but predicted.
-  auto rank = [](const Impl::Candidate& c) {
-    return c.support.strong ? (c.verdict.consistent ? 3 : 2) : 1;
-  };
-  if (!accept || !best.support.strong || !best.verdict.consistent) {
+  lap.Restart();  // Track timed itself
+  // 2. The motion model arbitrates between what following and recovery found.
+  if (!m.Usable(best) || !best.support.strong || !best.verdict.consistent) {
+    const auto f = m.FeaturesOf(*p);
+    if (f->strong < m.options.min_inliers) return done(m.Lost(p, r, "featureless"));
     if (m.options.recover) {
-      std::vector<Impl::Candidate> more = m.Recover(p, best.ego.ok ? &best : nullptr, lap);
+      std::vector<Impl::Candidate> more = m.Recover(p, lap);
       if (best.ego.ok) more.push_back(best);
-      const Impl::Candidate* pick = nullptr;
-      for (const auto& c : more) {
-        if (!usable(c)) continue;
-        if (!pick || rank(c) > rank(*pick) ||
-            (rank(c) == rank(*pick) && c.verdict.distance2 < pick->verdict.distance2))
-          pick = &c;
-      }
-      if (pick) {
-        best = *pick;
-        accept = true;
-      }
+      if (const Impl::Candidate* pick = m.Pick(more)) best = *pick;
     }
   }
-  if (!accept) {
-    std::string reason = best.ego.ok ? (best.verdict.consistent ? best.support.weakness : "kalman_gate")
-                                     : best.ego.failure;
-    return lost_one(reason);
-  }
-  const bool doubtful = !best.support.strong;
-  if (!best.from_previous()) {
-    r.matches = best.ego.matches;
-    r.inliers = best.ego.inliers;
-    r.bilateral_error = best.ego.bilateral_error_mean;
-  }
-  cv::Matx33d to_patch = best.to_patch;
-  // 3. The placement fitted against every patch frame under it, so that errors do not add up
-  //    from pair to pair.
-  int fitted = 1;
-  std::vector<FrameLink> fitted_links;
-  if (m.options.patch_fit) {
-    const PatchFrame& anchor = m.prev;
-    std::vector<cv::Point2f> from, to;
-    if (best.from_previous()) {
-      from = best.ego.inlier_from;
-      to = best.ego.inlier_to;
+  if (!m.Usable(best)) {
+    const std::string reason = best.ego.ok ? (best.verdict.consistent ? best.support.weakness : "kalman_gate")
+                                           : best.ego.failure;
+    // The next lane, or the ground after a gap: it may join the frames rejected just before.
+    if (m.BreakAt(p)) {
+      m.gate->Predict(r.index - m.last.index);
+      Impl::Candidate again = m.Track(p, true);
+      if (m.Usable(again)) return done(m.Place(p, std::move(again), r, lap));
     }
-    PatchFit fit = FitToPatch(r.index, *features, m.frame_size, to_patch, anchor, from, to, m.patch_frames,
-                              m.fit_options);
-    if (!best.from_previous() && fit.ok) fit.frames = std::max(fit.frames, 1);
-    // The fit must leave the frame a motion a camera can make from the previous one.
-    if (fit.ok && !IsPlausibleMotion(m.prev.to_patch.inv() * fit.to_patch, m.frame_size, m.support_options))
-      fit.ok = false;
-    if (fit.ok) {
-      to_patch = fit.to_patch;
-      fitted = fit.frames;
-      fitted_links = std::move(fit.links);
-    }
+    return done(m.Lost(p, r, reason));
   }
-  if (fitted_links.empty()) fitted_links = best.Links(r.index);
-  // Loop closures within the patch (an earlier lane under this frame), for the adjustment.
-  if (m.adjust_options.enabled)
-    for (auto& l : LinkOlderFrames(r.index, *features, m.frame_size, to_patch, m.patch_frames, m.fit_options))
-      fitted_links.push_back(std::move(l));
-  lap(Impl::kPatchFit);
-  const FrameMotion motion = m.MotionFromPrevious(to_patch);
-  const size_t frame_bytes = spatial.total() * spatial.elemSize();
-  const bool memory_full =
-      m.image_bytes + frame_bytes > static_cast<size_t>(m.options.patch_frames_mb * 1024 * 1024);
-  const bool checkpoint = m.options.checkpoint_frames > 0 &&
-                          static_cast<int>(m.frames.size()) >= m.options.checkpoint_frames;
-  if (memory_full || checkpoint || !m.canvas->Fits(PatchCanvas::FrameBounds(to_patch, m.frame_size))) {
-    // The pixel budget is reached: close the patch, start the next one with this frame, and
-    // remember how the two join (consecutive patches are linked by this frame's homography).
-    const int old_id = m.patch_id;
-    Impl::Closing closing;
-    closing.index = r.index;
-    closing.to_patch = to_patch;
-    closing.links = fitted_links;
-    PatchLink join;
-    join.previous_patch = old_id;
-    join.to_previous = ToArray9(m.ClosePatch(memory_full ? "frame_memory" : checkpoint ? "checkpoint" : "pixel_budget", closing));
-    m.StartPatch(p, join);
-    r.started_patch = true;
-    m.Stitch(spatial, cv::Matx33d::eye(), features, r);
-    m.prev = m.patch_frames.back();
-    m.lost = 0;
-    r.status = "stitched";
-    r.patch_id = m.patch_id;
-    return done(r);
-  }
-  if (m.options.ecc) {
-    cv::Mat gray;
-    cv::cvtColor(spatial, gray, cv::COLOR_BGR2GRAY);
-    EccResult ecc = RefineWithEcc(gray, to_patch, *m.canvas, m.ecc_options,
-                                  m.usable.size() == m.frame_size ? m.usable : cv::Mat());
-    r.ecc = ecc.correlation;
-    if (ecc.applied) {
-      r.ecc_shift = MaxCornerShift(to_patch, ecc.frame_to_patch, m.frame_size);
-      to_patch = ecc.frame_to_patch;
-    }
-  }
-  lap(Impl::kEcc);
-  m.gate->Accept(motion);
-  m.Stitch(spatial, to_patch, features, r, std::move(fitted_links));
-  m.prev = m.patch_frames.back();
-  m.lost = 0;
-  lap(Impl::kBlend);
-  FrameRecord& rec = m.frames.back();
-  if (best.ego.motion && best.from_previous()) {
-    Egomotion e;
-    for (int i = 0; i < 9; ++i) e.R[static_cast<size_t>(i)] = best.ego.motion->R.val[i];
-    for (int i = 0; i < 3; ++i) {
-      e.t[static_cast<size_t>(i)] = best.ego.motion->t[i];
-      e.n[static_cast<size_t>(i)] = best.ego.motion->n[i];
-    }
-    rec.egomotion = e;
-  }
-  rec.bilateral_error = best.ego.bilateral_error_mean;
-  rec.ecc_shift_px = r.ecc_shift;
-  if (!best.from_previous()) rec.registered_by = best.registered_by;
-  if (doubtful) rec.doubtful = true;
-  if (m.options.patch_fit) rec.patch_frames = fitted;
-  if (m.options.recover && !m.pending.empty()) m.SecondChance(lap);
-  r.status = "stitched";
-  r.patch_id = m.patch_id;
-  return done(r);
+  return done(m.Place(p, std::move(best), r, lap));
 }
 
 MosaicSummary Mosaicker::Finish() {
   Impl& m = *impl_;
   m.ClosePatch("end");
+  m.keyframe_pool.Wait();
   m.writer.Wait();
   if ((m.options.flat_field || m.options.water_colour) && m.colour->frames() > 0)
     WriteFileAtomic(m.store.dir() + "/lighting.json", m.colour->ToJson());
-  m.summary.seconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - m.start).count();
+  m.summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - m.start).count();
+  m.summary.cpu_seconds = ProcessCpuSeconds() - m.cpu_start;
   m.summary.peak_rss_mb = PeakRssMb();
-  static const char* names[] = {"preprocess", "detection image", "features", "matching", "egomotion",
-                                "recovery", "patch fit", "ecc", "working canvas", "adjustment"};
+  static const char* names[] = {"preprocess", "tracking", "egomotion", "features", "recovery",
+                                "keyframe fit", "ecc", "working canvas", "keyframe filter", "loop links"};
   m.summary.stage_seconds.clear();
   for (int i = 0; i < Impl::kStages; ++i)
     m.summary.stage_seconds.emplace_back(names[i], 1e-9 * static_cast<double>(m.stage_ns[i].load()));
-  // The writer's thread: the temporal filter, full-resolution blending and encoding of patches.
-  m.summary.stage_seconds.emplace_back("patch writing", m.writer.busy_seconds());
+  // The writer's thread: adjustment, full-resolution blending and encoding of patches.
+  m.summary.stage_seconds.emplace_back("adjustment", m.writer.adjust_seconds());
+  m.summary.stage_seconds.emplace_back("patch writing", m.writer.busy_seconds() - m.writer.adjust_seconds());
+  m.summary.keyframe_stages = {"features", "keyframe fit", "ecc", "working canvas", "keyframe filter",
+                               "loop links", "adjustment", "patch writing"};
   return m.summary;
 }
 

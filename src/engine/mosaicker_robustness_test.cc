@@ -1,6 +1,7 @@
 // The engine on surveys unlike the ones it was first tuned on: roll and pitch jittered per frame,
 // lanes that join turned 180 degrees without turn frames, a burned-in overlay, open water in
 // mid-survey, repeated and black frames.
+#include <algorithm>
 #include <filesystem>
 #include <map>
 
@@ -137,7 +138,7 @@ TEST(MosaickerRobustness, OpenWaterClosesThePatchAndTheSeafloorOpensANewOne) {
   EXPECT_EQ(rejected, sum.rejected);
 }
 
-TEST(MosaickerRobustness, RepeatedAndBlackFramesAreRecordedWithTheirReason) {
+TEST(MosaickerRobustness, RepeatedFramesArePlacedAndBlackFramesRejectedWithTheirReason) {
   test::ScratchDir dir;
   WriteSurvey(test::SmallSurvey(16), dir / "survey");
   const std::string frames = dir / "survey/frames";
@@ -147,10 +148,27 @@ TEST(MosaickerRobustness, RepeatedAndBlackFramesAreRecordedWithTheirReason) {
   std::vector<FrameReport> reports;
   const MosaicSummary sum = MosaicInput(frames, store, Options(), [&](const FrameReport& r, int) { reports.push_back(r); });
   ASSERT_EQ(reports.size(), 16u);
-  EXPECT_EQ(reports[6].reason, "duplicate of frame 5");
+  // A vehicle holding still: the repeated frame is placed where the first one is, not blended.
+  EXPECT_EQ(reports[6].status, "stitched");
+  EXPECT_EQ(reports[6].note, "duplicate of frame 5");
+  EXPECT_FALSE(reports[6].keyframe);
   EXPECT_EQ(reports[10].reason, "featureless");
-  EXPECT_EQ(sum.stitched, 14);
+  EXPECT_EQ(sum.stitched, 15);
   EXPECT_EQ(sum.patches, 1);  // one black frame does not lose the thread
+  const PatchSidecar s = Store::Open(dir / "s.rolamos").ReadSidecar(1);
+  const auto six = std::find_if(s.frames.begin(), s.frames.end(), [](const FrameRecord& f) { return f.index == 6; });
+  ASSERT_NE(six, s.frames.end());
+  EXPECT_FALSE(six->is_keyframe());
+  ASSERT_TRUE(six->placed_from.has_value());
+  const auto from = std::find_if(s.frames.begin(), s.frames.end(), [&](const FrameRecord& f) { return f.index == *six->placed_from; });
+  ASSERT_NE(from, s.frames.end());
+  EXPECT_TRUE(from->is_keyframe());
+  // Where frame 5 is, to a fraction of a pixel.
+  const auto five = std::find_if(s.frames.begin(), s.frames.end(), [](const FrameRecord& f) { return f.index == 5; });
+  ASSERT_NE(five, s.frames.end());
+  const cv::Matx33d a = ToMatx(five->frame_to_patch), b = ToMatx(six->frame_to_patch);
+  for (const cv::Point2d p : {cv::Point2d(0, 0), cv::Point2d(479, 359)})
+    EXPECT_LT(cv::norm(ApplyHomography(a, p) - ApplyHomography(b, p)), 0.5);
 }
 
 TEST(MosaickerRobustness, BurnedInOverlayIsFoundAndLeftOut) {

@@ -28,6 +28,13 @@ FrameMotion MotionOf(const cv::Matx33d& H, cv::Size frame) {
   return m;
 }
 
+cv::Matx33d HomographyOf(const FrameMotion& m, cv::Size frame) {
+  const cv::Point2d c((frame.width - 1) / 2.0, (frame.height - 1) / 2.0);
+  const double k = std::exp(m.log_scale), cs = k * std::cos(m.rotation), sn = k * std::sin(m.rotation);
+  // p -> R s (p - c) + c + d
+  return cv::Matx33d(cs, -sn, c.x + m.dx - (cs * c.x - sn * c.y), sn, cs, c.y + m.dy - (sn * c.x + cs * c.y), 0, 0, 1);
+}
+
 MotionGate::MotionGate(const MotionGateOptions& options, cv::Size frame)
     : options_(options), frame_(frame) {
   Reset();
@@ -129,6 +136,17 @@ void MotionGate::Accept(const FrameMotion& m) {
   kf_.correct(z);
   ++seen_;
   predicted_ = false;
+}
+
+std::optional<FrameMotion> MotionGate::Predicted() const {
+  if (!options_.enabled || !predicted_ || seen_ < options_.warmup_frames) return std::nullopt;
+  const double k = std::max(1, gap_);
+  FrameMotion m;
+  m.dx = kf_.statePre.at<double>(0) * k;
+  m.dy = kf_.statePre.at<double>(1) * k;
+  m.rotation = kf_.statePre.at<double>(2) * k;
+  m.log_scale = kf_.statePre.at<double>(3) * k;
+  return m;
 }
 
 void MotionGate::Skip() {

@@ -9,6 +9,8 @@
 // gate instead of being rejected by it.
 #pragma once
 
+#include <optional>
+
 #include <string>
 
 #include <opencv2/core.hpp>
@@ -33,6 +35,8 @@ struct FrameMotion {
   double dx = 0, dy = 0, rotation = 0, log_scale = 0;  // pixels, radians, log
 };
 FrameMotion MotionOf(const cv::Matx33d& H, cv::Size frame);
+// The similarity about the frame centre with these parameters (MotionOf's inverse for similarities).
+cv::Matx33d HomographyOf(const FrameMotion& m, cv::Size frame);
 
 struct GateVerdict {
   double distance2 = 0;    // squared Mahalanobis distance of the innovation
@@ -54,6 +58,9 @@ class MotionGate {
   // The frame was not stitched: the filter keeps its prediction.
   void Skip();
   void Reset();
+  // The motion the filter expects over the gap given to Predict, once it has learnt the motion
+  // (nothing while it learns, or when the gate is off).
+  std::optional<FrameMotion> Predicted() const;
   // Standard deviation of the observed frame-to-frame jitter in translation, pixels.
   double jitter_px() const;
 

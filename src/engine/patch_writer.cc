@@ -1,16 +1,114 @@
 #include "engine/patch_writer.h"
 
-#include <opencv2/imgproc.hpp>
-
-#include "util/exposure_gains.h"
-
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <limits>
+#include <map>
+#include <set>
 
+#include <opencv2/imgproc.hpp>
+
+#include "util/cpu_time.h"
+#include "util/exposure_gains.h"
 #include "util/homography.h"
 
 namespace rolamos {
+
+namespace {
+
+// What the store keeps for the global map: pairs a link.
+constexpr int kStoredPairsPerLink = 48;
+
+// The patch's frames placed once more: keyframes adjusted together (with the closing frame),
+// every other frame carried along from the keyframe it was followed from. Returns the adjustment;
+// `frames` and `closing_to_patch` are updated when it is used.
+PatchAdjustment PlaceFrames(PatchJob& job, const std::vector<FrameLink>& loop_links, cv::Matx33d* closing_to_patch) {
+  std::vector<int> indices;
+  std::vector<cv::Matx33d> online;
+  std::map<int, cv::Matx33d> online_of;
+  for (const auto& f : job.frames) {
+    online_of[f.index] = ToMatx(f.frame_to_patch);
+    if (!f.is_keyframe()) continue;
+    indices.push_back(f.index);
+    online.push_back(ToMatx(f.frame_to_patch));
+  }
+  std::vector<FrameLink> all = job.links;
+  all.insert(all.end(), loop_links.begin(), loop_links.end());
+  if (job.closing) {
+    indices.push_back(job.closing->index);
+    online.push_back(job.closing->to_patch);
+    all.insert(all.end(), job.closing->links.begin(), job.closing->links.end());
+  }
+  if (job.closing) *closing_to_patch = job.closing->to_patch;
+  PatchAdjustment adjusted;
+  if (!job.adjust.enabled) return adjusted;
+  adjusted = AdjustPatch(indices, online, all, job.focal, job.frame_size, job.adjust);
+  if (!adjusted.used) return adjusted;
+  std::map<int, cv::Matx33d> adjusted_of;
+  for (size_t i = 0; i < indices.size(); ++i) adjusted_of[indices[i]] = adjusted.frame_to_patch[i];
+  for (auto& f : job.frames) {
+    if (f.is_keyframe()) {
+      f.frame_to_patch = ToArray9(adjusted_of[f.index]);
+    } else if (f.placed_from && adjusted_of.count(*f.placed_from)) {
+      const int k = *f.placed_from;
+      f.frame_to_patch = ToArray9(adjusted_of[k] * online_of[k].inv() * online_of[f.index]);
+    }
+  }
+  if (job.closing) *closing_to_patch = adjusted.frame_to_patch.back();
+  // This patch's coordinates are now the plane's: the link to the previous patch goes through
+  // the first frame's adjusted pose.
+  if (job.link) job.link->to_previous = ToArray9(ToMatx(job.link->to_previous) * adjusted.frame_to_patch[0].inv());
+  return adjusted;
+}
+
+// The keyframes blended at full resolution, exposures matched, colour corrected in float and
+// blended in 16 bits; written as the patch image covering `rect`.
+void BlendAndWrite(const PatchJob& job, std::vector<cv::Mat>& images, const std::vector<cv::Matx33d>& placements,
+                   const cv::Rect& rect, const std::string& path, const TiffWriteOptions& options) {
+  auto canvas = std::make_unique<PatchCanvas>(std::numeric_limits<long long>::max(), 1.0, false);
+  std::vector<double> gains(images.size(), 1.0);
+  const bool colour = !job.colour.empty() || job.exposure;
+  if (job.exposure) {
+    // Exposure gains from the corrected frames at 1/8 resolution (where they overlap on the patch).
+    constexpr double kGainScale = 0.125;
+    cv::Mat small_colour;
+    if (!job.colour.empty()) cv::resize(job.colour, small_colour, cv::Size(), kGainScale, kGainScale, cv::INTER_AREA);
+    std::vector<cv::Mat> small(images.size());
+    for (size_t i = 0; i < images.size(); ++i) {
+      cv::resize(images[i], small[i], cv::Size(), kGainScale, kGainScale, cv::INTER_AREA);
+      small[i].convertTo(small[i], CV_32F);
+      if (!small_colour.empty() && small_colour.size() == small[i].size()) small[i] = small[i].mul(small_colour);
+    }
+    gains = SolveExposureGains(small, kGainScale, placements, job.exposure_prior);
+  }
+  for (size_t i = 0; i < images.size(); ++i) {
+    if (colour) {
+      // Corrected in float and blended in 16 bits: no clipping before the patch is rendered.
+      cv::Mat f;
+      images[i].convertTo(f, CV_32F, gains[i] * PatchCanvas::kDeepScale);
+      if (!job.colour.empty()) f = f.mul(job.colour);
+      cv::Mat deep;
+      f.convertTo(deep, CV_16U);
+      canvas->Add(deep, *job.weights, placements[i]);
+    } else {
+      canvas->Add(images[i], *job.weights, placements[i]);
+    }
+    images[i].release();
+  }
+  PixelLayout layout;
+  layout.width = rect.width;
+  layout.height = rect.height;
+  layout.channels = 4;  // alpha marks where the patch has data
+  PyramidTiffWriter writer(path, layout, options);
+  for (int y = 0; y < rect.height; y += writer.band_height()) {
+    const int rows = std::min(writer.band_height(), rect.height - y);
+    writer.WriteBand(canvas->Render(cv::Rect(rect.x, rect.y + y, rect.width, rows)));
+  }
+  writer.Finish();
+}
+
+}  // namespace
 
 PatchSidecar AssemblePatchSidecar(int id, const cv::Rect& rect, std::vector<FrameRecord> frames,
                                   std::vector<RejectedFrame> rejected, const std::optional<PatchLink>& link,
@@ -37,6 +135,37 @@ PatchSidecar AssemblePatchSidecar(int id, const cv::Rect& rect, std::vector<Fram
   return s;
 }
 
+StoredFeatures ToStored(int index, const Features& f, cv::Size frame, int count) {
+  StoredFeatures s;
+  s.index = index;
+  if (f.norm != cv::NORM_L2 || f.descriptors.cols != 128) return s;  // only SIFT goes to the store
+  constexpr int kCells = 8;
+  std::vector<std::vector<int>> cells(kCells * kCells);
+  for (size_t i = 0; i < f.points.size(); ++i) {
+    const int cx = std::clamp(int(f.points[i].x * kCells / std::max(1, frame.width)), 0, kCells - 1);
+    const int cy = std::clamp(int(f.points[i].y * kCells / std::max(1, frame.height)), 0, kCells - 1);
+    cells[size_t(cy * kCells + cx)].push_back(static_cast<int>(i));
+  }
+  std::vector<int> keep;
+  for (size_t round = 0; static_cast<int>(keep.size()) < count; ++round) {
+    bool any = false;
+    for (const auto& c : cells) {
+      if (round >= c.size() || static_cast<int>(keep.size()) >= count) continue;
+      keep.push_back(c[round]);
+      any = true;
+    }
+    if (!any) break;
+  }
+  s.descriptors = cv::Mat(static_cast<int>(keep.size()), 128, CV_8U);
+  for (size_t k = 0; k < keep.size(); ++k) {
+    s.points.push_back(f.points[size_t(keep[k])]);
+    f.descriptors.row(keep[k]).convertTo(s.descriptors.row(static_cast<int>(k)), CV_8U);
+  }
+  return s;
+}
+
+PatchWriter::PatchWriter(Store store, const TiffWriteOptions& options) : store_(std::move(store)), options_(options) {}
+
 PatchWriter::~PatchWriter() {
   try {
     Wait();
@@ -44,83 +173,110 @@ PatchWriter::~PatchWriter() {
   }
 }
 
-void PatchWriter::Wait() {
-  if (pending_.valid()) pending_.get();
-}
+void PatchWriter::Wait() { pool_.Wait(); }
 
 void PatchWriter::Submit(PatchJob job) {
-  Wait();
   auto shared = std::make_shared<PatchJob>(std::move(job));
-  pending_ = std::async(std::launch::async, [this, shared] { Write(*shared); });
+  pool_.Submit([this, shared] { Write(*shared); });
 }
 
 void PatchWriter::Write(PatchJob& job) {
-  const auto start = std::chrono::steady_clock::now();
-  // The temporal term of the paper's filter (each frame averaged with the one stitched before it,
-  // brought in by their final placements), then blending at full resolution.
-  auto canvas = std::make_unique<PatchCanvas>(std::numeric_limits<long long>::max(), 1.0, false);
-  // Exposure gains from the corrected frames at 1/8 resolution (where they overlap on the patch).
-  std::vector<double> gains(job.images.size(), 1.0);
-  const bool colour = !job.colour.empty() || job.exposure;
-  if (job.exposure) {
-    constexpr double kGainScale = 0.125;
-    cv::Mat small_colour;
-    if (!job.colour.empty()) cv::resize(job.colour, small_colour, cv::Size(), kGainScale, kGainScale, cv::INTER_AREA);
-    std::vector<cv::Mat> small(job.images.size());
-    for (size_t i = 0; i < job.images.size(); ++i) {
-      cv::resize(job.images[i], small[i], cv::Size(), kGainScale, kGainScale, cv::INTER_AREA);
-      small[i].convertTo(small[i], CV_32F);
-      if (!small_colour.empty() && small_colour.size() == small[i].size()) small[i] = small[i].mul(small_colour);
-    }
-    gains = SolveExposureGains(small, kGainScale, job.placements, job.exposure_prior);
+  CpuLaps cpu;  // the writer's own CPU time (waits for keyframe jobs are not)
+  // The keyframes' filtered images, features and loop closures (their jobs may still run).
+  // In the order of the keyframes in `frames`.
+  std::map<int, KeyframeFuture> product_of(job.products.begin(), job.products.end());
+  job.products.clear();
+  std::vector<cv::Mat> images;
+  std::vector<std::shared_ptr<const Features>> features;
+  std::vector<FrameLink> loop_links;
+  std::vector<int> key_indices;
+  for (const auto& f : job.frames) {
+    if (!f.is_keyframe()) continue;
+    auto it = product_of.find(f.index);
+    if (it == product_of.end()) continue;
+    const KeyframeProducts& k = it->second.get();
+    images.push_back(k.image);
+    features.push_back(k.features);
+    loop_links.insert(loop_links.end(), k.loop_links.begin(), k.loop_links.end());
+    key_indices.push_back(f.index);
   }
-  cv::Mat previous;
-  for (size_t i = 0; i < job.images.size(); ++i) {
-    cv::Mat filtered = job.images[i];
-    if (job.temporal && !previous.empty())
-      filtered = job.temporal->Temporal(job.images[i], previous, job.placements[i - 1].inv() * job.placements[i]);
-    previous = filtered;
-    if (colour) {
-      // Corrected in float and blended in 16 bits: no clipping before the patch is rendered.
-      cv::Mat f;
-      filtered.convertTo(f, CV_32F, gains[i] * PatchCanvas::kDeepScale);
-      if (!job.colour.empty()) f = f.mul(job.colour);
-      cv::Mat deep;
-      f.convertTo(deep, CV_16U);
-      canvas->Add(deep, *job.weights, job.placements[i]);
-    } else {
-      canvas->Add(filtered, *job.weights, job.placements[i]);
-    }
-    job.images[i].release();
+  product_of.clear();  // the writer's copies of the images are the only ones left
+  if (job.link && closing_to_image_) job.link->to_previous = ToArray9(*closing_to_image_);
+  closing_to_image_.reset();
+
+  long long busy = cpu.Lap();
+  cv::Matx33d closing_to_patch = cv::Matx33d::eye();
+  const PatchAdjustment adjusted = PlaceFrames(job, loop_links, &closing_to_patch);
+  const long long adjusting = cpu.Lap();
+  adjust_ns_ += adjusting;
+  busy += adjusting;
+
+  // The image covers the keyframes' union; frame_to_patch moves to its pixel grid.
+  std::vector<cv::Matx33d> placements;
+  cv::Rect2d bounds;
+  const std::set<int> blended(key_indices.begin(), key_indices.end());
+  for (const auto& f : job.frames) {
+    if (!f.is_keyframe() || !blended.count(f.index)) continue;
+    placements.push_back(ToMatx(f.frame_to_patch));
+    const cv::Rect2d b = PatchCanvas::FrameBounds(placements.back(), job.frame_size);
+    bounds = bounds.area() > 0 ? (bounds | b) : b;
   }
-  PixelLayout layout;
-  layout.width = job.data_rect.width;
-  layout.height = job.data_rect.height;
-  layout.channels = 4;  // alpha marks where the patch has data
-  PyramidTiffWriter writer(store_.PatchImagePath(job.sidecar.id), layout, options_);
-  for (int y = 0; y < job.data_rect.height; y += writer.band_height()) {
-    const int rows = std::min(writer.band_height(), job.data_rect.height - y);
-    writer.WriteBand(canvas->Render(
-        cv::Rect(job.data_rect.x, job.data_rect.y + y, job.data_rect.width, rows)));
+  const cv::Rect rect(static_cast<int>(std::floor(bounds.x)), static_cast<int>(std::floor(bounds.y)),
+                      static_cast<int>(std::ceil(bounds.x + bounds.width)) - static_cast<int>(std::floor(bounds.x)),
+                      static_cast<int>(std::ceil(bounds.y + bounds.height)) - static_cast<int>(std::floor(bounds.y)));
+  const cv::Matx33d T(1, 0, -rect.x, 0, 1, -rect.y, 0, 0, 1);
+  if (job.closing) closing_to_image_ = T * closing_to_patch;
+  BlendAndWrite(job, images, placements, rect, store_.PatchImagePath(job.id), options_);
+
+  // Frames registered late (second chance) go back to input order.
+  std::stable_sort(job.frames.begin(), job.frames.end(),
+                   [](const FrameRecord& a, const FrameRecord& b) { return a.index < b.index; });
+  PatchSidecar sidecar =
+      AssemblePatchSidecar(job.id, rect, std::move(job.frames), std::move(job.rejected), job.link, job.pixel_budget,
+                           job.frame_size);
+  sidecar.closed_by = job.closed_by;
+  if (adjusted.used) {
+    sidecar.extra["adjustment"] = {{"rms_px", adjusted.stats.final_rms_px},
+                                   {"online_rms_px", adjusted.stats.initial_rms_px},
+                                   {"links", static_cast<int>(job.links.size() + loop_links.size())},
+                                   {"links_dropped", adjusted.stats.links_dropped},
+                                   {"focal_px", adjusted.focal}};
+  } else if (job.adjust.enabled) {
+    sidecar.extra["adjustment"] = {{"skipped", adjusted.note}};
   }
-  writer.Finish();
-  canvas.reset();  // free the canvas before committing
+  // For the global map: the links (thinned) and each keyframe's strongest features.
+  std::map<int, int> patch_of;
+  for (const auto& f : sidecar.frames) patch_of[f.index] = job.id;
+  if (job.closing) patch_of[job.closing->index] = job.next_id;
+  std::vector<StoredLink> links;
+  std::vector<FrameLink> all = job.links;
+  all.insert(all.end(), loop_links.begin(), loop_links.end());
+  if (job.closing) all.insert(all.end(), job.closing->links.begin(), job.closing->links.end());
+  for (const auto& l : all) {
+    auto a = patch_of.find(l.a), b = patch_of.find(l.b);
+    if (a == patch_of.end() || b == patch_of.end()) continue;
+    const FrameLink thin = Thin(l, kStoredPairsPerLink, job.frame_size);
+    links.push_back({{a->second, l.a}, {b->second, l.b}, thin.in_a, thin.in_b});
+  }
+  std::vector<StoredFeatures> stored;
+  for (size_t i = 0; i < features.size() && i < key_indices.size(); ++i)
+    if (features[i]) stored.push_back(ToStored(key_indices[i], *features[i], job.frame_size));
   // Links and features first: a committed sidecar names only files that are there.
-  const std::string stem = store_.PatchSidecarPath(job.sidecar.id).substr(0, store_.PatchSidecarPath(job.sidecar.id).size() - 5);
+  const std::string stem = store_.PatchSidecarPath(job.id).substr(0, store_.PatchSidecarPath(job.id).size() - 5);
   const std::string rel = std::filesystem::path(stem).parent_path().filename().string() + "/" +
                           std::filesystem::path(stem).filename().string();
-  if (!job.links.empty()) {
-    WriteFrameLinks(stem + ".links.json", job.links);
-    job.sidecar.frame_links = rel + ".links.json";
+  if (!links.empty()) {
+    WriteFrameLinks(stem + ".links.json", links);
+    sidecar.frame_links = rel + ".links.json";
   }
-  if (!job.features.empty()) {
-    WriteFrameFeatures(stem + ".features", job.features);
-    job.sidecar.frame_features = rel + ".features";
+  if (!stored.empty()) {
+    WriteFrameFeatures(stem + ".features", stored);
+    sidecar.frame_features = rel + ".features";
   }
-  busy_ns_ += std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - start).count();
-  store_.CommitPatch(job.sidecar);
+  busy_ns_ += busy + cpu.Lap();
+  store_.CommitPatch(sidecar);
   ++written_;
-  if (on_patch_) on_patch_(job.sidecar);
+  if (on_patch_) on_patch_(sidecar);
 }
 
 }  // namespace rolamos

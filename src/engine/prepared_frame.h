@@ -3,24 +3,24 @@
 #pragma once
 
 #include <memory>
+#include <mutex>
 #include <string>
 
 #include <opencv2/core.hpp>
 
 #include "engine/features.h"
+#include "engine/tracker.h"
 
 namespace rolamos {
 
 struct PreparedFrame {
   std::string source, error;
   cv::Size size;
-  cv::Mat spatial, detect;
-  Features features;
-  // Matched in the prepare stage against the frame prepared just before (usually the one it
-  // will be registered to); `matched_to` identifies those features so Integrate can tell.
-  std::shared_ptr<const Features> own;
-  std::shared_ptr<const Features> matched_to;
-  Matches matches;
+  cv::Mat image;  // BGR 8-bit, undistorted, not yet smoothed (only blended frames are)
+  std::shared_ptr<const TrackFrame> track;
+  // SIFT features: found when first needed (keyframes, recovery), once, by whoever asks first.
+  std::once_flag features_once;
+  std::shared_ptr<const Features> features;
 };
 
 }  // namespace rolamos

@@ -76,7 +76,17 @@ Preprocessor::Preprocessor(const PreprocessOptions& options) : options_(options)
   if (!options.calibration.empty()) calibration_ = ReadCalibration(options.calibration);
 }
 
-cv::Mat Preprocessor::Spatial(const cv::Mat& frame) {
+cv::Mat Preprocessor::Spatial(const cv::Mat& frame) { return Bilateral(Undistort(frame)); }
+
+cv::Mat Preprocessor::Bilateral(const cv::Mat& frame) const {
+  if (!options_.bilateral) return frame;
+  cv::Mat smoothed;
+  cv::bilateralFilter(frame, smoothed, options_.bilateral_diameter, options_.bilateral_sigma_color,
+                      options_.bilateral_sigma_space);
+  return smoothed;
+}
+
+cv::Mat Preprocessor::Undistort(const cv::Mat& frame) {
   cv::Mat out = frame;
   if (calibration_) {
     if (calibration_->image_size.area() > 0 && calibration_->image_size != frame.size())
@@ -102,12 +112,6 @@ cv::Mat Preprocessor::Spatial(const cv::Mat& frame) {
       map_y = map_y_;
     }
     if (!calibration_->distortion.empty()) cv::remap(frame, out, map_x, map_y, cv::INTER_LINEAR);
-  }
-  if (options_.bilateral) {
-    cv::Mat smoothed;
-    cv::bilateralFilter(out, smoothed, options_.bilateral_diameter, options_.bilateral_sigma_color,
-                        options_.bilateral_sigma_space);
-    out = smoothed;
   }
   return out;
 }

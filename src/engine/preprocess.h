@@ -51,6 +51,10 @@ class Preprocessor {
   // Undistortion and bilateral smoothing. Checks the frame size against the calibration.
   // Thread-safe: several frames may be filtered at once.
   cv::Mat Spatial(const cv::Mat& frame);
+  // Its two halves: every frame is undistorted (the geometry needs it); only the frames that are
+  // blended are smoothed.
+  cv::Mat Undistort(const cv::Mat& frame);
+  cv::Mat Bilateral(const cv::Mat& frame) const;
   // The detection image: gray, reduced to `scale` of the frame, contrast-normalised; with
   // `usable`, also where features may be found (0 on marine snow specks).
   cv::Mat DetectionImage(const cv::Mat& frame, double scale = 1.0, cv::Mat* usable = nullptr) const;

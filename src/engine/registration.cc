@@ -166,6 +166,26 @@ double FootprintOverlap(const cv::Matx33d& a_to_patch, const cv::Matx33d& b_to_p
   return std::max(0.0, double(common)) / area;
 }
 
+std::optional<FrameLink> LinkPair(int index, const Features& frame, const cv::Matx33d& to_patch,
+                                 const PatchFrame& older, const PatchFitOptions& o) {
+  if (!older.features) return std::nullopt;
+  const Matches m = MatchGuided(frame, *older.features, older.to_patch.inv() * to_patch, o.loop_radius, o.ratio);
+  if (m.from.size() < 20) return std::nullopt;
+  std::vector<uchar> inlier;
+  const cv::Mat H = cv::findHomography(m.from, m.to, cv::RANSAC, 3.0, inlier, 2000, 0.999);
+  if (H.empty()) return std::nullopt;
+  FrameLink l;
+  l.a = index;
+  l.b = older.index;
+  for (size_t i = 0; i < inlier.size(); ++i)
+    if (inlier[i]) {
+      l.in_a.push_back(m.from[i]);
+      l.in_b.push_back(m.to[i]);
+    }
+  if (l.in_a.size() < 20) return std::nullopt;
+  return l;
+}
+
 std::vector<FrameLink> LinkOlderFrames(int index, const Features& frame, cv::Size size,
                                        const cv::Matx33d& to_patch, const std::vector<PatchFrame>& patch,
                                        const PatchFitOptions& o) {
@@ -181,20 +201,7 @@ std::vector<FrameLink> LinkOlderFrames(int index, const Features& frame, cv::Siz
   std::sort(under.begin(), under.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
   for (const auto& [overlap, f] : under) {
     if (static_cast<int>(out.size()) >= o.max_loop_frames) break;
-    const Matches m = MatchGuided(frame, *f->features, f->to_patch.inv() * to_patch, o.loop_radius, o.ratio);
-    if (m.from.size() < 20) continue;
-    std::vector<uchar> inlier;
-    const cv::Mat H = cv::findHomography(m.from, m.to, cv::RANSAC, 3.0, inlier, 2000, 0.999);
-    if (H.empty()) continue;
-    FrameLink l;
-    l.a = index;
-    l.b = f->index;
-    for (size_t i = 0; i < inlier.size(); ++i)
-      if (inlier[i]) {
-        l.in_a.push_back(m.from[i]);
-        l.in_b.push_back(m.to[i]);
-      }
-    if (l.in_a.size() >= 20) out.push_back(std::move(l));
+    if (auto l = LinkPair(index, frame, to_patch, *f, o)) out.push_back(std::move(*l));
   }
   return out;
 }

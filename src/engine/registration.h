@@ -7,6 +7,8 @@
 //   observation to the existing mosaic), so that error does not accumulate from pair to pair.
 #pragma once
 
+#include <optional>
+
 #include <memory>
 #include <string>
 #include <vector>
@@ -86,6 +88,11 @@ struct PatchFit {
   double correction_px = 0;  // how far the fit moved the corners from the guess
   std::vector<FrameLink> links;  // the inlier matches with each patch frame (a = the new frame)
 };
+
+// The matches of a frame placed at `to_patch` with an older patch frame under it, guided by the
+// placements and verified by a RANSAC homography; none when fewer than 20 agree.
+std::optional<FrameLink> LinkPair(int index, const Features& frame, const cv::Matx33d& to_patch,
+                                 const PatchFrame& older, const PatchFitOptions& options);
 
 // Links of a new frame (placed at `to_patch`) with the older patch frames under it (not among the
 // recent ones), each verified by a RANSAC homography: loop closures within the patch, for the

@@ -39,4 +39,11 @@ EccOptions ToEccOptions(const MosaickerOptions& o) {
   return e;
 }
 
+TrackerOptions ToTrackerOptions(const MosaickerOptions& o) {
+  TrackerOptions t;
+  t.track_pixels = o.track_pixels;
+  t.max_points = o.track_points;
+  return t;
+}
+
 }  // namespace rolamos

@@ -5,6 +5,7 @@
 #include "engine/egomotion.h"
 #include "engine/features.h"
 #include "engine/preprocess.h"
+#include "engine/tracker.h"
 #include "rolamos/mosaicker.hpp"
 
 namespace rolamos {
@@ -13,5 +14,6 @@ FeatureOptions ToFeatureOptions(const MosaickerOptions& o);
 EgomotionOptions ToEgomotionOptions(const MosaickerOptions& o);
 PreprocessOptions ToPreprocessOptions(const MosaickerOptions& o);
 EccOptions ToEccOptions(const MosaickerOptions& o);
+TrackerOptions ToTrackerOptions(const MosaickerOptions& o);
 
 }  // namespace rolamos

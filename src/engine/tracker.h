@@ -18,8 +18,8 @@ struct TrackerOptions {
   // Frames are followed at a reduced size of about this many pixels (never enlarged): the
   // pyramid costs in proportion to it, a point's flow does not.
   double track_pixels = 0.4e6;
-  int max_points = 400;     // points a keyframe hands on
-  int window = 21;          // Lucas-Kanade window, tracking pixels
+  int max_points = 300;     // points a keyframe hands on
+  int window = 15;          // Lucas-Kanade window, tracking pixels
   int levels = 3;           // pyramid levels above the tracking image
   double max_fb_px = 0.7;   // forward-backward disagreement allowed, tracking pixels
   double corner_quality = 0.005;  // Shi-Tomasi, relative to the frame's strongest corner

@@ -2,6 +2,7 @@
 // (decoded, filtered, features found and matched to the frame before) by one worker per core,
 // several at once, while the calling thread integrates them in order.
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <filesystem>
@@ -16,6 +17,7 @@
 #include "engine/self_calibration.h"
 #include "engine/preprocess.h"
 #include "engine/static_mask.h"
+#include "util/cpu_time.h"
 #include "util/files.h"
 
 #include <opencv2/imgcodecs.hpp>
@@ -84,7 +86,7 @@ MosaickerOptions AutoMask(const std::string& input, const Store& store, Mosaicke
   for (int read = 0; static_cast<int>(frames.size()) < mo.frames && read < 3 * mo.frames && source->Next(&f); ++read) {
     if (f.image.empty()) continue;
     try {
-      frames.push_back(pre.Spatial(f.image));
+      frames.push_back(pre.Undistort(f.image));
     } catch (const Error&) {
       // A frame the calibration does not fit is the engine's to report.
     }
@@ -107,41 +109,49 @@ MosaickerOptions AutoMask(const std::string& input, const Store& store, Mosaicke
 
 namespace {
 
-// Frames from `source` through `mosaicker`: prepared on every core, integrated in order.
-// `on_taken(i)` is called as frame i leaves the source; `on_frame` after it is integrated.
-void RunPipeline(FrameSource* source, Mosaicker& mosaicker,
-                 const std::function<void(const FrameReport&, int)>& on_frame,
-                 const std::function<void(long)>& on_taken) {
-  // Frames are prepared (decoded, filtered, features found and matched to the frame before) by
-  // one worker per core, several frames at once, while this thread integrates them in order
-  // (registration, gate, ECC, blending); the writer compresses closed patches meanwhile. Only
-  // integration is sequential, so the cores share the per-frame work whatever its balance.
+// Frames from `source` through `mosaicker`: decoded and prepared on every core, integrated in
+// order. `on_taken(i)` is called as frame i leaves the source; `on_frame` after it is integrated.
+// Returns the seconds spent decoding (all threads).
+double RunPipeline(FrameSource* source, Mosaicker& mosaicker,
+                   const std::function<void(const FrameReport&, int)>& on_frame,
+                   const std::function<void(long)>& on_taken) {
+  // Frames are decoded and prepared (undistorted, the tracking pyramid) by one worker per core,
+  // several at once, while this thread integrates them in order (tracking, registration, gate,
+  // ECC, blending); keyframes are filtered and described on the engine's workers, and closed
+  // patches written on the writer's, meanwhile.
   const int workers = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  const long ahead = workers + 2;  // frames prepared ahead of integration, at most
+  const long ahead = workers + 1;  // frames taken from the source ahead of integration, at most
   std::mutex source_mutex, mutex;
   std::condition_variable changed;
-  std::map<long, std::shared_ptr<PreparedFrame>> ready;        // prepared, waiting in order
-  std::map<long, std::shared_ptr<const Features>> chain;       // last features up to frame i
-  long taken = 0, integrated = 0, total = -1;                  // total known at the end
+  std::map<long, std::shared_ptr<PreparedFrame>> ready;  // prepared, waiting in order
+  long taken = 0, integrated = 0, total = -1;             // total known at the end
   bool stopping = false;
   std::exception_ptr failure;
+  std::atomic<long long> decode_ns{0};
   auto prepare_frames = [&] {
     try {
       for (;;) {
         {
           std::unique_lock<std::mutex> lock(mutex);
-          changed.wait(lock, [&] { return stopping || taken - integrated < ahead; });
-          if (stopping) return;
+          changed.wait(lock, [&] { return stopping || total >= 0 || taken - integrated < ahead; });
+          if (stopping || total >= 0) return;
         }
         InputFrame f;
         long index;
         {
           // Frames leave the source in order, numbered as they leave (video decodes in order).
           std::lock_guard<std::mutex> source_lock(source_mutex);
-          const bool more = total < 0 && source->Next(&f);
+          CpuLaps cpu;
+          bool more;
+          {
+            std::lock_guard<std::mutex> lock(mutex);
+            more = total < 0;
+          }
+          more = more && source->Next(&f);
+          decode_ns += cpu.Lap();
           std::lock_guard<std::mutex> lock(mutex);
           if (!more) {
-            total = taken;
+            if (total < 0) total = taken;
             changed.notify_all();
             return;
           }
@@ -149,18 +159,6 @@ void RunPipeline(FrameSource* source, Mosaicker& mosaicker,
           if (on_taken) on_taken(index);
         }
         auto prepared = mosaicker.Prepare(f.image, f.source, f.error);
-        const bool has_features = prepared->own && !prepared->own->empty();
-        std::shared_ptr<const Features> previous;
-        {
-          std::unique_lock<std::mutex> lock(mutex);
-          if (has_features) chain[index] = prepared->own;
-          changed.notify_all();
-          changed.wait(lock, [&] { return stopping || index == 0 || chain.count(index - 1); });
-          if (stopping) return;
-          if (index > 0) previous = chain[index - 1];
-          if (!has_features) chain[index] = previous;
-        }
-        mosaicker.MatchAhead(prepared.get(), previous);
         std::lock_guard<std::mutex> lock(mutex);
         ready[index] = std::move(prepared);
         changed.notify_all();
@@ -191,13 +189,11 @@ void RunPipeline(FrameSource* source, Mosaicker& mosaicker,
         if (failure || integrated == total) break;
         next = std::move(ready[integrated]);
         ready.erase(integrated);
-        // Workers still preparing frames after this one read chain[k - 1] with k > integrated:
-        // entries before integrated - 1 are no longer needed.
-        chain.erase(chain.begin(), chain.lower_bound(integrated - 1));
         ++integrated;
         changed.notify_all();
       }
       FrameReport r = mosaicker.Integrate(next);
+      next.reset();
       if (on_frame) on_frame(r, source->count());
     }
   } catch (...) {
@@ -206,6 +202,12 @@ void RunPipeline(FrameSource* source, Mosaicker& mosaicker,
   }
   stop();
   if (failure) std::rethrow_exception(failure);
+  return 1e-9 * static_cast<double>(decode_ns.load());
+}
+
+// The decoding time first among the stages: it is part of each frame's cost.
+void AddDecodeStage(MosaicSummary* summary, double seconds) {
+  summary->stage_seconds.insert(summary->stage_seconds.begin(), {"decode", seconds});
 }
 
 }  // namespace
@@ -218,8 +220,9 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
   if (options.mask == "auto") options = AutoMask(input, store, options, &mask_note);
   auto source = FrameSource::Open(input);
   Mosaicker mosaicker(store, options);
-  RunPipeline(source.get(), mosaicker, on_frame, nullptr);
+  const double decode = RunPipeline(source.get(), mosaicker, on_frame, nullptr);
   MosaicSummary summary = mosaicker.Finish();
+  AddDecodeStage(&summary, decode);
   summary.calibration_note = note;
   summary.mask_note = mask_note;
   return summary;
@@ -279,7 +282,7 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
     report(true);
   });
   report(true);
-  RunPipeline(
+  const double decode = RunPipeline(
       source.get(), mosaicker,
       [&](const FrameReport& r, int total) {
         {
@@ -306,6 +309,7 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
         arrivals[index] = source->arrival();
       });
   MosaicSummary summary = mosaicker.Finish();
+  AddDecodeStage(&summary, decode);
   {
     std::lock_guard<std::mutex> lock(mutex);
     status.open_patch = 0;

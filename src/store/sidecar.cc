@@ -120,6 +120,8 @@ json SidecarToJson(const PatchSidecar& s) {
     if (f.registered_by) fj["registered_by"] = *f.registered_by;
     if (f.doubtful) fj["doubtful"] = *f.doubtful;
     if (f.patch_frames) fj["patch_frames"] = *f.patch_frames;
+    if (f.keyframe) fj["keyframe"] = *f.keyframe;
+    if (f.placed_from) fj["placed_from"] = *f.placed_from;
     frames.push_back(std::move(fj));
   }
   j["frames"] = std::move(frames);
@@ -189,9 +191,15 @@ PatchSidecar SidecarFromJson(const json& j, const std::string& where) {
       f.doubtful = fr.Get("doubtful").get<bool>();
     }
     if (fr.Has("patch_frames")) f.patch_frames = static_cast<int>(fr.Int("patch_frames", 0, kMaxInt));
+    if (fr.Has("keyframe")) {
+      if (!fr.Get("keyframe").is_boolean()) Fail(fr.Where("keyframe"), "must be true or false");
+      f.keyframe = fr.Get("keyframe").get<bool>();
+    }
+    if (fr.Has("placed_from")) f.placed_from = static_cast<int>(fr.Int("placed_from", 0, kMaxInt));
     f.extra = Extra(frames[i], {"index", "source", "frame_to_patch", "egomotion", "matches",
                                 "inliers", "ecc", "status", "bilateral_error", "ecc_shift_px",
-                                "frame_to_global", "registered_by", "doubtful", "patch_frames"});
+                                "frame_to_global", "registered_by", "doubtful", "patch_frames",
+                                "keyframe", "placed_from"});
     s.frames.push_back(std::move(f));
   }
   const json& rejected = r.Get("rejected");
