@@ -2,7 +2,7 @@
 // mosaicking (decode, undistort, the tracking pyramid), and what each of the engine's building
 // blocks costs on the same frames, one core, medians over the frames given.
 //
-//   engine_floor_bench FRAMES_DIR [--frames N] [--window W --levels L --points P --track-pixels N]
+//   engine_floor_bench FRAMES_DIR [--frames N] [--window W --levels L --points P --track-pixels N --normalize-sigma S]
 //
 // FRAMES_DIR holds consecutive JPEG (or PNG) frames, e.g. `rolamos synth ... -o DIR` then
 // DIR/frames. The figures are milliseconds of one core; the engine spreads them over the cores.
@@ -57,7 +57,7 @@ std::string ReadBytes(const std::string& path) {
 
 int main(int argc, char** argv) {
   if (argc < 2) {
-    std::fprintf(stderr, "usage: engine_floor_bench FRAMES_DIR [--frames N] [--window W --levels L --points P --track-pixels N]\n");
+    std::fprintf(stderr, "usage: engine_floor_bench FRAMES_DIR [--frames N] [--window W --levels L --points P --track-pixels N --normalize-sigma S]\n");
     return 2;
   }
   int limit = 30;
@@ -69,6 +69,7 @@ int main(int argc, char** argv) {
     if (flag == "--levels") to.levels = std::atoi(argv[i + 1]);
     if (flag == "--points") to.max_points = std::atoi(argv[i + 1]);
     if (flag == "--track-pixels") to.track_pixels = std::atof(argv[i + 1]);
+    if (flag == "--normalize-sigma") to.normalize_sigma = std::atof(argv[i + 1]);
   }
   cv::setNumThreads(1);  // one core's cost
   std::vector<std::string> paths;

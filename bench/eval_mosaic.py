@@ -48,19 +48,25 @@ def main():
     gt = json.load(open(os.path.join(survey, "ground_truth.json")))
     w, h = gt["frame_size"]
     gt_by_file = {os.path.basename(f["file"]): f["frame_to_world"] for f in gt["frames"]}
+    gt_by_index = {f["index"]: f["frame_to_world"] for f in gt["frames"]}
     gx, gy = np.meshgrid(np.linspace(0, w - 1, 5), np.linspace(0, h - 1, 5))
     grid = np.c_[gx.ravel(), gy.ravel()]
-    frame_rms, stitched = [], 0
+    frame_rms, stitched, is_key = [], 0, []
     manifest = json.load(open(os.path.join(store, "store.json")))
     for entry in manifest["patches"]:
         side = os.path.join(store, entry["sidecar"])
         s = json.load(open(side))
-        src, dst, owners = [], [], []
+        src, dst, owners, keys = [], [], [], []
         for i, f in enumerate(s["frames"]):
             name = os.path.basename(f["source"])
-            if name not in gt_by_file:
+            if "#" in name:  # a video's frame: its number is the survey's frame index
+                truth = gt_by_index.get(int(name.split("#")[1]))
+            else:
+                truth = gt_by_file.get(name)
+            if truth is None:
                 continue
-            src.append(apply(f["frame_to_patch"], grid)); dst.append(apply(gt_by_file[name], grid))
+            src.append(apply(f["frame_to_patch"], grid)); dst.append(apply(truth, grid))
+            keys.append(f.get("keyframe", True))
             owners += [i] * len(grid)
         stitched += len(s["frames"])
         if len(src) < 2:
@@ -69,14 +75,19 @@ def main():
         H = fit_homography(src, dst)
         err = np.linalg.norm(apply(H, src) - dst, axis=1)
         owners = np.array(owners)
-        for i in np.unique(owners):
+        for k, i in enumerate(np.unique(owners)):
             frame_rms.append(np.sqrt(np.mean(err[owners == i] ** 2)))
+            is_key.append(keys[k])
     fr = np.array(frame_rms)
+    kf = np.array(is_key, dtype=bool)
     out = {"frames": len(gt["frames"]), "stitched": stitched,
            "stitched_share": stitched / len(gt["frames"]),
            "rms_px": float(np.sqrt(np.mean(fr ** 2))) if len(fr) else None,
            "p95_px": float(np.percentile(fr, 95)) if len(fr) else None,
-           "max_px": float(fr.max()) if len(fr) else None}
+           "max_px": float(fr.max()) if len(fr) else None,
+           "keyframes": int(kf.sum()),
+           "keyframe_rms_px": float(np.sqrt(np.mean(fr[kf] ** 2))) if kf.any() else None,
+           "followed_rms_px": float(np.sqrt(np.mean(fr[~kf] ** 2))) if (~kf).any() else None}
     print(json.dumps(out))
 
 

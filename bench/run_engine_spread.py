@@ -5,10 +5,14 @@ lawnmowers with and without turn frames, dozens of lanes, a spiral, a random wal
 turns, strong degradations and a burned-in overlay, over real seafloor photos
 (../shared/data/seattle_rov_gopro_large) and the procedural seafloor.
 
-For each kind: frames registered, patches and how each closed (pixel budget, lost tracking),
-per-patch accuracy against ground truth (bench/eval_mosaic.py: RMS, p95, max), frames/s, peak RSS.
+For each kind: frames registered, keyframes, patches and how each closed (pixel budget, lost
+tracking), per-patch accuracy against ground truth (bench/eval_mosaic.py: RMS, p95, max),
+frames/s, CPU use, peak RSS. The `video-*` kinds are camera-rate feeds (95 % overlap between
+consecutive frames, a 30 frames/s ROV) at both frame sizes, read from an MPEG-4 file; the others
+are still frames at 70-80 % overlap.
 
-  bench/run_engine_spread.py [--kinds a,b] [--runs 1] [--out bench/out/spread] [-- extra mosaic flags]
+  bench/run_engine_spread.py [--kinds a,b] [--runs 1] [--cli build/rolamos] [--out bench/out/spread]
+                             [-- extra mosaic flags]
 """
 import argparse, glob, json, os, re, statistics, subprocess, sys
 
@@ -49,6 +53,19 @@ KINDS = {
     "paper-jitter": ("lawnmower 1292 x 964, 60 deg, jitter, no turns, 120 frames, real photo",
                      ["PHOTO0", "--frames", "120", "--fov", "60", "--lanes", "4", "--no-turns", "--overlap", "0.7",
                       "--side-overlap", "0.4", "--gsd", "0.7"] + JITTER),
+    "light-cone": ("lawnmower 800 x 600, 60 deg, strong vignetting, the lights' cone, exposure jitter, 150 frames",
+                   ["PHOTO5", "--width", "800", "--height", "600", "--fov", "60", "--frames", "150", "--lanes", "5",
+                    "--no-turns", "--overlap", "0.7", "--side-overlap", "0.4", "--gsd", "0.9", "--vignetting", "0.7",
+                    "--light-cone", "0.7", "--exposure-jitter", "0.1"] + JITTER),
+    "lanes-apart": ("lawnmower 800 x 600, 60 deg, 5 lanes that do not overlap, no turns, 150 frames",
+                    ["PHOTO7", "--width", "800", "--height", "600", "--fov", "60", "--frames", "150", "--lanes", "5",
+                     "--no-turns", "--overlap", "0.7", "--side-overlap", "0", "--gsd", "0.9"] + JITTER),
+    "video-1292": ("video 1292 x 964 at 30 frames/s (95 % overlap), 60 deg, MPEG-4, 300 frames (10 s)",
+                   ["PHOTO1", "--frames", "300", "--fov", "60", "--lanes", "2", "--overlap", "0.95", "--gsd", "0.7",
+                    "--attitude-jitter", "0.2", "--tilt", "1", "--video", "video.mp4"]),
+    "video-800": ("video 800 x 600 at 30 frames/s (95 % overlap), 60 deg, MPEG-4, 300 frames (10 s)",
+                  ["PHOTO3", "--width", "800", "--height", "600", "--frames", "300", "--fov", "60", "--lanes", "2",
+                   "--overlap", "0.95", "--gsd", "0.9", "--attitude-jitter", "0.2", "--tilt", "1", "--video", "video.mp4"]),
 }
 
 
@@ -78,13 +95,15 @@ def main():
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--runs", type=int, default=1)
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "out", "spread"))
+    ap.add_argument("--cli", default=CLI, help="the rolamos binary to measure (another build: a before/after)")
     ap.add_argument("extra", nargs="*", help="flags for rolamos mosaic")
     a = ap.parse_args()
     if not PHOTOS:
         sys.exit("../shared/data/seattle_rov_gopro_large is absent")
     os.makedirs(a.out, exist_ok=True)
-    lines = ["| kind | frames registered | patches (closed by) | RMS px | p95 px | max px | frames/s | peak RSS MB |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = ["| kind | frames registered | keyframes | patches (closed by) | RMS px | p95 px | max px | frames/s | CPU % | "
+             "peak RSS MB |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     results = {}
     for kind in a.kinds.split(","):
         desc, args = KINDS[kind]
@@ -92,25 +111,31 @@ def main():
         stamp = os.path.join(survey, "args.json")
         if not os.path.exists(stamp) or json.load(open(stamp)) != args:
             subprocess.run(["rm", "-rf", survey])
-            timed([CLI, "synth"] + synth_args(args) + ["-o", survey, "-q"], check=True)
+            timed([a.cli, "synth"] + synth_args(args) + ["-o", survey, "-q"], check=True)
             json.dump(args, open(stamp, "w"))
-        fps, rss = [], []
+        fps, rss, cpu = [], [], []
+        source = os.path.join(survey, "video.mp4") if "--video" in args else os.path.join(survey, "frames")
         for _ in range(a.runs):
             store = os.path.join(a.out, kind + ".rolamos")
             subprocess.run(["rm", "-rf", store])
-            r, t, m = timed([CLI, "mosaic", os.path.join(survey, "frames"), "-o", store, "-q"] + a.extra, check=True)
+            r, t, m = timed([a.cli, "mosaic", source, "-o", store, "-q"] + a.extra, check=True)
             fps.append(float(re.search(r"\(([\d.]+) frames/s\)", r.stdout).group(1)))
+            c = re.search(r"CPU ([\d.]+) %", r.stdout)
+            cpu.append(float(c.group(1)) if c else float("nan"))
             rss.append(m)
-            stages = re.search(r"per frame: (.*)", r.stdout).group(1)
+            stages = re.search(r"per frame[^:]*: (.*)", r.stdout).group(1)
+            k = re.search(r"per keyframe: (.*)", r.stdout)
+            stages += ("; per keyframe: " + k.group(1)) if k else ""
         e = json.loads(subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "bench", "eval_mosaic.py"), survey, store],
                                       capture_output=True, text=True, check=True).stdout)
         c = closures(store)
         results[kind] = dict(e, fps=statistics.median(fps), rss=statistics.median(rss), closed=c, stages=stages)
         fmt = lambda v: "—" if v is None else f"{v:.2f}"
         closed = ", ".join(f"{k} {v}" for k, v in sorted(c.items()))
-        lines.append(f"| {kind}: {desc} | {e['stitched']} / {e['frames']} | {sum(c.values())} ({closed}) | "
+        keys = e.get("keyframes", e["stitched"])
+        lines.append(f"| {kind}: {desc} | {e['stitched']} / {e['frames']} | {keys} | {sum(c.values())} ({closed}) | "
                      f"{fmt(e['rms_px'])} | {fmt(e['p95_px'])} | {fmt(e['max_px'])} | "
-                     f"{statistics.median(fps):.1f} | {statistics.median(rss):.0f} |")
+                     f"{statistics.median(fps):.1f} | {statistics.median(cpu):.0f} | {statistics.median(rss):.0f} |")
         print(lines[-1], flush=True)
         print(f"    per frame: {stages}", flush=True)
     json.dump(results, open(os.path.join(a.out, "results.json"), "w"), indent=1)

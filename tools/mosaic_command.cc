@@ -166,6 +166,18 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
   cmd->add_flag("--no-bilateral", s->no_bilateral, "skip the bilateral filter");
   cmd->add_flag("--no-temporal", s->no_temporal, "skip the temporal filter");
   cmd->add_flag("--no-clahe", s->no_clahe, "no contrast normalisation of the detection image");
+  cmd->add_option("--track-pixels", o.track_pixels,
+                  "frames are followed (Lucas-Kanade) at about this many pixels, never enlarged")
+      ->capture_default_str();
+  cmd->add_option("--track-points", o.track_points, "points a keyframe hands on to the frames after it")
+      ->capture_default_str();
+  cmd->add_option("--keyframe-overlap", o.keyframe_overlap,
+                  "a frame that overlaps the last keyframe less than this becomes a keyframe (blended, adjusted, "
+                  "its features stored); 1 = every frame")
+      ->capture_default_str();
+  cmd->add_option("--keyframe-min-overlap", o.keyframe_min_overlap,
+                  "a frame becomes a keyframe when the next one is predicted to overlap the last keyframe less than this")
+      ->capture_default_str();
   cmd->add_option("--features", o.features, "sift, orb or akaze")->capture_default_str();
   cmd->add_option("--max-features", o.max_features, "features per frame")->capture_default_str();
   cmd->add_option("--detect-scale", o.detect_scale, "resize before detection (0 = by frame size)")->capture_default_str();

@@ -64,6 +64,8 @@ void AddSynthCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--particles", o.particles, "marine snow per frame")->capture_default_str();
   cmd->add_option("--jpeg", o.jpeg_quality, "JPEG quality (0 = PNG)")->capture_default_str();
   cmd->add_option("--seed", o.seed, "random seed")->capture_default_str();
+  cmd->add_option("--video", o.video, "also write the frames as a video (.mp4 or .avi) in the survey directory");
+  cmd->add_option("--video-fps", o.video_fps, "frame rate of --video")->capture_default_str();
   cmd->add_flag("-q,--quiet", s->quiet, "no progress bar");
   cmd->callback([s, run] { *run = [s] { return RunSynth(*s); }; });
 }

@@ -43,6 +43,10 @@ struct SurveyOptions {
   int particles = 40;         // marine snow per frame
   int jpeg_quality = 92;      // 0 = write PNG
   uint32_t seed = 1;
+  // Also a video of the frames (.mp4: MPEG-4; .avi: Motion JPEG), relative to the survey
+  // directory, at `video_fps` frames a second: what a camera feed looks like to `mosaic`.
+  std::string video;
+  double video_fps = 30;
 
   bool IsValid(std::string* error) const;
   double Focal() const;  // pixels: from fov_deg when given, else focal_px

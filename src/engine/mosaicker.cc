@@ -253,6 +253,11 @@ struct Mosaicker::Impl {
   // `current`: the frame the next ones are followed from (false: a frame placed late, behind it).
   void AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, const Candidate* c,
                    std::vector<FrameLink> found, FrameRecord rec, bool current = true);
+  // The keyframes a new one is matched with (features, guided by the placements) for the
+  // adjustment: the recent ones it overlaps besides the one it was followed from (independent
+  // measurements over longer baselines, so error does not add up along a lane), and the older
+  // ones under it (an earlier lane: loop closures).
+  std::vector<OlderKeyframe> LinkCandidates(const cv::Matx33d& to_patch, bool current) const;
   // A rejected frame stitched after all: out of the rejected list, counted as recovered.
   void AddFollowed(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, FrameRecord rec,
                    std::vector<FrameLink> links);
@@ -455,9 +460,14 @@ const Mosaicker::Impl::Candidate* Mosaicker::Impl::Pick(const std::vector<Candid
 // little, when the next one is predicted to, when its registration is doubtful or did not come
 // from following, or when the points followed have thinned out.
 bool Mosaicker::Impl::WantsKeyframe(const Candidate& c, const cv::Matx33d& to_patch) const {
-  if (!c.tracked() || !c.support.strong) return true;
   const Key& key = keys.back();
   const double overlap = FootprintOverlap(to_patch, key.to_patch, frame_size);
+  if (getenv("ROLAMOS_DEBUG_KEYS")) {
+    const cv::Matx33d next = to_patch * last.to_patch.inv() * to_patch;
+    fprintf(stderr, "tracked %d strong %d (%s) overlap %.2f at %zu of %zu next %.2f\n", c.tracked(), c.support.strong,
+            c.support.weakness.c_str(), overlap, c.at.size(), key.points.size(), FootprintOverlap(next, key.to_patch, frame_size));
+  }
+  if (!c.tracked() || !c.support.strong) return true;
   if (overlap < options.keyframe_overlap) return true;
   if (c.at.size() < std::max<size_t>(size_t(2 * support_options.strong_inliers), key.points.size() / 3)) return true;
   // The next frame, if the motion from the last one repeats.
@@ -595,6 +605,28 @@ void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Clo
   image_bytes = 0;
 }
 
+std::vector<OlderKeyframe> Mosaicker::Impl::LinkCandidates(const cv::Matx33d& to_patch, bool current) const {
+  std::vector<OlderKeyframe> out;
+  if (keys.empty()) return out;
+  // The keyframe followed from is linked by the tracks already.
+  const size_t end = current ? keys.size() - 1 : keys.size();
+  const size_t recent = end > size_t(fit_options.recent_frames) ? end - size_t(fit_options.recent_frames) : 0;
+  for (size_t k = end; k-- > recent;) {
+    if (static_cast<int>(out.size()) >= fit_options.max_frames) break;
+    if (FootprintOverlap(to_patch, keys[k].to_patch, frame_size) >= fit_options.min_overlap)
+      out.push_back({keys[k].index, keys[k].to_patch, keys[k].products});
+  }
+  std::vector<std::pair<double, const Key*>> under;
+  for (size_t k = 0; k < recent; ++k) {
+    const double overlap = FootprintOverlap(to_patch, keys[k].to_patch, frame_size);
+    if (overlap >= 2 * fit_options.min_overlap) under.emplace_back(overlap, &keys[k]);
+  }
+  std::sort(under.begin(), under.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
+  for (size_t k = 0; k < under.size() && k < size_t(fit_options.max_loop_frames); ++k)
+    out.push_back({under[k].second->index, under[k].second->to_patch, under[k].second->products});
+  return out;
+}
+
 void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch,
                                   const Candidate* c, std::vector<FrameLink> found, FrameRecord rec, bool current) {
   Laps lap{this};
@@ -631,16 +663,7 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
     job.to_before = last.to_patch.inv() * to_patch;
   }
   job.to_patch = to_patch;
-  if (adjust_options.enabled && keys.size() > size_t(fit_options.recent_frames)) {
-    std::vector<std::pair<double, const Key*>> under;
-    for (size_t k = 0; k + size_t(fit_options.recent_frames) < keys.size(); ++k) {
-      const double overlap = FootprintOverlap(to_patch, keys[k].to_patch, frame_size);
-      if (overlap >= 2 * fit_options.min_overlap) under.emplace_back(overlap, &keys[k]);
-    }
-    std::sort(under.begin(), under.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
-    for (size_t k = 0; k < under.size() && k < size_t(fit_options.max_loop_frames); ++k)
-      job.older.push_back({under[k].second->index, under[k].second->to_patch, under[k].second->products});
-  }
+  if (adjust_options.enabled) job.older = LinkCandidates(to_patch, current);
   KeyframeTools tools;
   tools.pre = &pre;
   tools.bilateral = options.bilateral;

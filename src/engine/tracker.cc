@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
@@ -19,7 +20,8 @@ bool TrackerOptions::IsValid(std::string* error) const {
     *error = "tracker settings are out of range (points >= 30, window 5..61, levels 0..6)";
     return false;
   }
-  if (!(max_fb_px > 0) || !(corner_quality > 0 && corner_quality < 1) || !(min_corner_eigen >= 0)) {
+  if (!(max_fb_px > 0) || !(corner_quality > 0 && corner_quality < 1) || !(min_corner_eigen >= 0) ||
+      !(normalize_sigma >= 0)) {
     *error = "tracker thresholds must be positive (corner quality below 1)";
     return false;
   }
@@ -29,9 +31,11 @@ bool TrackerOptions::IsValid(std::string* error) const {
 double TrackerOptions::ScaleFor(cv::Size frame) const {
   const double area = std::max(1.0, double(frame.area()));
   const double s = std::sqrt(track_pixels / area);
-  if (s >= 1.0) return 1.0;
-  // Halving is exact and fast (2 x 2 averages); other scales only when halving is too coarse.
-  return s >= 0.5 && s < 0.6 ? 0.5 : s;
+  // Full size or halved (exact and fast: 2 x 2 averages) when either is near; another scale only
+  // for frames far larger.
+  if (s >= 0.75) return 1.0;
+  if (s >= 0.375) return 0.5;
+  return s;
 }
 
 namespace {
@@ -50,6 +54,30 @@ cv::Matx33d ScaleMap(double s) {  // full -> tracking
 cv::Point2f Apply(const cv::Matx33d& H, cv::Point2f p) {
   const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1);
   return {float(q[0] / q[2]), float(q[1] / q[2])};
+}
+
+// The difference from the mean around each pixel, divided by the standard deviation around it
+// (both smooth: computed at a quarter of the size), as 40 grey levels per standard deviation
+// around 128. Smooth light (vignetting, the lights' cone, haze, a frame's exposure) goes with
+// them. The local deviation is floored at half the frame's: flat areas are not lifted into noise.
+cv::Mat LocalContrast(const cv::Mat& gray, double sigma) {
+  cv::Mat f, small, mean, var;
+  gray.convertTo(f, CV_32F);
+  auto smooth = [&](const cv::Mat& in, cv::Mat& out) {
+    cv::resize(in, small, cv::Size(), 0.25, 0.25, cv::INTER_AREA);
+    cv::GaussianBlur(small, small, cv::Size(), sigma / 4);
+    cv::resize(small, out, in.size(), 0, 0, cv::INTER_LINEAR);
+  };
+  smooth(f, mean);
+  const cv::Mat detail = f - mean;
+  cv::Mat squared = detail.mul(detail);
+  const double frame_var = cv::mean(squared)[0];
+  smooth(squared, var);
+  cv::Mat sd;
+  cv::sqrt(cv::max(var, std::max(1.0, 0.25 * frame_var)), sd);
+  cv::Mat out;
+  cv::Mat(detail / sd).convertTo(out, CV_8U, 40.0, 128.0);
+  return out;
 }
 
 }  // namespace
@@ -72,6 +100,7 @@ std::shared_ptr<const TrackFrame> FrameTracker::Prepare(const cv::Mat& frame, co
     cv::resize(gray, small, cv::Size(), t->scale, t->scale, cv::INTER_AREA);
     gray = small;
   }
+  if (options_.normalize_sigma > 0) gray = LocalContrast(gray, options_.normalize_sigma);
   cv::buildOpticalFlowPyramid(gray, t->pyramid, cv::Size(options_.window, options_.window), options_.levels, true);
   if (!usable.empty()) {
     cv::resize(usable, t->usable, gray.size(), 0, 0, cv::INTER_NEAREST);
@@ -92,10 +121,22 @@ std::vector<cv::Point2f> FrameTracker::Corners(const TrackFrame& frame, const st
   cv::Mat eig, peaks;
   cv::cornerMinEigenVal(gray, eig, 3, 3);
   cv::dilate(eig, peaks, cv::Mat(), cv::Point(-1, -1), 2);
-  double strongest = 0;
-  cv::minMaxLoc(eig, nullptr, &strongest);
-  const float floor = float(std::max(options_.corner_quality * strongest, 1e-7));
   const int border = options_.window / 2 + 1;
+  // The scale: the 30th strongest local maximum.
+  std::vector<float> tops;
+  for (int y = border; y < gray.rows - border; ++y) {
+    const float* e = eig.ptr<float>(y);
+    const float* d = peaks.ptr<float>(y);
+    for (int x = border; x < gray.cols - border; ++x)
+      if (e[x] > 1e-7f && e[x] >= d[x]) tops.push_back(e[x]);
+  }
+  float reference = 0;
+  if (!tops.empty()) {
+    const size_t k = std::min<size_t>(29, tops.size() - 1);
+    std::nth_element(tops.begin(), tops.begin() + long(k), tops.end(), std::greater<float>());
+    reference = tops[k];
+  }
+  const float floor = float(std::max(options_.corner_quality * reference, 1e-7));
   // The frame in a grid of cells; each cell's best corners in turn, so points cover the frame.
   const int cols = 8, rows = 6;
   const float min_distance = float(std::max(gray.cols, gray.rows)) / 60.0f;

@@ -19,10 +19,19 @@ struct TrackerOptions {
   // pyramid costs in proportion to it, a point's flow does not.
   double track_pixels = 0.4e6;
   int max_points = 300;     // points a keyframe hands on
-  int window = 15;          // Lucas-Kanade window, tracking pixels
+  int window = 21;          // Lucas-Kanade window, tracking pixels
   int levels = 3;           // pyramid levels above the tracking image
   double max_fb_px = 0.7;   // forward-backward disagreement allowed, tracking pixels
-  double corner_quality = 0.005;  // Shi-Tomasi, relative to the frame's strongest corner
+  // Contrast normalised before following: each pixel's difference from the mean around it
+  // (a Gaussian of this sigma, tracking pixels), divided by the standard deviation around it.
+  // Dark and hazy seafloor has texture only relative to itself; a frame darker than the one
+  // before, the lights' cone and vignetting (smooth, multiplicative) look alike after it, and
+  // the same ground gives the same values in every frame (a global or CLAHE-like stretch would
+  // not: its mapping depends on what else is in the frame). 0 = off.
+  double normalize_sigma = 8.0;
+  // Shi-Tomasi, relative to the frame's 30th strongest corner (a few bright specks, marine snow,
+  // do not set the scale for the rest).
+  double corner_quality = 0.01;
   // What counts as texture at all (Shi-Tomasi's smaller eigenvalue of 3x3 Sobel sums, 8-bit
   // grey levels): open water, a black frame or a lens cap has none above it.
   double min_corner_eigen = 2e-4;

@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <opencv2/videoio.hpp>
 
 #include "rolamos/error.hpp"
 #include "rolamos/survey.hpp"
@@ -43,6 +44,11 @@ bool SurveyOptions::IsValid(std::string* error) const {
   if (!(max_turn_deg > 0 && max_turn_deg <= 180))
     return bad("max turn " + std::to_string(max_turn_deg) + " degrees is outside (0, 180]");
   if (jpeg_quality < 0 || jpeg_quality > 100) return bad("JPEG quality must be 0 (PNG) or 1..100");
+  if (!video.empty()) {
+    const std::string ext = std::filesystem::path(video).extension().string();
+    if (ext != ".mp4" && ext != ".avi") return bad("video \"" + video + "\" must end in .mp4 or .avi");
+    if (!(video_fps >= 1 && video_fps <= 240)) return bad("video frame rate must be 1..240 frames a second");
+  }
   if (!(light_cone >= 0 && light_cone <= 1) || !(exposure_jitter >= 0 && exposure_jitter <= 0.5))
     return bad("light cone must be in [0, 1] and exposure jitter in [0, 0.5]");
   if (noise < 0 || particles < 0 || vignetting < 0 || vignetting > 1 || backscatter < 0 ||
@@ -264,6 +270,14 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
   survey.camera_matrix = K;
   nlohmann::json frames = nlohmann::json::array();
   const std::string ext = o.jpeg_quality > 0 ? ".jpg" : ".png";
+  cv::VideoWriter video;
+  if (!o.video.empty()) {
+    const std::string path = (fs::path(dir) / o.video).string();
+    const int fourcc = fs::path(o.video).extension() == ".avi" ? cv::VideoWriter::fourcc('M', 'J', 'P', 'G')
+                                                              : cv::VideoWriter::fourcc('m', 'p', '4', 'v');
+    if (!video.open(path, cv::CAP_FFMPEG, fourcc, o.video_fps, survey.frame_size, true))
+      Fail(path, "cannot be written (no video encoder for it in OpenCV's FFmpeg)");
+  }
   for (size_t i = 0; i < poses.size(); ++i) {
     const cv::Matx33d world_to_frame = WorldToFrame(poses[i], K);
     const cv::Matx33d frame_to_world = world_to_frame.inv();
@@ -291,6 +305,7 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
     if (o.jpeg_quality > 0) params = {cv::IMWRITE_JPEG_QUALITY, o.jpeg_quality};
     if (!cv::imwrite((fs::path(dir) / name).string(), frame, params))
       Fail((fs::path(dir) / name).string(), "cannot be written");
+    if (video.isOpened()) video.write(frame);
     SurveyFrame sf;
     sf.index = static_cast<int>(i);
     sf.file = name;
