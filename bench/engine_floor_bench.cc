@@ -139,8 +139,7 @@ int main(int argc, char** argv) {
     row("tracking image and pyramid").push_back(Time([&] { here = tracker.Prepare(colour); }));
     if (previous) {
       std::vector<cv::Point2f> points;
-      int strong = 0;
-      row("corners (keyframes)").push_back(Time([&] { points = tracker.Corners(*previous, {}, to.max_points, &strong); }));
+      row("corners (keyframes)").push_back(Time([&] { points = tracker.Corners(*previous, {}, to.max_points); }));
       TrackFlow flow;
       // The guess is the previous frame's motion, as the Kalman prediction would give.
       row("follow the points (LK forward and backward)").push_back(
@@ -174,7 +173,7 @@ int main(int argc, char** argv) {
           }
         }
       }
-      std::printf("frame %zu: %zu corners (%d textured), %d followed\n", i, points.size(), strong, flow.followed);
+      std::printf("frame %zu: %zu corners, %d followed\n", i, points.size(), flow.followed);
     }
     row("bilateral filter (keyframes)").push_back(Time([&] { smoothed = pre.Spatial(colour); }));
     row("detection image (gray, resize, CLAHE; keyframes)").push_back(

@@ -61,6 +61,37 @@ cv::Ptr<cv::Feature2D> CreateDetector(const FeatureOptions& options) {
   return cv::AKAZE::create(cv::AKAZE::DESCRIPTOR_MLDB, 0, 3, 0.0008f);
 }
 
+// OpenCV (before 4.8's enable_precise_upscale) doubles SIFT's first octave with INTER_LINEAR,
+// whose pixel centres sit a quarter pixel off the doubled grid it then reads positions from:
+// every keypoint comes out 0.25 px right of and below where it is (opencv/opencv#23123). The
+// offset cancels between frames of the same heading and doubles between frames turned 180
+// degrees (the next lane of a lawnmower), so it is taken off.
+constexpr float kSiftUpscaleBias = 0.25f;
+
+// SIFT keypoints found on `image` halved (where OpenCV's doubled first octave is `image`'s own
+// size) and described on `image` at their octave, one up: no octave at twice the size.
+std::vector<cv::KeyPoint> DescribeFromHalf(const FeatureOptions& options, const cv::Mat& image, const cv::Mat& mask,
+                                           cv::Mat* descriptors) {
+  cv::Mat half, half_mask;
+  cv::resize(image, half, cv::Size((image.cols + 1) / 2, (image.rows + 1) / 2), 0, 0, cv::INTER_AREA);
+  if (!mask.empty()) cv::resize(mask, half_mask, half.size(), 0, 0, cv::INTER_NEAREST);
+  auto sift = CreateDetector(options);
+  std::vector<cv::KeyPoint> keypoints;
+  sift->detect(half, keypoints, half_mask);
+  // OpenCV packs (octave, layer, offset) in `octave`: the octave in the low byte, signed.
+  const float sx = float(image.cols) / float(half.cols), sy = float(image.rows) / float(half.rows);
+  for (auto& k : keypoints) {
+    int octave = k.octave & 255;
+    octave = octave < 128 ? octave : (-128 | octave);
+    k.octave = (k.octave & ~255) | ((octave + 1) & 255);
+    k.pt.x = (k.pt.x - kSiftUpscaleBias + 0.5f) * sx - 0.5f;
+    k.pt.y = (k.pt.y - kSiftUpscaleBias + 0.5f) * sy - 0.5f;
+    k.size *= 0.5f * (sx + sy);
+  }
+  if (!keypoints.empty()) sift->compute(image, keypoints, *descriptors);
+  return keypoints;
+}
+
 }  // namespace
 
 Features FeatureExtractor::Extract(const cv::Mat& gray) const {
@@ -77,10 +108,14 @@ Features FeatureExtractor::ExtractScaled(const cv::Mat& small, double scale, con
   std::vector<cv::KeyPoint> keypoints;
   Features f;
   f.norm = options_.type == "sift" ? cv::NORM_L2 : cv::NORM_HAMMING;
-  if (mask.empty())
+  if (options_.type == "sift" && !options_.double_first_octave)
+    keypoints = DescribeFromHalf(options_, small, mask, &f.descriptors);
+  else if (mask.empty())
     CreateDetector(options_)->detectAndCompute(small, cv::noArray(), keypoints, f.descriptors);
   else
     CreateDetector(options_)->detectAndCompute(small, mask, keypoints, f.descriptors);
+  if (options_.type == "sift" && options_.double_first_octave)
+    for (auto& k : keypoints) k.pt -= cv::Point2f(kSiftUpscaleBias, kSiftUpscaleBias);
   if (options_.type == "akaze" && static_cast<int>(keypoints.size()) > options_.max_features) {
     // AKAZE has no count limit: keep the strongest.
     std::vector<int> order(keypoints.size());

@@ -1,5 +1,6 @@
 #include "engine/features.h"
 
+#include <algorithm>
 #include <set>
 
 #include <gtest/gtest.h>
@@ -71,6 +72,58 @@ TEST(Features, ExtractionIsTheSameFromConcurrentThreads) {
     ASSERT_EQ(f->points.size(), alone.points.size());
     EXPECT_EQ(cv::norm(f->descriptors, alone.descriptors, cv::NORM_INF), 0.0);
   }
+}
+
+// A feature found on an image and on the image turned 180 degrees must be at the same place: a
+// constant offset (OpenCV 4.6's SIFT puts every keypoint 0.25 px right of and below where it is)
+// cancels between frames of one heading but doubles between a lawnmower's lanes.
+TEST(Features, PositionsAgreeOnAnImageTurnedHalfRound) {
+  cv::Mat gray;
+  cv::cvtColor(RenderSeafloor(0, 0, 480, 360), gray, cv::COLOR_BGR2GRAY);
+  cv::Mat turned;
+  cv::rotate(gray, turned, cv::ROTATE_180);
+  for (const bool upsample : {true, false}) {
+    FeatureOptions o;
+    o.detect_scale = 1.0;
+    o.double_first_octave = upsample;
+    const FeatureExtractor extractor(o);
+    const Features a = extractor.Extract(gray), b = extractor.Extract(turned);
+    const Matches m = MatchFeatures(a, b, o);
+    // p in the image is (w - 1 - x, h - 1 - y) in the turned one: their sum is (w - 1, h - 1).
+    std::vector<float> dx, dy;
+    for (size_t i = 0; i < m.from.size(); ++i) {
+      const float x = m.from[i].x + m.to[i].x - float(gray.cols - 1), y = m.from[i].y + m.to[i].y - float(gray.rows - 1);
+      if (std::abs(x) < 2 && std::abs(y) < 2) {
+        dx.push_back(x);
+        dy.push_back(y);
+      }
+    }
+    ASSERT_GT(dx.size(), 100u) << "upsample " << upsample;
+    std::nth_element(dx.begin(), dx.begin() + long(dx.size() / 2), dx.end());
+    std::nth_element(dy.begin(), dy.begin() + long(dy.size() / 2), dy.end());
+    // Twice the offset: 0.5 px before the correction.
+    EXPECT_LT(std::abs(dx[dx.size() / 2]), 0.05) << "upsample " << upsample;
+    EXPECT_LT(std::abs(dy[dy.size() / 2]), 0.05) << "upsample " << upsample;
+  }
+}
+
+// Without the doubled octave, the features are the same kind (most of them match the doubled
+// octave's) and as many as asked for on textured ground.
+TEST(Features, HalvedDetectionFindsTheSameFeatures) {
+  cv::Mat gray;
+  cv::cvtColor(RenderSeafloor(0, 0, 640, 480), gray, cv::COLOR_BGR2GRAY);
+  FeatureOptions o;
+  o.detect_scale = 1.0;
+  o.max_features = 500;
+  const Features doubled = FeatureExtractor(o).Extract(gray);
+  o.double_first_octave = false;
+  const Features halved = FeatureExtractor(o).Extract(gray);
+  ASSERT_EQ(halved.descriptors.rows, static_cast<int>(halved.points.size()));
+  EXPECT_GT(halved.points.size(), 300u);
+  const Matches m = MatchFeatures(halved, doubled, o);
+  int same_place = 0;
+  for (size_t i = 0; i < m.from.size(); ++i) same_place += cv::norm(m.from[i] - m.to[i]) < 1.0;
+  EXPECT_GT(same_place, static_cast<int>(halved.points.size() / 3));
 }
 
 }  // namespace

@@ -462,11 +462,6 @@ const Mosaicker::Impl::Candidate* Mosaicker::Impl::Pick(const std::vector<Candid
 bool Mosaicker::Impl::WantsKeyframe(const Candidate& c, const cv::Matx33d& to_patch) const {
   const Key& key = keys.back();
   const double overlap = FootprintOverlap(to_patch, key.to_patch, frame_size);
-  if (getenv("ROLAMOS_DEBUG_KEYS")) {
-    const cv::Matx33d next = to_patch * last.to_patch.inv() * to_patch;
-    fprintf(stderr, "tracked %d strong %d (%s) overlap %.2f at %zu of %zu next %.2f\n", c.tracked(), c.support.strong,
-            c.support.weakness.c_str(), overlap, c.at.size(), key.points.size(), FootprintOverlap(next, key.to_patch, frame_size));
-  }
   if (!c.tracked() || !c.support.strong) return true;
   if (overlap < options.keyframe_overlap) return true;
   if (c.at.size() < std::max<size_t>(size_t(2 * support_options.strong_inliers), key.points.size() / 3)) return true;
@@ -646,10 +641,9 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
     key.points = c->at;
     key.ids = c->ids;
   }
-  int strong = 0;
   const int wanted = options.track_points - static_cast<int>(key.points.size());
   if (wanted > options.track_points / 8)
-    for (const auto& q : tracker.Corners(*p->track, key.points, wanted, &strong)) {
+    for (const auto& q : tracker.Corners(*p->track, key.points, wanted)) {
       key.points.push_back(q);
       key.ids.push_back(next_track++);
     }

@@ -8,6 +8,7 @@ FeatureOptions ToFeatureOptions(const MosaickerOptions& o) {
   f.max_features = o.max_features;
   f.detect_scale = o.detect_scale;
   f.detect_pixels = o.detect_pixels;
+  f.double_first_octave = o.sift_upsample;
   f.ratio = o.ratio;
   f.cross_check = o.cross_check;
   return f;

@@ -20,7 +20,7 @@ bool TrackerOptions::IsValid(std::string* error) const {
     *error = "tracker settings are out of range (points >= 30, window 5..61, levels 0..6)";
     return false;
   }
-  if (!(max_fb_px > 0) || !(corner_quality > 0 && corner_quality < 1) || !(min_corner_eigen >= 0) ||
+  if (!(max_fb_px > 0) || !(corner_quality > 0 && corner_quality < 1) ||
       !(normalize_sigma >= 0)) {
     *error = "tracker thresholds must be positive (corner quality below 1)";
     return false;
@@ -29,13 +29,11 @@ bool TrackerOptions::IsValid(std::string* error) const {
 }
 
 double TrackerOptions::ScaleFor(cv::Size frame) const {
+  // The power of two nearest (in ratio) to `track_pixels`: exact 2 x 2 averages, and the
+  // tracking image within a factor of two of the size asked for whatever the frame's size.
   const double area = std::max(1.0, double(frame.area()));
-  const double s = std::sqrt(track_pixels / area);
-  // Full size or halved (exact and fast: 2 x 2 averages) when either is near; another scale only
-  // for frames far larger.
-  if (s >= 0.75) return 1.0;
-  if (s >= 0.375) return 0.5;
-  return s;
+  const int halvings = std::max(0, static_cast<int>(std::lround(0.5 * std::log2(area / track_pixels))));
+  return std::ldexp(1.0, -halvings);
 }
 
 namespace {
@@ -111,9 +109,8 @@ std::shared_ptr<const TrackFrame> FrameTracker::Prepare(const cv::Mat& frame, co
 }
 
 std::vector<cv::Point2f> FrameTracker::Corners(const TrackFrame& frame, const std::vector<cv::Point2f>& existing,
-                                               int count, int* strong) const {
+                                               int count) const {
   std::vector<cv::Point2f> out;
-  if (strong) *strong = 0;
   if (frame.pyramid.empty()) return out;
   const cv::Mat& gray = frame.pyramid[0];
   const double s = frame.scale;
@@ -144,20 +141,17 @@ std::vector<cv::Point2f> FrameTracker::Corners(const TrackFrame& frame, const st
   for (const auto& p : existing) cv::circle(taken, ToTrack(p, s), int(std::ceil(min_distance)), 255, -1);
   if (!frame.usable.empty()) taken.setTo(255, frame.usable == 0);
   std::vector<std::vector<std::pair<float, cv::Point>>> cells(size_t(cols * rows));
-  int textured = 0;
   for (int y = border; y < gray.rows - border; ++y) {
     const float* e = eig.ptr<float>(y);
     const float* d = peaks.ptr<float>(y);
     const uchar* t = taken.ptr<uchar>(y);
     for (int x = border; x < gray.cols - border; ++x) {
       if (e[x] < floor || e[x] < d[x]) continue;
-      if (e[x] >= options_.min_corner_eigen) ++textured;
       if (t[x]) continue;
       const int cx = std::min(cols - 1, x * cols / gray.cols), cy = std::min(rows - 1, y * rows / gray.rows);
       cells[size_t(cy * cols + cx)].emplace_back(e[x], cv::Point(x, y));
     }
   }
-  if (strong) *strong = textured;
   for (auto& c : cells)
     std::sort(c.begin(), c.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
   std::vector<size_t> next(cells.size(), 0);

@@ -17,7 +17,7 @@ namespace rolamos {
 struct TrackerOptions {
   // Frames are followed at a reduced size of about this many pixels (never enlarged): the
   // pyramid costs in proportion to it, a point's flow does not.
-  double track_pixels = 0.4e6;
+  double track_pixels = 0.2e6;
   int max_points = 300;     // points a keyframe hands on
   int window = 21;          // Lucas-Kanade window, tracking pixels
   int levels = 3;           // pyramid levels above the tracking image
@@ -32,9 +32,6 @@ struct TrackerOptions {
   // Shi-Tomasi, relative to the frame's 30th strongest corner (a few bright specks, marine snow,
   // do not set the scale for the rest).
   double corner_quality = 0.01;
-  // What counts as texture at all (Shi-Tomasi's smaller eigenvalue of 3x3 Sobel sums, 8-bit
-  // grey levels): open water, a black frame or a lens cap has none above it.
-  double min_corner_eigen = 2e-4;
 
   bool IsValid(std::string* error) const;
   double ScaleFor(cv::Size frame) const;
@@ -62,9 +59,11 @@ class FrameTracker {
   // `bgr` or grey, 8-bit, full resolution; `usable` (optional, frame size, 0 = overlay).
   std::shared_ptr<const TrackFrame> Prepare(const cv::Mat& frame, const cv::Mat& usable = cv::Mat()) const;
   // Up to `count` corners of `frame` (full-resolution pixels), spread over it, away from the
-  // points it already has (`existing`); `strong`, if given, receives how many have texture.
+  // points it already has (`existing`). After contrast normalisation sensor noise has corners
+  // too: a frame without texture (open water) is told by its points not being followed into
+  // the next frame, and by its SIFT responses (features.h).
   std::vector<cv::Point2f> Corners(const TrackFrame& frame, const std::vector<cv::Point2f>& existing,
-                                   int count, int* strong = nullptr) const;
+                                   int count) const;
   // `points` of `from` followed into `to`, starting where `guess` (from -> to pixels) puts them.
   TrackFlow Follow(const TrackFrame& from, const TrackFrame& to, const std::vector<cv::Point2f>& points,
                    const cv::Matx33d& guess) const;

@@ -1,0 +1,148 @@
+#include "engine/tracker.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+#include "synth/seafloor_texture.h"
+
+namespace rolamos {
+namespace {
+
+cv::Point2f Apply(const cv::Matx33d& H, cv::Point2f p) {
+  const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1);
+  return {float(q[0] / q[2]), float(q[1] / q[2])};
+}
+
+// A frame of the procedural seafloor and the same ground seen through `H` (frame -> next frame).
+void FramePair(cv::Size size, const cv::Matx33d& H, cv::Mat* a, cv::Mat* b) {
+  const cv::Mat ground = RenderSeafloor(0, 0, size.width + 200, size.height + 200);
+  *a = ground(cv::Rect(100, 100, size.width, size.height)).clone();
+  const cv::Matx33d shift(1, 0, -100, 0, 1, -100, 0, 0, 1);  // ground -> frame a
+  cv::warpPerspective(ground, *b, cv::Mat(H * shift), size, cv::INTER_CUBIC, cv::BORDER_REFLECT);
+}
+
+double Median(std::vector<double> v) {
+  std::nth_element(v.begin(), v.begin() + long(v.size() / 2), v.end());
+  return v[v.size() / 2];
+}
+
+// Frames are followed at the power-of-two reduction nearest the size asked for: exact averages.
+TEST(Tracker, ScaleIsThePowerOfTwoNearestTheSizeAsked) {
+  TrackerOptions o;
+  o.track_pixels = 0.2e6;
+  EXPECT_EQ(o.ScaleFor({640, 480}), 1.0);
+  EXPECT_EQ(o.ScaleFor({800, 600}), 0.5);
+  EXPECT_EQ(o.ScaleFor({1292, 964}), 0.5);
+  EXPECT_EQ(o.ScaleFor({1920, 1080}), 0.25);
+  EXPECT_EQ(o.ScaleFor({200, 100}), 1.0);  // never enlarged
+  std::string error;
+  EXPECT_TRUE(o.IsValid(&error)) << error;
+  o.track_pixels = 10;
+  EXPECT_FALSE(o.IsValid(&error));
+}
+
+// Points followed through a known homography land within a small fraction of a pixel of where
+// it puts them, at full size and at half size, even from a start a few pixels off.
+TEST(Tracker, FollowsAKnownHomographyToSubpixel) {
+  const cv::Matx33d H(0.995, -0.035, 31, 0.035, 0.995, -17, 2e-6, -3e-6, 1);
+  cv::Mat a, b;
+  FramePair({800, 600}, H, &a, &b);
+  for (const double pixels : {0.5e6, 0.12e6}) {
+    TrackerOptions o;
+    o.track_pixels = pixels;
+    const FrameTracker tracker(o);
+    const auto ta = tracker.Prepare(a), tb = tracker.Prepare(b);
+    const std::vector<cv::Point2f> points = tracker.Corners(*ta, {}, 300);
+    ASSERT_GT(points.size(), 200u);
+    const cv::Matx33d off(1, 0, 3.5, 0, 1, -2.5, 0, 0, 1);  // the start, off by 4 px
+    const TrackFlow flow = tracker.Follow(*ta, *tb, points, off * H);
+    std::vector<double> errors;
+    for (size_t i = 0; i < points.size(); ++i) {
+      const cv::Point2f truth = Apply(H, points[i]);
+      if (!flow.ok[i] || truth.x < 12 || truth.y < 12 || truth.x > 788 || truth.y > 588) continue;
+      errors.push_back(cv::norm(flow.to[i] - truth));
+    }
+    // A tenth of a tracking pixel.
+    const double scale = o.ScaleFor(a.size());
+    ASSERT_GT(errors.size(), 150u) << "scale " << scale;
+    EXPECT_LT(Median(errors), 0.1 / scale) << "scale " << scale;
+    EXPECT_EQ(flow.followed, static_cast<int>(std::count(flow.ok.begin(), flow.ok.end(), 1)));
+  }
+}
+
+// A point whose ground leaves the frame (or lands on an overlay) is not taken as followed.
+TEST(Tracker, PointsOutsideTheNextFrameOrOnAnOverlayAreNotFollowed) {
+  const cv::Matx33d H(1, 0, 260, 0, 1, 0, 0, 0, 1);  // a third of the frame moves out
+  cv::Mat a, b;
+  FramePair({640, 480}, H, &a, &b);
+  const FrameTracker tracker(TrackerOptions{});
+  cv::Mat overlay(b.size(), CV_8U, cv::Scalar(255));
+  overlay(cv::Rect(300, 0, 120, 480)).setTo(0);
+  const auto ta = tracker.Prepare(a), tb = tracker.Prepare(b, overlay);
+  const std::vector<cv::Point2f> points = tracker.Corners(*ta, {}, 300);
+  const TrackFlow flow = tracker.Follow(*ta, *tb, points, H);
+  int gone = 0, followed_out = 0, on_overlay = 0;
+  for (size_t i = 0; i < points.size(); ++i) {
+    const cv::Point2f truth = Apply(H, points[i]);
+    const bool out = truth.x > 639;
+    gone += out;
+    followed_out += out && flow.ok[i];
+    on_overlay += flow.ok[i] && flow.to[i].x > 300 && flow.to[i].x < 420;
+  }
+  EXPECT_GT(gone, 50);
+  EXPECT_EQ(followed_out, 0);
+  EXPECT_EQ(on_overlay, 0);
+}
+
+// Corners spread over the frame, away from the points it has and from overlays.
+TEST(Tracker, CornersSpreadAndAvoidOverlays) {
+  const cv::Mat frame = RenderSeafloor(0, 0, 640, 480);
+  cv::Mat usable(frame.size(), CV_8U, cv::Scalar(255));
+  usable(cv::Rect(0, 0, 640, 60)).setTo(0);  // a timestamp bar
+  const FrameTracker tracker(TrackerOptions{});
+  const auto t = tracker.Prepare(frame, usable);
+  const std::vector<cv::Point2f> existing = {{320, 240}, {100, 300}};
+  const std::vector<cv::Point2f> corners = tracker.Corners(*t, existing, 200);
+  ASSERT_GT(corners.size(), 150u);
+  int quadrants[4] = {0, 0, 0, 0};
+  for (const auto& c : corners) {
+    EXPECT_GT(c.y, 60) << "on the overlay";
+    for (const auto& e : existing) EXPECT_GT(cv::norm(c - e), 5.0);
+    ++quadrants[(c.x >= 320) + 2 * (c.y >= 240)];
+  }
+  for (int q : quadrants) EXPECT_GT(q, 20);
+}
+
+// Open water: the normalised noise has corners, but nothing of them is followed into the next
+// frame (its noise is other noise), so a frame without texture registers nothing.
+TEST(Tracker, NoiseOfOpenWaterIsNotFollowed) {
+  cv::Mat a(480, 640, CV_8UC3), b(480, 640, CV_8UC3);
+  cv::randn(a, cv::Scalar(90, 70, 20), cv::Scalar(2, 2, 2));
+  cv::randn(b, cv::Scalar(90, 70, 20), cv::Scalar(2, 2, 2));
+  const FrameTracker tracker(TrackerOptions{});
+  const auto ta = tracker.Prepare(a), tb = tracker.Prepare(b);
+  const std::vector<cv::Point2f> points = tracker.Corners(*ta, {}, 300);
+  const TrackFlow flow = tracker.Follow(*ta, *tb, points, cv::Matx33d::eye());
+  EXPECT_LT(flow.followed, static_cast<int>(points.size() / 4));
+}
+
+// Without a prediction the coarse phase correlation finds a large shift the pyramid alone
+// would not.
+TEST(Tracker, CoarseShiftFindsALargeTranslation) {
+  const cv::Matx33d H(1, 0, -150, 0, 1, 95, 0, 0, 1);
+  cv::Mat a, b;
+  FramePair({640, 480}, H, &a, &b);
+  const FrameTracker tracker(TrackerOptions{});
+  const auto ta = tracker.Prepare(a), tb = tracker.Prepare(b);
+  double response = 0;
+  const cv::Matx33d found = tracker.CoarseShift(*ta, *tb, cv::Matx33d::eye(), &response);
+  EXPECT_GT(response, 0.05);
+  EXPECT_NEAR(found(0, 2), -150, 8);
+  EXPECT_NEAR(found(1, 2), 95, 8);
+}
+
+}  // namespace
+}  // namespace rolamos
