@@ -117,6 +117,9 @@ int main(int argc, char** argv) {
   FrameTracker tracker(to);
   FeatureOptions fo;
   const FeatureExtractor extractor(fo);
+  FeatureOptions fo_halved = fo;
+  fo_halved.double_first_octave = false;
+  const FeatureExtractor halved(fo_halved);
   const double detect_scale = fo.ScaleFor(size);
   PreprocessOptions po;
   Preprocessor pre(po);
@@ -141,7 +144,12 @@ int main(int argc, char** argv) {
       std::vector<cv::Point2f> points;
       row("corners (keyframes)").push_back(Time([&] { points = tracker.Corners(*previous, {}, to.max_points); }));
       TrackFlow flow;
-      // The guess is the previous frame's motion, as the Kalman prediction would give.
+      // The start: with ground truth, the true motion a few pixels off (what the engine's
+      // Kalman prediction gives); otherwise the previous pair's motion.
+      const auto a_truth = truth.find(fs::path(paths[i - 1]).filename().string());
+      const auto b_truth = truth.find(fs::path(paths[i]).filename().string());
+      if (a_truth != truth.end() && b_truth != truth.end())
+        guess = cv::Matx33d(1, 0, 2.5, 0, 1, -1.5, 0, 0, 1) * b_truth->second.inv() * a_truth->second;
       row("follow the points (LK forward and backward)").push_back(
           Time([&] { flow = tracker.Follow(*previous, *here, points, guess); }));
       std::vector<cv::Point2f> a, b;
@@ -155,17 +163,16 @@ int main(int argc, char** argv) {
         row("homography from the tracks (RANSAC)").push_back(
             Time([&] { H = cv::findHomography(a, b, cv::RANSAC, 1.0); }));
         if (!H.empty()) {
-          guess = cv::Matx33d(H);
-          const auto a_gt = truth.find(fs::path(paths[i - 1]).filename().string());
-          const auto b_gt = truth.find(fs::path(paths[i]).filename().string());
-          if (a_gt != truth.end() && b_gt != truth.end()) {
-            const cv::Matx33d true_H = b_gt->second.inv() * a_gt->second;  // previous -> this frame
+          const cv::Matx33d found(H);
+          if (a_truth == truth.end() || b_truth == truth.end()) guess = found;
+          if (a_truth != truth.end() && b_truth != truth.end()) {
+            const cv::Matx33d true_H = b_truth->second.inv() * a_truth->second;  // previous -> this frame
             double sse = 0;
             int n = 0;
             for (int gy = 0; gy < 5; ++gy)
               for (int gx = 0; gx < 5; ++gx) {
                 const cv::Vec3d p(gx * (size.width - 1) / 4.0, gy * (size.height - 1) / 4.0, 1);
-                const cv::Vec3d u = guess * p, v = true_H * p;
+                const cv::Vec3d u = found * p, v = true_H * p;
                 sse += std::pow(u[0] / u[2] - v[0] / v[2], 2) + std::pow(u[1] / u[2] - v[1] / v[2], 2);
                 ++n;
               }
@@ -173,7 +180,7 @@ int main(int argc, char** argv) {
           }
         }
       }
-      std::printf("frame %zu: %zu corners, %d followed\n", i, points.size(), flow.followed);
+      row("points followed of those handed on (count, not ms)").push_back(flow.followed);
     }
     row("bilateral filter (keyframes)").push_back(Time([&] { smoothed = pre.Spatial(colour); }));
     row("detection image (gray, resize, CLAHE; keyframes)").push_back(
@@ -181,6 +188,8 @@ int main(int argc, char** argv) {
     Features feats;
     row("SIFT at the detection scale (keyframes)").push_back(
         Time([&] { feats = extractor.ExtractScaled(detect, detect_scale); }));
+    row("  same, found on the detection image halved (--no-sift-upsample)").push_back(
+        Time([&] { feats = halved.ExtractScaled(detect, detect_scale); }));
     const cv::Matx33d at(1, 0, 40.0 * double(i), 0, 1, 0, 0, 0, 1);
     row("blend into the half-size working canvas (keyframes)").push_back(Time([&] { half.Add(colour, weights, at); }));
     row("blend at full resolution (keyframes, writer)").push_back(Time([&] { full.Add(colour, weights, at); }));

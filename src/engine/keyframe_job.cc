@@ -17,6 +17,9 @@ KeyframeProducts RunKeyframeJob(const KeyframeJob& job, const KeyframeTools& too
   out.image = image;
   out.filter_seconds = 1e-9 * cpu.Lap();
   out.features = tools.features(*job.frame);
+  // Nothing reads the unfiltered image after this (the patch blends the filtered one): a
+  // patch's keyframes hold one image each until it is written, not two.
+  job.frame->image.release();
   cpu.Restart();  // the features are timed where they are found
   // Loop closures within the patch: the older keyframes under this one (their jobs ran before).
   if (out.features && !out.features->empty()) {

@@ -53,6 +53,7 @@ struct KeyframeTools {
   PatchFitOptions fit;
 };
 
+// Releases the frame's unfiltered image when done: the engine must not read it afterwards.
 KeyframeProducts RunKeyframeJob(const KeyframeJob& job, const KeyframeTools& tools);
 
 }  // namespace rolamos

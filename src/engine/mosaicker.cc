@@ -648,7 +648,9 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
       key.ids.push_back(next_track++);
     }
   lap(kTracking);
-  // Filtering, features and loop closures on the workers; the job keeps what it needs.
+  // Filtering, features and loop closures on the workers; the job keeps what it needs and
+  // releases the unfiltered image when done: it is not read here once the job is submitted.
+  image_bytes += p->image.total() * p->image.elemSize();  // filtered, until the patch is written
   KeyframeJob job;
   job.index = key.index;
   job.frame = p;
@@ -672,7 +674,6 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   });
   key.products = task->get_future().share();
   keyframe_pool.Submit([task] { (*task)(); });
-  image_bytes += 2 * p->image.total() * p->image.elemSize();  // as followed, and as filtered
   if (!current && !keys.empty()) {
     key.frame.reset();
     keys.insert(keys.end() - 1, std::move(key));
@@ -835,7 +836,7 @@ FrameReport Mosaicker::Impl::Place(const std::shared_ptr<PreparedFrame>& p, Cand
   cv::Matx33d to_patch = FitToKeyframes(*p, best, &found, &fitted);
   for (auto& l : found) l.a = r.index;
   lap(kKeyframeFit);
-  const size_t frame_bytes = 2 * p->image.total() * p->image.elemSize();
+  const size_t frame_bytes = p->image.total() * p->image.elemSize();
   const bool memory_full = image_bytes + frame_bytes > static_cast<size_t>(options.patch_frames_mb * 1024 * 1024);
   const bool checkpoint = options.checkpoint_frames > 0 && static_cast<int>(frames.size()) >= options.checkpoint_frames;
   if (memory_full || checkpoint || !canvas->Fits(PatchCanvas::FrameBounds(to_patch, frame_size))) {
