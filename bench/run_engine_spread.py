@@ -9,10 +9,14 @@ For each kind: frames registered, keyframes, patches and how each closed (pixel 
 tracking), per-patch accuracy against ground truth (bench/eval_mosaic.py: RMS, p95, max),
 frames/s, CPU use, peak RSS. The `video-*` kinds are camera-rate feeds (95 % overlap between
 consecutive frames, a 30 frames/s ROV) at both frame sizes, read from an MPEG-4 file; the others
-are still frames at 70-80 % overlap.
+are still frames at 70-80 % overlap. The `*-jpeg` kinds are the video surveys read from their
+JPEG frames instead of the MPEG-4 file: the difference is what the video codec costs.
 
-  bench/run_engine_spread.py [--kinds a,b] [--runs 1] [--cli build/rolamos] [--out bench/out/spread]
-                             [-- extra mosaic flags]
+--peer N runs OpenCV's cv::Stitcher (SCANS) and `rolamos mosaic` on the first N frames of every
+kind, in the same run: frames each keeps, seconds, frames/s, peak RSS.
+
+  bench/run_engine_spread.py [--kinds a,b] [--runs 1] [--peer N] [--cli build/rolamos]
+                             [--out bench/out/spread] [-- extra mosaic flags]
 """
 import argparse, glob, json, os, re, statistics, subprocess, sys
 
@@ -67,6 +71,10 @@ KINDS = {
                   ["PHOTO3", "--width", "800", "--height", "600", "--frames", "300", "--fov", "60", "--lanes", "2",
                    "--overlap", "0.95", "--gsd", "0.9", "--attitude-jitter", "0.2", "--tilt", "1", "--video", "video.mp4"]),
 }
+# The video surveys' JPEG frames (same survey, no video codec).
+SAME_SURVEY = {"video-1292-jpeg": "video-1292", "video-800-jpeg": "video-800"}
+for _name, _of in SAME_SURVEY.items():
+    KINDS[_name] = (KINDS[_of][0].replace("MPEG-4", "its JPEG frames"), KINDS[_of][1])
 
 
 def synth_args(args):
@@ -90,12 +98,38 @@ def closures(store):
     return counts
 
 
+def peer_rows(a, kind, survey):
+    """cv::Stitcher SCANS and rolamos mosaic on the first a.peer frames of the survey."""
+    frames = sorted(glob.glob(os.path.join(survey, "frames", "*")))[: a.peer]
+    listing = os.path.join(a.out, kind + ".peer.txt")
+    open(listing, "w").write("\n".join(frames) + "\n")
+    store = os.path.join(a.out, kind + ".peer.rolamos")
+    subprocess.run(["rm", "-rf", store])
+    r, t, m = timed([a.cli, "mosaic", listing, "-o", store, "-q"], check=True)
+    kept = int(re.search(r"(\d+) stitched", r.stdout).group(1))
+    patches = int(re.search(r"(\d+) patches", r.stdout).group(1))
+    rows = [f"| {kind} | {len(frames)} | rolamos mosaic | {kept} | {t:.1f} | {len(frames) / t:.1f} | {m:.0f} | "
+            f"{patches} patches, full resolution |"]
+    peer = os.path.join(os.path.dirname(a.cli), "stitcher_peer_bench")
+    r, t, m = timed([peer, os.path.join(survey, "frames"), str(len(frames))], timeout=600)
+    if r is None:
+        return rows + [f"| {kind} | {len(frames)} | cv::Stitcher SCANS | – | > 600 | – | – | not finished in 600 s (stopped) |"]
+    try:
+        j = json.loads(r.stdout)
+        result = f"{j['status']}, {j['width']} x {j['height']}" + (" (drops the frames it cannot link)" if j["used"] < len(frames) else "")
+        rows.append(f"| {kind} | {len(frames)} | cv::Stitcher SCANS | {j['used']} | {t:.1f} | {len(frames) / t:.1f} | {m:.0f} | {result} |")
+    except (ValueError, KeyError):
+        rows.append(f"| {kind} | {len(frames)} | cv::Stitcher SCANS | 0 | {t:.1f} | – | {m:.0f} | failed: {r.stderr[-120:]!r} |")
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--runs", type=int, default=1)
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "out", "spread"))
     ap.add_argument("--cli", default=CLI, help="the rolamos binary to measure (another build: a before/after)")
+    ap.add_argument("--peer", type=int, default=0, help="cv::Stitcher SCANS beside rolamos on the first N frames")
     ap.add_argument("extra", nargs="*", help="flags for rolamos mosaic")
     a = ap.parse_args()
     if not PHOTOS:
@@ -105,16 +139,19 @@ def main():
              "peak RSS MB |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     results = {}
+    peer_lines = ["| kind | frames | tool | frames kept | seconds | frames/s | peak RSS MB | result |",
+                  "|---|---|---|---|---|---|---|---|"]
     for kind in a.kinds.split(","):
         desc, args = KINDS[kind]
-        survey = os.path.join(a.out, kind)
+        survey = os.path.join(a.out, SAME_SURVEY.get(kind, kind))
         stamp = os.path.join(survey, "args.json")
         if not os.path.exists(stamp) or json.load(open(stamp)) != args:
             subprocess.run(["rm", "-rf", survey])
             timed([a.cli, "synth"] + synth_args(args) + ["-o", survey, "-q"], check=True)
             json.dump(args, open(stamp, "w"))
         fps, rss, cpu = [], [], []
-        source = os.path.join(survey, "video.mp4") if "--video" in args else os.path.join(survey, "frames")
+        video = "--video" in args and kind not in SAME_SURVEY
+        source = os.path.join(survey, "video.mp4") if video else os.path.join(survey, "frames")
         for _ in range(a.runs):
             store = os.path.join(a.out, kind + ".rolamos")
             subprocess.run(["rm", "-rf", store])
@@ -138,8 +175,11 @@ def main():
                      f"{statistics.median(fps):.1f} | {statistics.median(cpu):.0f} | {statistics.median(rss):.0f} |")
         print(lines[-1], flush=True)
         print(f"    per frame: {stages}", flush=True)
+        if a.peer:
+            peer_lines += peer_rows(a, kind, survey)
+            print("\n".join(peer_lines[-2:]), flush=True)
     json.dump(results, open(os.path.join(a.out, "results.json"), "w"), indent=1)
-    write_report(lines, os.path.join(a.out, "spread.md"))
+    write_report(lines + ([""] + peer_lines if a.peer else []), os.path.join(a.out, "spread.md"))
 
 
 if __name__ == "__main__":

@@ -39,4 +39,11 @@ FeatherCode::FeatherCode(const cv::Mat& weights) {
   }
 }
 
+FeatherCode FeatherCode::Part(const cv::Rect& r) const {
+  FeatherCode part;
+  part.code = code(r);
+  part.weight = weight;
+  return part;
+}
+
 }  // namespace rolamos

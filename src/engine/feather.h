@@ -22,8 +22,13 @@ cv::Mat FeatherWeights(cv::Size frame, double sigma_fraction);
 // just outside the frame while the colours there stay the frame's own.
 struct FeatherCode {
   explicit FeatherCode(const cv::Mat& weights);
+  // The code of a rectangle of the frame (shared pixels), for blending that part of a frame.
+  FeatherCode Part(const cv::Rect& r) const;
   cv::Mat code;                 // CV_8U, the frame's size
   std::array<float, 256> weight;  // code -> weight
+
+ private:
+  FeatherCode() = default;
 };
 
 }  // namespace rolamos

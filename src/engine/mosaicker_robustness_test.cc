@@ -1,8 +1,10 @@
 // The engine on surveys unlike the ones it was first tuned on: roll and pitch jittered per frame,
 // lanes that join turned 180 degrees without turn frames, a burned-in overlay, open water in
-// mid-survey, repeated and black frames.
+// mid-survey, repeated and black frames, a vehicle that stops, a frame rate that halves, a frame
+// much darker than the others, a camera whose frame size changes mid-stream.
 #include <algorithm>
 #include <filesystem>
+#include <fstream>
 #include <map>
 
 #include <gtest/gtest.h>
@@ -169,6 +171,81 @@ TEST(MosaickerRobustness, RepeatedFramesArePlacedAndBlackFramesRejectedWithTheir
   const cv::Matx33d a = ToMatx(five->frame_to_patch), b = ToMatx(six->frame_to_patch);
   for (const cv::Point2d p : {cv::Point2d(0, 0), cv::Point2d(479, 359)})
     EXPECT_LT(cv::norm(ApplyHomography(a, p) - ApplyHomography(b, p)), 0.5);
+}
+
+// A vehicle that holds still for nine frames and goes on, a frame much darker than the one
+// before (a strobe that misfired), and a frame rate that halves (every other frame missing):
+// none costs a frame or the thread, and every frame is where the ground truth puts it.
+TEST(MosaickerRobustness, AStopADarkFrameAndAHalvedFrameRateLoseNothing) {
+  test::ScratchDir dir;
+  SurveyOptions so = JitteredSurvey(48, 1);
+  so.forward_overlap = 0.85;
+  const Survey survey = WriteSurvey(so, dir / "survey");
+  const std::string frames = dir / "survey/frames";
+  const cv::Mat dark = cv::imread(frames + "/frame_00015.jpg") * 0.3;
+  cv::imwrite(frames + "/frame_00015.jpg", dark);
+  std::vector<int> order;
+  for (int i = 0; i <= 10; ++i) order.push_back(i);
+  for (int k = 0; k < 9; ++k) order.push_back(10);  // stopped
+  for (int i = 11; i < 24; ++i) order.push_back(i);
+  for (int i = 24; i < 48; i += 2) order.push_back(i);  // half the frame rate
+  {
+    std::ofstream list(dir / "frames.txt");
+    char name[64];
+    for (int i : order) {
+      std::snprintf(name, sizeof name, "survey/frames/frame_%05d.jpg", i);
+      list << name << "\n";
+    }
+  }
+  Store store = Store::Create(dir / "s.rolamos");
+  std::vector<FrameReport> reports;
+  const MosaicSummary sum =
+      MosaicInput(dir / "frames.txt", store, Options(), [&](const FrameReport& r, int) { reports.push_back(r); });
+  ASSERT_EQ(reports.size(), order.size());
+  for (const auto& r : reports) EXPECT_EQ(r.status, "stitched") << r.source << ": " << r.reason;
+  EXPECT_EQ(sum.rejected, 0);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  bool dark_placed = false;
+  for (const auto& p : reopened.patches()) {
+    const PatchSidecar s = reopened.ReadSidecar(p.id);
+    EXPECT_NE(s.closed_by.value_or(""), "lost_tracking") << "patch " << p.id;
+    EXPECT_LT(PatchRms(s, survey), 1.0) << "patch " << p.id;
+    for (const auto& f : s.frames) dark_placed = dark_placed || f.source.find("frame_00015") != std::string::npos;
+  }
+  EXPECT_TRUE(dark_placed);
+}
+
+// The camera changes (another frame size) mid-stream: the patch closes and the frames go on in a
+// patch of their own at the new size; the first frame of the new size is not lost.
+TEST(MosaickerRobustness, AFrameSizeChangeMidStreamStartsAPatchAndLosesNoFrame) {
+  test::ScratchDir dir;
+  WriteSurvey(test::SmallSurvey(12), dir / "small");
+  SurveyOptions big = test::SmallSurvey(12);
+  big.frame_width = 640;
+  big.frame_height = 480;
+  big.focal_px = 560;
+  big.seed = 7;
+  WriteSurvey(big, dir / "big");
+  {
+    std::ofstream list(dir / "frames.txt");
+    char name[64];
+    for (const char* which : {"small", "big"})
+      for (int i = 0; i < 12; ++i) {
+        std::snprintf(name, sizeof name, "%s/frames/frame_%05d.jpg", which, i);
+        list << name << "\n";
+      }
+  }
+  Store store = Store::Create(dir / "s.rolamos");
+  const MosaicSummary sum = MosaicInput(dir / "frames.txt", store, Options());
+  EXPECT_EQ(sum.stitched, 24);
+  EXPECT_EQ(sum.rejected, 0);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  ASSERT_GE(reopened.patches().size(), 2u);
+  const PatchSidecar first = reopened.ReadSidecar(reopened.patches().front().id);
+  EXPECT_EQ(first.closed_by.value_or(""), "size_changed");
+  const PatchSidecar last = reopened.ReadSidecar(reopened.patches().back().id);
+  ASSERT_TRUE(last.frame_size.has_value());
+  EXPECT_EQ((*last.frame_size)[0], 640);
 }
 
 TEST(MosaickerRobustness, BurnedInOverlayIsFoundAndLeftOut) {

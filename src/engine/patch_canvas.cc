@@ -1,5 +1,6 @@
 #include "engine/patch_canvas.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include <opencv2/imgproc.hpp>
@@ -34,6 +35,28 @@ cv::Rect2d PatchCanvas::FrameBounds(const cv::Matx33d& H, cv::Size frame) {
   return WarpedBounds(H, frame);
 }
 
+cv::Rect PatchCanvas::SourceRect(const cv::Matx33d& frame_to_patch, const cv::Rect& rect, cv::Size frame) {
+  const cv::Matx33d back = frame_to_patch.inv();
+  double x0 = 1e18, y0 = 1e18, x1 = -1e18, y1 = -1e18;
+  for (const cv::Point2d p : {cv::Point2d(rect.x, rect.y), cv::Point2d(rect.br().x, rect.y),
+                              cv::Point2d(rect.x, rect.br().y), cv::Point2d(rect.br().x, rect.br().y)}) {
+    const cv::Vec3d q = back * cv::Vec3d(p.x, p.y, 1);
+    if (!(q[2] > 1e-9)) return cv::Rect(cv::Point(), frame);
+    x0 = std::min(x0, q[0] / q[2]);
+    y0 = std::min(y0, q[1] / q[2]);
+    x1 = std::max(x1, q[0] / q[2]);
+    y1 = std::max(y1, q[1] / q[2]);
+  }
+  constexpr double kMargin = 3;
+  const cv::Rect2d wanted(x0 - kMargin, y0 - kMargin, x1 - x0 + 2 * kMargin, y1 - y0 + 2 * kMargin);
+  const cv::Rect2d clipped = wanted & cv::Rect2d(0, 0, frame.width, frame.height);
+  if (clipped.empty()) return cv::Rect();
+  const int left = static_cast<int>(std::floor(clipped.x)), top = static_cast<int>(std::floor(clipped.y));
+  return cv::Rect(left, top, static_cast<int>(std::ceil(clipped.br().x)) - left,
+                  static_cast<int>(std::ceil(clipped.br().y)) - top) &
+         cv::Rect(cv::Point(), frame);
+}
+
 bool PatchCanvas::Fits(const cv::Rect2d& bounds) const {
   if (!std::isfinite(bounds.x) || !std::isfinite(bounds.y) || !std::isfinite(bounds.width) ||
       !std::isfinite(bounds.height) || bounds.width > 1e8 || bounds.height > 1e8)
@@ -57,11 +80,15 @@ bool AnyWeight(const cv::Mat& part) {
 
 }  // namespace
 
-void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& frame_to_patch) {
+void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& frame_to_patch,
+                      const cv::Rect& clip) {
   // 16-bit frames (colour-corrected, kDeepScale per grey level) only where nothing is reduced.
   const bool deep = frame.type() == CV_16UC3;
   CV_Assert((frame.type() == CV_8UC3 || (deep && scale_ == 1 && !reduced_)) && weights.code.size() == frame.size());
-  const cv::Rect patch_roi = Enclosing(FrameBounds(frame_to_patch, frame.size()));
+  CV_Assert(clip.empty() || scale_ == 1);
+  cv::Rect patch_roi = Enclosing(FrameBounds(frame_to_patch, frame.size()));
+  if (!clip.empty()) patch_roi &= clip;
+  if (patch_roi.empty()) return;
   data_ = data_.empty() ? patch_roi : (data_ | patch_roi);
   // Colour and weight code travel together in one 4-channel warp into the ROI only:
   // frame -> ROI pixel = T(-roi.tl) * H. Edge pixels repeat past the frame (colours are never
@@ -81,7 +108,9 @@ void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv
     H = H * S.inv();
     bgrw = small;
   }
-  const cv::Rect roi = Enclosing(FrameBounds(H, bgrw.size()));
+  cv::Rect roi = Enclosing(FrameBounds(H, bgrw.size()));
+  if (!clip.empty()) roi &= clip;  // canvas pixels are patch coordinates at scale 1
+  if (roi.empty()) return;
   cdata_ = cdata_.empty() ? roi : (cdata_ | roi);
   const cv::Matx33d T(1, 0, -roi.x, 0, 1, -roi.y, 0, 0, 1);
   cv::Mat warped;

@@ -23,6 +23,10 @@ class PatchCanvas {
 
   // Bounding box (patch coordinates) of a frame warped by frame_to_patch.
   static cv::Rect2d FrameBounds(const cv::Matx33d& frame_to_patch, cv::Size frame);
+  // The pixels of a frame placed by `frame_to_patch` that land in `rect` (patch coordinates),
+  // with a margin for interpolation: what Add needs of the frame with `rect` as its clip. The
+  // whole frame when part of `rect` lies beyond the frame's horizon; empty when none lands.
+  static cv::Rect SourceRect(const cv::Matx33d& frame_to_patch, const cv::Rect& rect, cv::Size frame);
   // Whether the patch's bounding box, grown to hold `bounds`, stays within the budget.
   bool Fits(const cv::Rect2d& bounds) const;
   bool empty() const { return blocks_.empty(); }
@@ -30,8 +34,11 @@ class PatchCanvas {
   // fractions and values past 255 until the patch is rendered.
   static constexpr float kDeepScale = 64.0f;
   // Warps and accumulates a frame (BGR 8-bit, or 16-bit in kDeepScale units on a full-resolution
-  // canvas without reduced sums) with its feather weights.
-  void Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& frame_to_patch);
+  // canvas without reduced sums) with its feather weights. With a `clip` (patch coordinates, a
+  // full-resolution canvas), only what lands inside it is warped and kept: `frame` may then be
+  // the part of a frame whose pixels land there (and `weights` that part's code).
+  void Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& frame_to_patch,
+           const cv::Rect& clip = cv::Rect());
   // The blended mosaic (BGRA 8-bit, alpha 0 where nothing was added) of a rectangle of the
   // canvas's pixels (patch coordinates at scale 1).
   cv::Mat Render(const cv::Rect& patch_rect) const;

@@ -1,5 +1,7 @@
 #include "engine/patch_canvas.h"
 
+#include <cmath>
+
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
 
@@ -55,6 +57,40 @@ TEST(PatchCanvas, QuarterResolutionViewMatchesTheReducedMosaic) {
   // Rounding of the gray conversion moves a few high-contrast pixels by more than a level.
   EXPECT_LT(cv::mean(diff, inner)[0], 0.3);
   EXPECT_LT(cv::countNonZero((diff > 2) & inner), static_cast<int>(inner.total() / 1000));
+}
+
+// The patch writer blends a band at a time from the part of each frame that lands in it: three
+// overlapping frames, turned and scaled, give the same image band by band as whole.
+TEST(PatchCanvas, BandsFromFramePartsRenderWhatWholeFramesRender) {
+  const cv::Size size(320, 240);
+  const FeatherCode code(FeatherWeights(size, 0.2));
+  std::vector<cv::Mat> frames;
+  std::vector<cv::Matx33d> placements;
+  for (int i = 0; i < 3; ++i) {
+    frames.push_back(RenderSeafloor(60 * i, 40 * i, size.width, size.height));
+    const double a = 0.3 * i, s = 1 + 0.05 * i;
+    placements.emplace_back(s * std::cos(a), -s * std::sin(a), 90.0 * i, s * std::sin(a), s * std::cos(a), 70.0 * i,
+                            1e-5 * i, 0, 1);
+  }
+  const cv::Rect area(-120, -60, 560, 520);
+  PatchCanvas whole(10'000'000, 1.0, false);
+  for (int i = 0; i < 3; ++i) whole.Add(frames[size_t(i)], code, placements[size_t(i)]);
+  const cv::Mat expected = whole.Render(area);
+  cv::Mat banded(area.size(), CV_8UC4);
+  for (int y = 0; y < area.height; y += 64) {
+    const cv::Rect band(area.x, area.y + y, area.width, std::min(64, area.height - y));
+    PatchCanvas canvas(10'000'000, 1.0, false);
+    for (int i = 0; i < 3; ++i) {
+      // Only the frame's pixels that land in the band (as the patch writer takes them).
+      const cv::Rect part = PatchCanvas::SourceRect(placements[size_t(i)], band, size);
+      if (part.empty()) continue;
+      if (i == 0) EXPECT_LE(part.height, band.height + 8) << "band " << y;  // not turned: its own rows
+      canvas.Add(frames[size_t(i)](part), code.Part(part),
+                 placements[size_t(i)] * cv::Matx33d(1, 0, part.x, 0, 1, part.y, 0, 0, 1), band);
+    }
+    canvas.Render(band).copyTo(banded.rowRange(y, y + band.height));
+  }
+  EXPECT_EQ(cv::norm(banded, expected, cv::NORM_INF), 0);
 }
 
 }  // namespace

@@ -63,10 +63,11 @@ PatchAdjustment PlaceFrames(PatchJob& job, const std::vector<FrameLink>& loop_li
 }
 
 // The keyframes blended at full resolution, exposures matched, colour corrected in float and
-// blended in 16 bits; written as the patch image covering `rect`.
+// blended in 16 bits; written as the patch image covering `rect`. One band of the image at a
+// time, from the rows of each frame that land in it: the writer holds a band's sums, not the
+// patch's, whatever the patch's size (a patch adjusted out of its online bounds, a long lane).
 void BlendAndWrite(const PatchJob& job, std::vector<cv::Mat>& images, const std::vector<cv::Matx33d>& placements,
                    const cv::Rect& rect, const std::string& path, const TiffWriteOptions& options) {
-  auto canvas = std::make_unique<PatchCanvas>(std::numeric_limits<long long>::max(), 1.0, false);
   std::vector<double> gains(images.size(), 1.0);
   const bool colour = !job.colour.empty() || job.exposure;
   if (job.exposure) {
@@ -82,28 +83,34 @@ void BlendAndWrite(const PatchJob& job, std::vector<cv::Mat>& images, const std:
     }
     gains = SolveExposureGains(small, kGainScale, placements, job.exposure_prior);
   }
-  for (size_t i = 0; i < images.size(); ++i) {
-    if (colour) {
-      // Corrected in float and blended in 16 bits: no clipping before the patch is rendered.
-      cv::Mat f;
-      images[i].convertTo(f, CV_32F, gains[i] * PatchCanvas::kDeepScale);
-      if (!job.colour.empty()) f = f.mul(job.colour);
-      cv::Mat deep;
-      f.convertTo(deep, CV_16U);
-      canvas->Add(deep, *job.weights, placements[i]);
-    } else {
-      canvas->Add(images[i], *job.weights, placements[i]);
-    }
-    images[i].release();
-  }
+  std::vector<cv::Rect2d> bounds(images.size());
+  for (size_t i = 0; i < images.size(); ++i) bounds[i] = PatchCanvas::FrameBounds(placements[i], images[i].size());
   PixelLayout layout;
   layout.width = rect.width;
   layout.height = rect.height;
   layout.channels = 4;  // alpha marks where the patch has data
   PyramidTiffWriter writer(path, layout, options);
   for (int y = 0; y < rect.height; y += writer.band_height()) {
-    const int rows = std::min(writer.band_height(), rect.height - y);
-    writer.WriteBand(canvas->Render(cv::Rect(rect.x, rect.y + y, rect.width, rows)));
+    const cv::Rect band(rect.x, rect.y + y, rect.width, std::min(writer.band_height(), rect.height - y));
+    PatchCanvas canvas(std::numeric_limits<long long>::max(), 1.0, false);
+    for (size_t i = 0; i < images.size(); ++i) {
+      if (images[i].empty() || (cv::Rect2d(band) & bounds[i]).empty()) continue;
+      if (colour && images[i].depth() == CV_8U) {
+        // Corrected in float and blended in 16 bits: no clipping before the patch is rendered.
+        // Once, at the frame's first band (a turned frame's rows reach into several bands).
+        cv::Mat f;
+        images[i].convertTo(f, CV_32F, gains[i] * PatchCanvas::kDeepScale);
+        if (!job.colour.empty()) f = f.mul(job.colour);
+        f.convertTo(images[i], CV_16U);
+      }
+      const cv::Rect src = PatchCanvas::SourceRect(placements[i], band, images[i].size());
+      if (src.empty()) continue;
+      const cv::Matx33d part_to_patch = placements[i] * cv::Matx33d(1, 0, src.x, 0, 1, src.y, 0, 0, 1);
+      canvas.Add(images[i](src), job.weights->Part(src), part_to_patch, band);
+      // A frame that ends in this band is not needed for the next.
+      if (bounds[i].br().y + 1 < band.br().y) images[i].release();
+    }
+    writer.WriteBand(canvas.Render(band));
   }
   writer.Finish();
 }
