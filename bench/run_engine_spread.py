@@ -15,7 +15,7 @@ JPEG frames instead of the MPEG-4 file: the difference is what the video codec c
 --peer N runs OpenCV's cv::Stitcher (SCANS) and `rolamos mosaic` on the first N frames of every
 kind, in the same run: frames each keeps, seconds, frames/s, peak RSS.
 
-  bench/run_engine_spread.py [--kinds a,b] [--runs 1] [--peer N] [--cli build/rolamos]
+  bench/run_engine_spread.py [--kinds a,b] [--runs 1] [--peer N] [--cli OLD,build/rolamos --names before,after]
                              [--out bench/out/spread] [-- extra mosaic flags]
 """
 import argparse, glob, json, os, re, statistics, subprocess, sys
@@ -128,16 +128,22 @@ def main():
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--runs", type=int, default=1)
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "out", "spread"))
-    ap.add_argument("--cli", default=CLI, help="the rolamos binary to measure (another build: a before/after)")
+    ap.add_argument("--cli", default=CLI, help="the rolamos binary to measure; several, comma-separated, are run in "
+                    "turn within each kind (a before/after), the last one is the build under test")
+    ap.add_argument("--names", default="", help="names for the binaries of --cli, comma-separated")
     ap.add_argument("--peer", type=int, default=0, help="cv::Stitcher SCANS beside rolamos on the first N frames")
     ap.add_argument("extra", nargs="*", help="flags for rolamos mosaic")
     a = ap.parse_args()
     if not PHOTOS:
         sys.exit("../shared/data/seattle_rov_gopro_large is absent")
     os.makedirs(a.out, exist_ok=True)
-    lines = ["| kind | frames registered | keyframes | patches (closed by) | RMS px | p95 px | max px | frames/s | CPU % | "
-             "peak RSS MB |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    clis = a.cli.split(",")
+    names = [n.strip() for n in a.names.split(",")] if a.names else [os.path.relpath(c, ROOT) for c in clis]
+    a.cli = clis[-1]  # synth and the peer's rolamos row: the last (the build under test)
+    build = " | build" if len(clis) > 1 else ""
+    lines = [f"| kind{build} | frames registered | keyframes | patches (closed by) | RMS px | p95 px | max px | frames/s | "
+             "CPU % | peak RSS MB |",
+             "|---|" + ("---|" if len(clis) > 1 else "") + "---|---|---|---|---|---|---|---|---|"]
     results = {}
     peer_lines = ["| kind | frames | tool | frames kept | seconds | frames/s | peak RSS MB | result |",
                   "|---|---|---|---|---|---|---|---|"]
@@ -149,32 +155,38 @@ def main():
             subprocess.run(["rm", "-rf", survey])
             timed([a.cli, "synth"] + synth_args(args) + ["-o", survey, "-q"], check=True)
             json.dump(args, open(stamp, "w"))
-        fps, rss, cpu = [], [], []
         video = "--video" in args and kind not in SAME_SURVEY
         source = os.path.join(survey, "video.mp4") if video else os.path.join(survey, "frames")
+        # Every binary in turn within each round: the machine's speed drifts over minutes, so a
+        # before/after is only fair interleaved.
+        runs = {cli: dict(fps=[], rss=[], cpu=[]) for cli in clis}
         for _ in range(a.runs):
-            store = os.path.join(a.out, kind + ".rolamos")
-            subprocess.run(["rm", "-rf", store])
-            r, t, m = timed([a.cli, "mosaic", source, "-o", store, "-q"] + a.extra, check=True)
-            fps.append(float(re.search(r"\(([\d.]+) frames/s\)", r.stdout).group(1)))
-            c = re.search(r"CPU ([\d.]+) %", r.stdout)
-            cpu.append(float(c.group(1)) if c else float("nan"))
-            rss.append(m)
-            stages = re.search(r"per frame[^:]*: (.*)", r.stdout).group(1)
-            k = re.search(r"per keyframe: (.*)", r.stdout)
-            stages += ("; per keyframe: " + k.group(1)) if k else ""
-        e = json.loads(subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "bench", "eval_mosaic.py"), survey, store],
-                                      capture_output=True, text=True, check=True).stdout)
-        c = closures(store)
-        results[kind] = dict(e, fps=statistics.median(fps), rss=statistics.median(rss), closed=c, stages=stages)
-        fmt = lambda v: "—" if v is None else f"{v:.2f}"
-        closed = ", ".join(f"{k} {v}" for k, v in sorted(c.items()))
-        keys = e.get("keyframes", e["stitched"])
-        lines.append(f"| {kind}: {desc} | {e['stitched']} / {e['frames']} | {keys} | {sum(c.values())} ({closed}) | "
-                     f"{fmt(e['rms_px'])} | {fmt(e['p95_px'])} | {fmt(e['max_px'])} | "
-                     f"{statistics.median(fps):.1f} | {statistics.median(cpu):.0f} | {statistics.median(rss):.0f} |")
-        print(lines[-1], flush=True)
-        print(f"    per frame: {stages}", flush=True)
+            for n, cli in enumerate(clis):
+                store = os.path.join(a.out, f"{kind}.{n}.rolamos")
+                subprocess.run(["rm", "-rf", store])
+                r, t, m = timed([cli, "mosaic", source, "-o", store, "-q"] + a.extra, check=True)
+                runs[cli]["fps"].append(float(re.search(r"\(([\d.]+) frames/s\)", r.stdout).group(1)))
+                c = re.search(r"CPU ([\d.]+) %", r.stdout)
+                runs[cli]["cpu"].append(float(c.group(1)) if c else float("nan"))
+                runs[cli]["rss"].append(m)
+                stages = re.search(r"per frame[^:]*: (.*)", r.stdout).group(1)
+                k = re.search(r"per keyframe: (.*)", r.stdout)
+                runs[cli]["stages"] = stages + (("; per keyframe: " + k.group(1)) if k else "")
+        for n, cli in enumerate(clis):
+            store = os.path.join(a.out, f"{kind}.{n}.rolamos")
+            e = json.loads(subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "bench", "eval_mosaic.py"), survey, store],
+                                          capture_output=True, text=True, check=True).stdout)
+            c = closures(store)
+            f, m, u = (statistics.median(runs[cli][x]) for x in ("fps", "rss", "cpu"))
+            results.setdefault(cli, {})[kind] = dict(e, fps=f, rss=m, closed=c, stages=runs[cli]["stages"])
+            fmt = lambda v: "—" if v is None else f"{v:.2f}"
+            closed = ", ".join(f"{k} {v}" for k, v in sorted(c.items()))
+            keys = e.get("keyframes", e["stitched"])
+            build = f" | {names[n]}" if len(clis) > 1 else ""
+            lines.append(f"| {kind}: {desc}{build} | {e['stitched']} / {e['frames']} | {keys} | {sum(c.values())} ({closed}) | "
+                         f"{fmt(e['rms_px'])} | {fmt(e['p95_px'])} | {fmt(e['max_px'])} | {f:.1f} | {u:.0f} | {m:.0f} |")
+            print(lines[-1], flush=True)
+            print(f"    per frame: {runs[cli]['stages']}", flush=True)
         if a.peer:
             peer_lines += peer_rows(a, kind, survey)
             print("\n".join(peer_lines[-2:]), flush=True)

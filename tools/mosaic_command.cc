@@ -28,6 +28,7 @@ struct MosaicSwitches {
        no_kalman = false, no_ecc = false, no_cross_check = false, no_recover = false, no_patch_fit = false, no_adjust = false,
        no_flat_field = false, no_exposure = false, no_water_colour = false;
   bool quiet = false;
+  bool fov_given = false;
   bool live = false;
   LiveOptions live_options;
 };
@@ -80,6 +81,7 @@ static int RunMosaic(MosaicSwitches s) {
   if (!o.IsValid(&error)) Fail("mosaic", error);
   StoreOptions so;
   if (!o.calibration.empty()) so.camera = {{"calibration_file", o.calibration}};
+  else if (s.fov_given) so.camera = {{"fov_deg", o.fov_deg}};
   Store store = Store::LooksLikeStore(s.output) ? Store::Open(s.output) : Store::Create(s.output, so);
   Progress progress("mosaic", s.quiet);
   auto on_frame = [&](const FrameReport& r, int total) {
@@ -164,11 +166,14 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--calibration", o.calibration,
                   "OpenCV calibration file (YAML/XML/JSON), or \"auto\" to estimate radial "
                   "distortion from the first frames");
+  cmd->add_option_function<double>("--fov", [s](double v) { s->options.fov_deg = v; s->fov_given = true; },
+                  "without --calibration: the camera's horizontal field of view in water, degrees (default 70)");
   cmd->add_flag("--no-bilateral", s->no_bilateral, "skip the bilateral filter");
   cmd->add_flag("--no-temporal", s->no_temporal, "skip the temporal filter");
   cmd->add_flag("--no-clahe", s->no_clahe, "no contrast normalisation of the detection image");
   cmd->add_option("--track-pixels", o.track_pixels,
-                  "frames are followed (Lucas-Kanade) at the power-of-two reduction nearest this many pixels")
+                  "frames are followed (Lucas-Kanade) halved until they hold at most this many pixels, at least once "
+                  "unless they hold less than 0.4 of it")
       ->capture_default_str();
   cmd->add_option("--track-points", o.track_points, "points a keyframe hands on to the frames after it")
       ->capture_default_str();
@@ -206,7 +211,8 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
                 "keep the online placements: no adjustment of each patch's frames as cameras over the seafloor plane "
                 "when it closes");
   cmd->add_option("--patch-frames-mb", o.patch_frames_mb,
-                  "memory for a patch's frames until it is adjusted (a patch closes when full)")
+                  "memory for a patch's keyframes (images and features) until it is written (a patch closes when "
+                  "full); the engine holds at most three patches' worth")
       ->capture_default_str();
   cmd->add_flag("--no-patch-fit", s->no_patch_fit,
                 "place each frame from its previous frame alone, not fitted against every patch frame it overlaps");

@@ -1,8 +1,12 @@
-// The online ROLAMOS engine: frames are pushed one at a time; each is pre-processed, registered
-// to the previous stitched frame (features, F-RANSAC with the bilateral epipolar error, H and its
-// decomposition), checked by the Kalman gate, refined by ECC against the mosaic, and blended into
-// the current patch with Gaussian feathering. A patch is closed and written to the store (in a
-// background thread) when the next frame would take it past its pixel budget or tracking is lost.
+// The online ROLAMOS engine: frames are pushed one at a time. Every frame is followed from the
+// current keyframe (pyramidal Lucas-Kanade tracks; the paper's F-RANSAC with the bilateral
+// epipolar error, the homography and its decomposition on them) and checked by the Kalman gate;
+// when following fails, SIFT features recover it against the patch. Keyframes (chosen by
+// predicted overlap) are refined by ECC against the patch, filtered (spatio-temporal, bilateral),
+// described by SIFT for the global map, and blended with Gaussian feathering; the frames between
+// them are placed only. A patch is closed and written to the store (in a background thread:
+// adjustment of its keyframes, full-resolution blending) when the next keyframe would take it
+// past its pixel budget or tracking is lost.
 #pragma once
 
 #include <atomic>
@@ -27,6 +31,9 @@ struct MosaickerOptions {
   // OpenCV calibration file; "" = frames already rectified; "auto" = estimate radial distortion
   // from the first frames (MosaicInput writes it to <store>/calibration.yml)
   std::string calibration;
+  // Without a calibration file: the camera's horizontal field of view in water, degrees (the
+  // camera each frame is placed through when a patch is adjusted).
+  double fov_deg = 70;
   bool bilateral = true;
   bool temporal = true;
   bool clahe = true;            // detection image only
@@ -38,7 +45,9 @@ struct MosaickerOptions {
   // (forward and backward), the homography and the paper's F-RANSAC / bilateral check fitted to
   // the tracks; features (SIFT) are found only on keyframes (stored for the global map) and for
   // recovery.
-  double track_pixels = 0.2e6;  // frames are followed at the power-of-two reduction nearest this size
+  // Frames are followed halved until the tracking image holds at most this many pixels (at
+  // least once unless the frame holds less than 0.4 of it: 480 x 360 at full size).
+  double track_pixels = 0.6e6;
   int track_points = 300;       // points a keyframe hands on
   // A frame becomes a keyframe (blended, adjusted, its features stored) when its overlap with
   // the last keyframe falls below this, when the next frame is predicted to fall below
@@ -69,10 +78,14 @@ struct MosaickerOptions {
   bool patch_fit = true;
   // 3c. When a patch closes, its frames are adjusted together as cameras over the seafloor plane
   // (Ceres), so that the patch does not bend along a lane, and it is blended from those
-  // placements. Its frames are kept in memory until then, at most patch_frames_mb (a patch closes
-  // when the next frame would pass it, as at the pixel budget).
+  // placements. Its keyframes (filtered images and features) are kept in memory until it is
+  // written, at most patch_frames_mb (a patch closes when the next keyframe would pass it, as at
+  // the pixel budget). The engine's peak memory is bounded by it: the open patch's keyframes and
+  // those of at most two closed patches (one written, one waiting), besides the working canvas
+  // (4 bytes a pixel of the budget), one band of the patch being written and a few frames in
+  // flight; ~140 MB of libraries on top. See the README for the figures.
   bool adjust_patches = true;
-  double patch_frames_mb = 256;
+  double patch_frames_mb = 128;
   // 4. ECC
   bool ecc = true;
   double ecc_scale = 0.25;

@@ -163,7 +163,11 @@ struct Mosaicker::Impl {
   std::optional<PatchLink> link;         // how this patch joins the one before
   std::vector<Key> keys;
   std::vector<FrameLink> links;          // between keyframes, from their tracks
-  size_t image_bytes = 0;                // keyframes' images held until the patch is written
+  size_t keyframe_bytes = 0;                // keyframes' images and features held until the patch is written
+  // What a keyframe holds until its patch is written: its filtered image and its features.
+  size_t KeyframeBytes(const PreparedFrame& p) const {
+    return p.image.total() * p.image.elemSize() + size_t(options.max_features) * 128 * sizeof(float);
+  }
   Placed last;
   long long next_track = 0;
   int lost = 0;
@@ -554,7 +558,7 @@ void Mosaicker::Impl::StartPatch(const std::shared_ptr<PreparedFrame>& p, FrameR
   frames.clear();
   keys.clear();
   links.clear();
-  image_bytes = 0;
+  keyframe_bytes = 0;
   link = join;
   gate->Reset();
   last = Placed{};
@@ -597,7 +601,7 @@ void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Clo
   keys.clear();
   links.clear();
   pending.clear();
-  image_bytes = 0;
+  keyframe_bytes = 0;
 }
 
 std::vector<OlderKeyframe> Mosaicker::Impl::LinkCandidates(const cv::Matx33d& to_patch, bool current) const {
@@ -650,7 +654,7 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   lap(kTracking);
   // Filtering, features and loop closures on the workers; the job keeps what it needs and
   // releases the unfiltered image when done: it is not read here once the job is submitted.
-  image_bytes += p->image.total() * p->image.elemSize();  // filtered, until the patch is written
+  keyframe_bytes += KeyframeBytes(*p);  // until the patch is written
   KeyframeJob job;
   job.index = key.index;
   job.frame = p;
@@ -836,8 +840,8 @@ FrameReport Mosaicker::Impl::Place(const std::shared_ptr<PreparedFrame>& p, Cand
   cv::Matx33d to_patch = FitToKeyframes(*p, best, &found, &fitted);
   for (auto& l : found) l.a = r.index;
   lap(kKeyframeFit);
-  const size_t frame_bytes = p->image.total() * p->image.elemSize();
-  const bool memory_full = image_bytes + frame_bytes > static_cast<size_t>(options.patch_frames_mb * 1024 * 1024);
+  const size_t frame_bytes = KeyframeBytes(*p);
+  const bool memory_full = keyframe_bytes + frame_bytes > static_cast<size_t>(options.patch_frames_mb * 1024 * 1024);
   const bool checkpoint = options.checkpoint_frames > 0 && static_cast<int>(frames.size()) >= options.checkpoint_frames;
   if (memory_full || checkpoint || !canvas->Fits(PatchCanvas::FrameBounds(to_patch, frame_size))) {
     // The pixel budget is reached: close the patch, start the next one with this frame, and

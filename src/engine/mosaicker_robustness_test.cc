@@ -102,42 +102,51 @@ TEST(MosaickerRobustness, TheAdjustmentStraightensWhatTheChainBends) {
   EXPECT_LT(with, 1.0);
 }
 
+// At both tracking scales: frames followed at full size (480 x 360) and halved (640 x 480), where
+// the noise of open water is averaged into something LK settles on both ways.
 TEST(MosaickerRobustness, OpenWaterClosesThePatchAndTheSeafloorOpensANewOne) {
-  test::ScratchDir dir;
-  WriteSurvey(test::SmallSurvey(40), dir / "survey");
-  // Frames 14 to 25: open water, blue-green with sensor noise.
-  for (int i = 14; i <= 25; ++i) {
-    cv::Mat water(360, 480, CV_8UC3, cv::Scalar(70, 60, 20));
-    cv::Mat noise(water.size(), CV_8UC3);
-    cv::randn(noise, 0, 3);
-    water += noise;
-    char name[64];
-    std::snprintf(name, sizeof name, "/frame_%05d.jpg", i);
-    cv::imwrite(dir / ("survey/frames" + std::string(name)), water);
-  }
-  Store store = Store::Create(dir / "s.rolamos");
-  std::vector<FrameReport> reports;
-  const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, Options(),
-                                        [&](const FrameReport& r, int) { reports.push_back(r); });
-  ASSERT_EQ(reports.size(), 40u);
-  for (int i = 14; i <= 25; ++i) EXPECT_EQ(reports[size_t(i)].status, "rejected") << i;
-  EXPECT_EQ(sum.stitched + sum.rejected, 40);
-  EXPECT_GE(sum.stitched, 26);  // every frame over the seafloor
-  Store reopened = Store::Open(dir / "s.rolamos");
-  ASSERT_GE(reopened.patches().size(), 2u);
-  const PatchSidecar first = reopened.ReadSidecar(reopened.patches().front().id);
-  EXPECT_EQ(first.closed_by.value_or(""), "lost_tracking");
-  const PatchSidecar last = reopened.ReadSidecar(reopened.patches().back().id);
-  EXPECT_GE(last.frames.front().index, 26);
-  // Every rejected frame is in a sidecar with its reason.
-  int rejected = 0;
-  for (const auto& p : reopened.patches()) {
-    for (const auto& r : reopened.ReadSidecar(p.id).rejected) {
-      EXPECT_FALSE(r.reason.empty());
-      ++rejected;
+  for (const cv::Size size : {cv::Size(480, 360), cv::Size(640, 480)}) {
+    SCOPED_TRACE(std::to_string(size.width) + " x " + std::to_string(size.height));
+    test::ScratchDir dir;
+    SurveyOptions so = test::SmallSurvey(40);
+    so.frame_width = size.width;
+    so.frame_height = size.height;
+    so.focal_px = 420.0 * size.width / 480;
+    WriteSurvey(so, dir / "survey");
+    // Frames 14 to 25: open water, blue-green with sensor noise.
+    for (int i = 14; i <= 25; ++i) {
+      cv::Mat water(size, CV_8UC3, cv::Scalar(70, 60, 20));
+      cv::Mat noise(water.size(), CV_8UC3);
+      cv::randn(noise, 0, 3);
+      water += noise;
+      char name[64];
+      std::snprintf(name, sizeof name, "/frame_%05d.jpg", i);
+      cv::imwrite(dir / ("survey/frames" + std::string(name)), water);
     }
+    Store store = Store::Create(dir / "s.rolamos");
+    std::vector<FrameReport> reports;
+    const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, Options(),
+                                          [&](const FrameReport& r, int) { reports.push_back(r); });
+    ASSERT_EQ(reports.size(), 40u);
+    for (int i = 14; i <= 25; ++i) EXPECT_EQ(reports[size_t(i)].status, "rejected") << i;
+    EXPECT_EQ(sum.stitched + sum.rejected, 40);
+    EXPECT_GE(sum.stitched, 26);  // every frame over the seafloor
+    Store reopened = Store::Open(dir / "s.rolamos");
+    ASSERT_GE(reopened.patches().size(), 2u);
+    const PatchSidecar first = reopened.ReadSidecar(reopened.patches().front().id);
+    EXPECT_EQ(first.closed_by.value_or(""), "lost_tracking");
+    const PatchSidecar last = reopened.ReadSidecar(reopened.patches().back().id);
+    EXPECT_GE(last.frames.front().index, 26);
+    // Every rejected frame is in a sidecar with its reason.
+    int rejected = 0;
+    for (const auto& p : reopened.patches()) {
+      for (const auto& r : reopened.ReadSidecar(p.id).rejected) {
+        EXPECT_FALSE(r.reason.empty());
+        ++rejected;
+      }
+    }
+    EXPECT_EQ(rejected, sum.rejected);
   }
-  EXPECT_EQ(rejected, sum.rejected);
 }
 
 TEST(MosaickerRobustness, RepeatedFramesArePlacedAndBlackFramesRejectedWithTheirReason) {

@@ -48,6 +48,10 @@ Calibration ReadCalibration(const std::string& path) {
 }
 
 bool PreprocessOptions::IsValid(std::string* error) const {
+  if (!(fov_deg > 5 && fov_deg < 170)) {
+    *error = "field of view " + std::to_string(fov_deg) + " degrees is outside 5..170";
+    return false;
+  }
   if (bilateral_diameter < 1 || bilateral_diameter > 25 || !(bilateral_sigma_color > 0) ||
       !(bilateral_sigma_space > 0)) {
     *error = "bilateral filter settings are out of range";
@@ -184,8 +188,8 @@ cv::Matx33d Preprocessor::CameraMatrix(cv::Size size) const {
     std::lock_guard<std::mutex> lock(mutex_);
     return map_x_.empty() ? calibration_->camera_matrix : rectified_K_;
   }
-  // Without calibration: a 70-degree horizontal field of view, centred.
-  const double f = 0.5 * size.width / std::tan(35.0 * CV_PI / 180);
+  // Without calibration: the horizontal field of view given (70 degrees unless told), centred.
+  const double f = 0.5 * size.width / std::tan(0.5 * options_.fov_deg * CV_PI / 180);
   return cv::Matx33d(f, 0, (size.width - 1) / 2.0, 0, f, (size.height - 1) / 2.0, 0, 0, 1);
 }
 

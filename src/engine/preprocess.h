@@ -26,6 +26,9 @@ Calibration ReadCalibration(const std::string& path);
 
 struct PreprocessOptions {
   std::string calibration;       // "" = frames are already rectified
+  // Without a calibration: the horizontal field of view (degrees, in water) the camera matrix
+  // is made from: the camera each frame is placed through when a patch is adjusted.
+  double fov_deg = 70;
   bool bilateral = true;
   int bilateral_diameter = 5;
   double bilateral_sigma_color = 12.0;

@@ -26,6 +26,7 @@ EgomotionOptions ToEgomotionOptions(const MosaickerOptions& o) {
 PreprocessOptions ToPreprocessOptions(const MosaickerOptions& o) {
   PreprocessOptions p;
   p.calibration = o.calibration;
+  p.fov_deg = o.fov_deg;
   p.bilateral = o.bilateral;
   p.temporal = o.temporal;
   p.clahe = o.clahe;

@@ -15,9 +15,11 @@
 namespace rolamos {
 
 struct TrackerOptions {
-  // Frames are followed at a reduced size of about this many pixels (never enlarged): the
-  // pyramid costs in proportion to it, a point's flow does not.
-  double track_pixels = 0.2e6;
+  // Frames are followed at a reduced size: halved until the tracking image holds at most this
+  // many pixels, and at least once unless the frame holds less than 0.4 of it (480 x 360 at full
+  // size; 640 x 480 to 1920 x 1080 at half). The pyramid costs in proportion to it, a point's
+  // flow does not.
+  double track_pixels = 0.6e6;
   int max_points = 300;     // points a keyframe hands on
   int window = 21;          // Lucas-Kanade window, tracking pixels
   int levels = 3;           // pyramid levels above the tracking image

@@ -29,14 +29,17 @@ double Median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-// Frames are followed at the power-of-two reduction nearest the size asked for: exact averages.
-TEST(Tracker, ScaleIsThePowerOfTwoNearestTheSizeAsked) {
+// Frames are followed halved, at least once unless small, and until the tracking image holds at
+// most the pixels asked for: exact averages.
+TEST(Tracker, ScaleHalvesUntilTheTrackingImageIsSmallEnough) {
   TrackerOptions o;
-  o.track_pixels = 0.2e6;
-  EXPECT_EQ(o.ScaleFor({640, 480}), 1.0);
+  o.track_pixels = 0.6e6;
+  EXPECT_EQ(o.ScaleFor({480, 360}), 1.0);
+  EXPECT_EQ(o.ScaleFor({640, 480}), 0.5);
   EXPECT_EQ(o.ScaleFor({800, 600}), 0.5);
   EXPECT_EQ(o.ScaleFor({1292, 964}), 0.5);
-  EXPECT_EQ(o.ScaleFor({1920, 1080}), 0.25);
+  EXPECT_EQ(o.ScaleFor({1920, 1080}), 0.5);
+  EXPECT_EQ(o.ScaleFor({3840, 2160}), 0.25);
   EXPECT_EQ(o.ScaleFor({200, 100}), 1.0);  // never enlarged
   std::string error;
   EXPECT_TRUE(o.IsValid(&error)) << error;
@@ -50,7 +53,7 @@ TEST(Tracker, FollowsAKnownHomographyToSubpixel) {
   const cv::Matx33d H(0.995, -0.035, 31, 0.035, 0.995, -17, 2e-6, -3e-6, 1);
   cv::Mat a, b;
   FramePair({800, 600}, H, &a, &b);
-  for (const double pixels : {0.5e6, 0.12e6}) {
+  for (const double pixels : {1e6, 0.3e6}) {
     TrackerOptions o;
     o.track_pixels = pixels;
     const FrameTracker tracker(o);
@@ -116,17 +119,21 @@ TEST(Tracker, CornersSpreadAndAvoidOverlays) {
   for (int q : quadrants) EXPECT_GT(q, 20);
 }
 
-// Open water: the normalised noise has corners, but nothing of them is followed into the next
-// frame (its noise is other noise), so a frame without texture registers nothing.
-TEST(Tracker, NoiseOfOpenWaterIsNotFollowed) {
-  cv::Mat a(480, 640, CV_8UC3), b(480, 640, CV_8UC3);
-  cv::randn(a, cv::Scalar(90, 70, 20), cv::Scalar(2, 2, 2));
-  cv::randn(b, cv::Scalar(90, 70, 20), cv::Scalar(2, 2, 2));
-  const FrameTracker tracker(TrackerOptions{});
-  const auto ta = tracker.Prepare(a), tb = tracker.Prepare(b);
-  const std::vector<cv::Point2f> points = tracker.Corners(*ta, {}, 300);
-  const TrackFlow flow = tracker.Follow(*ta, *tb, points, cv::Matx33d::eye());
-  EXPECT_LT(flow.followed, static_cast<int>(points.size() / 4));
+// Open water after the seafloor: the keyframe's points, followed into a frame of noise, are not
+// taken as followed (the engine then finds the frame featureless and rejects it). At both scales.
+TEST(Tracker, SeafloorPointsAreNotFollowedIntoOpenWater) {
+  for (const cv::Size size : {cv::Size(480, 360), cv::Size(640, 480)}) {
+    const cv::Mat seafloor = RenderSeafloor(0, 0, size.width, size.height);
+    cv::Mat water(size, CV_8UC3);
+    cv::RNG rng(7);
+    rng.fill(water, cv::RNG::NORMAL, cv::Scalar(90, 70, 20), cv::Scalar(3, 3, 3));
+    const FrameTracker tracker(TrackerOptions{});
+    const auto ta = tracker.Prepare(seafloor), tb = tracker.Prepare(water);
+    const std::vector<cv::Point2f> points = tracker.Corners(*ta, {}, 300);
+    ASSERT_GT(points.size(), 200u);
+    const TrackFlow flow = tracker.Follow(*ta, *tb, points, cv::Matx33d::eye());
+    EXPECT_LT(flow.followed, static_cast<int>(points.size() / 10)) << size.width;
+  }
 }
 
 // Without a prediction the coarse phase correlation finds a large shift the pyramid alone

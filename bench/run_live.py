@@ -1,0 +1,98 @@
+#!/usr/bin/env python3
+"""Live mapping at a camera's rate: a feeder writes a survey's frames into a folder at a fixed
+rate (each under a temporary name, then renamed, as loggers do) while `rolamos mosaic --live`
+maps them; the run ends when the feed has been idle for a few seconds. Reports, per feed: frames
+received, registered, rejected and skipped (arrived while the engine was busy), the latency from
+arrival to integration (p50, p95; STORE/live/status.json), peak RSS.
+
+The surveys are the spread's (bench/run_engine_spread.py writes them): still frames at 70 %
+overlap fed at 10 frames/s (a stills camera is slower), and camera-rate frames (95 % overlap) fed
+at 30 frames/s, at 800 x 600 and 1292 x 964.
+
+  bench/run_live.py [--spread bench/out/spread] [--feeds name,...] [--frames 150] [--runs 3]
+                    [--cli OLD,build/rolamos --names before,after]
+"""
+import argparse, json, os, shutil, statistics, subprocess, sys, threading, time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_common import write_report  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+# name: (spread kind whose frames are fed, frames per second)
+FEEDS = {
+    "stills-800-10fps": ("lawn-noturn", 10),
+    "video-800-30fps": ("video-800", 30),
+    "video-1292-30fps": ("video-1292", 30),
+}
+
+
+def feed(frames, folder, fps, done):
+    os.makedirs(folder, exist_ok=True)
+    start = time.monotonic()
+    for i, f in enumerate(frames):
+        tmp = os.path.join(folder, ".incoming")
+        shutil.copyfile(f, tmp)
+        os.rename(tmp, os.path.join(folder, os.path.basename(f)))
+        # On the camera's clock, not the copy's: a slow copy does not slow the feed.
+        wait = start + (i + 1) / fps - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+    done.set()
+
+
+def one_run(cli, frames, fps, work):
+    shutil.rmtree(work, ignore_errors=True)
+    folder, store = os.path.join(work, "incoming"), os.path.join(work, "live.rolamos")
+    os.makedirs(folder)
+    done = threading.Event()
+    proc = subprocess.Popen(["/usr/bin/time", "-f", "TIME %e %M", cli, "mosaic", folder, "-o", store, "--live",
+                             "--idle-timeout", "3", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(0.5)  # the engine starts before the camera
+    feeder = threading.Thread(target=feed, args=(frames, folder, fps, done))
+    feeder.start()
+    out, err = proc.communicate(timeout=600)
+    feeder.join()
+    if proc.returncode != 0:
+        raise SystemExit(f"{cli} mosaic --live failed:\n{out}\n{err}")
+    status = json.load(open(os.path.join(store, "live", "status.json")))
+    rss = int(err.strip().split("TIME ")[-1].split()[1]) / 1024
+    return dict(received=status["frames_received"], registered=status["frames_registered"],
+                rejected=status["frames_rejected"], skipped=status["frames_skipped"],
+                p50=status.get("latency_ms_p50", 0), p95=status.get("latency_ms_p95", 0), rss=rss)
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--spread", default=os.path.join(ROOT, "bench", "out", "spread"))
+    ap.add_argument("--feeds", default=",".join(FEEDS))
+    ap.add_argument("--frames", type=int, default=150)
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--cli", default=os.path.join(ROOT, "build", "rolamos"))
+    ap.add_argument("--names", default="")
+    ap.add_argument("--out", default=os.path.join(ROOT, "bench", "out", "live"))
+    a = ap.parse_args()
+    clis = a.cli.split(",")
+    names = a.names.split(",") if a.names else [os.path.relpath(c, ROOT) for c in clis]
+    lines = ["| feed | build | frames fed | received | registered | rejected | skipped | latency p50 / p95 ms | peak RSS MB |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for name in a.feeds.split(","):
+        kind, fps = FEEDS[name]
+        frames = sorted(os.path.join(a.spread, kind, "frames", f) for f in os.listdir(os.path.join(a.spread, kind, "frames")))
+        frames = frames[: a.frames]
+        if not frames:
+            sys.exit(f"{a.spread}/{kind}/frames is empty: run bench/run_engine_spread.py --kinds {kind} first")
+        results = {cli: [] for cli in clis}
+        for _ in range(a.runs):
+            for n, cli in enumerate(clis):  # interleaved: the machine's speed drifts
+                results[cli].append(one_run(cli, frames, fps, os.path.join(a.out, f"{name}.{n}")))
+        for n, cli in enumerate(clis):
+            med = {k: statistics.median(r[k] for r in results[cli]) for k in results[cli][0]}
+            lines.append(f"| {name} ({kind} at {fps} frames/s) | {names[n]} | {len(frames)} | {med['received']:.0f} | "
+                         f"{med['registered']:.0f} | {med['rejected']:.0f} | {med['skipped']:.0f} | "
+                         f"{med['p50']:.0f} / {med['p95']:.0f} | {med['rss']:.0f} |")
+            print(lines[-1], flush=True)
+    write_report(lines, os.path.join(a.out, "live.md"))
+
+
+if __name__ == "__main__":
+    main()
