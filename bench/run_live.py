@@ -2,7 +2,9 @@
 """Live mapping at a camera's rate: a feeder writes a survey's frames into a folder at a fixed
 rate (each under a temporary name, then renamed, as loggers do) while `rolamos mosaic --live`
 maps them; the run ends when the feed has been idle for a few seconds. Reports, per feed: frames
-received, registered, rejected and skipped (arrived while the engine was busy), the latency from
+received, registered, rejected and skipped (arrived while the engine was busy), coverage lost
+(skips after which the next frame taken did not join the one before), the most frames waiting
+or in flight at once (the backlog; bound 3), the latency from
 arrival to integration (p50, p95; STORE/live/status.json), peak RSS.
 
 The surveys are the spread's (bench/run_engine_spread.py writes them): still frames at 70 %
@@ -58,6 +60,7 @@ def one_run(cli, frames, fps, work):
     rss = int(err.strip().split("TIME ")[-1].split()[1]) / 1024
     return dict(received=status["frames_received"], registered=status["frames_registered"],
                 rejected=status["frames_rejected"], skipped=status["frames_skipped"],
+                coverage_lost=status.get("coverage_lost", 0), backlog=status.get("backlog_max", 0),
                 p50=status.get("latency_ms_p50", 0), p95=status.get("latency_ms_p95", 0), rss=rss)
 
 
@@ -73,8 +76,9 @@ def main():
     a = ap.parse_args()
     clis = a.cli.split(",")
     names = a.names.split(",") if a.names else [os.path.relpath(c, ROOT) for c in clis]
-    lines = ["| feed | build | frames fed | received | registered | rejected | skipped | latency p50 / p95 ms | peak RSS MB |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| feed | build | frames fed | received | registered | rejected | skipped | coverage lost | "
+             "backlog max | latency p50 / p95 ms | peak RSS MB |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in a.feeds.split(","):
         kind, fps = FEEDS[name]
         frames = sorted(os.path.join(a.spread, kind, "frames", f) for f in os.listdir(os.path.join(a.spread, kind, "frames")))
@@ -89,6 +93,7 @@ def main():
             med = {k: statistics.median(r[k] for r in results[cli]) for k in results[cli][0]}
             lines.append(f"| {name} ({kind} at {fps} frames/s) | {names[n]} | {len(frames)} | {med['received']:.0f} | "
                          f"{med['registered']:.0f} | {med['rejected']:.0f} | {med['skipped']:.0f} | "
+                         f"{med['coverage_lost']:.0f} | {med['backlog']:.0f} | "
                          f"{med['p50']:.0f} / {med['p95']:.0f} | {med['rss']:.0f} |")
             print(lines[-1], flush=True)
     write_report(lines, os.path.join(a.out, "live.md"))

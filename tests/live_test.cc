@@ -1,6 +1,7 @@
 // Live mapping as a vehicle runs it: a logger writes frames into a folder at 10 frames/s while
 // `rolamos mosaic --live` maps them and `rolamos serve` reports the run; SIGINT ends the run with
 // the open patch written; kill -9 leaves a store that opens; a later live run continues the store.
+#include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -83,8 +84,11 @@ TEST_F(LiveTest, AGrowingFolderIsMappedAndServedAsItArrives) {
   EXPECT_GE(st["frames_registered"].get<int>(), 30) << st.dump();
   EXPECT_FALSE(st["running"].get<bool>());
   EXPECT_GE(st["patches"].get<int>(), 3) << "checkpoints every 15 frames: " << st.dump();
+  EXPECT_LE(st["backlog_max"].get<int>(), st["backlog_bound"].get<int>()) << st.dump();
+  EXPECT_LE(st["coverage_lost"].get<int>(), st["frames_skipped"].get<int>()) << st.dump();
   for (const char* key : {"frames_received", "frames_registered", "frames_rejected", "frames_skipped", "patches",
-                          "open_patch", "last_frame_time", "latency_ms_p50", "latency_ms_p95"})
+                          "open_patch", "last_frame_time", "latency_ms_p50", "latency_ms_p95", "coverage_lost",
+                          "backlog_max", "backlog_bound"})
     EXPECT_TRUE(st.contains(key)) << key;
   // The server, started before the first patch existed, serves what the run wrote.
   httplib::Client http("127.0.0.1", port);
@@ -137,6 +141,61 @@ TEST_F(LiveTest, SigintWritesTheOpenPatchAndKillLeavesAStoreThatOpens) {
     after += p.value("n_images", 0);
   }
   EXPECT_GE(after, frames) << "the first run's patches are still there";
+}
+
+// Frames arrive far faster than the engine takes them (large frames, 100 a second, without end):
+// the signal is still honoured while they pour in, and the open patch is written.
+TEST_F(LiveTest, SigintIsHonouredWhileFramesArriveFasterThanTheEngineTakesThem) {
+  auto r = test::RunCli("synth -q -o " + (dir_ / "big") + " --frames 40 --width 1292 --height 964 --overlap 0.9");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::vector<fs::path> frames;
+  for (const auto& e : fs::directory_iterator(dir_ / "big/frames")) frames.push_back(e.path());
+  std::sort(frames.begin(), frames.end());
+  const std::string store = dir_ / "fast.rolamos";
+  const fs::path incoming = dir_ / "incoming";
+  fs::create_directories(incoming);
+  test::RunShell(std::string(ROLAMOS_CLI) + " mosaic " + incoming.string() + " -o " + store +
+                 " --live > " + (dir_ / "run.log") + " 2>&1 & echo $! > " + (dir_ / "run.pid"));
+  std::atomic<bool> stop_feed{false};
+  std::atomic<int> fed{0};
+  std::thread logger([&] {  // the survey over and over, under new names, until told to stop
+    for (int i = 0; !stop_feed && i < 100000; ++i) {
+      char name[32];
+      std::snprintf(name, sizeof name, "f%06d.jpg", i);
+      fs::copy_file(frames[size_t(i) % frames.size()], incoming / ".incoming");
+      fs::rename(incoming / ".incoming", incoming / name);
+      ++fed;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+  });
+  auto running = [&] { return test::RunShell("kill -0 $(cat " + (dir_ / "run.pid") + ") 2>/dev/null").exit_code == 0; };
+  for (int i = 0; i < 500 && !fs::exists(fs::path(store) / "live/status.json"); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));  // the engine falls behind the feed
+  const int fed_at_signal = fed;
+  test::RunShell("kill -INT $(cat " + (dir_ / "run.pid") + ")");
+  // Frames keep arriving; the run must end anyway (a hang is caught after 2 minutes, not timed).
+  for (int i = 0; i < 6000 && running(); ++i) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  const bool ended = !running();
+  if (!ended) test::RunShell("kill -9 $(cat " + (dir_ / "run.pid") + ")");
+  stop_feed = true;
+  logger.join();
+  ASSERT_TRUE(ended) << "the run did not end while frames kept arriving";
+  const std::string log = test::RunShell("cat " + (dir_ / "run.log")).output;
+  EXPECT_NE(log.find("stopped by a signal"), std::string::npos) << log;
+  const auto st = Status(store);
+  EXPECT_GT(st["frames_skipped"].get<int>(), 0) << "the feed outran the engine: " << st.dump();
+  EXPECT_LE(st["frames_received"].get<int>(), fed_at_signal + 100) << "frames taken after the signal: " << st.dump();
+  EXPECT_LE(st["backlog_max"].get<int>(), st["backlog_bound"].get<int>()) << st.dump();
+  r = test::RunCli("info --json " + store);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  int placed = 0;
+  const auto info = nlohmann::json::parse(r.output);
+  for (const auto& p : info["patches"]) placed += p.value("n_images", 0);
+  EXPECT_GT(placed, 0) << "the open patch was written";
+  // Every frame received is accounted for: mapped into a patch, rejected, or skipped and said so.
+  EXPECT_EQ(placed + st["frames_rejected"].get<int>() + st["frames_skipped"].get<int>(),
+            st["frames_received"].get<int>()) << st.dump() << "\n" << log;
 }
 
 }  // namespace

@@ -6,6 +6,7 @@
 #include <thread>
 
 #include <signal.h>
+#include <unistd.h>
 
 #include <nlohmann/json.hpp>
 
@@ -33,10 +34,17 @@ struct MosaicSwitches {
   LiveOptions live_options;
 };
 
-// SIGINT/SIGTERM end a live run cleanly (the open patch is written); a second one kills.
+// SIGINT/SIGTERM end a live run cleanly (the open patch is written); a second one says that the
+// patch is still being written (an impatient Ctrl-C must not lose it); a third abandons it.
 static std::atomic<bool> g_stop{false};
+static std::atomic<int> g_signals{0};
 static void OnStopSignal(int sig) {
-  if (g_stop.exchange(true)) {
+  g_stop = true;
+  const int n = ++g_signals;
+  if (n == 2) {
+    static const char kMessage[] = "\nrolamos: stopping: writing the open patch (once more to abandon it)\n";
+    [[maybe_unused]] const ssize_t w = write(STDERR_FILENO, kMessage, sizeof kMessage - 1);
+  } else if (n >= 3) {
     std::signal(sig, SIG_DFL);
     std::raise(sig);
   }
@@ -48,6 +56,9 @@ static std::string StatusJson(const LiveStatus& st) {
                       {"frames_registered", st.frames_registered},
                       {"frames_rejected", st.frames_rejected},
                       {"frames_skipped", st.frames_skipped},
+                      {"coverage_lost", st.coverage_lost},
+                      {"backlog_max", st.backlog_max},
+                      {"backlog_bound", st.backlog_bound},
                       {"patches", st.patches},
                       {"open_patch", st.open_patch},
                       {"last_frame_time", st.last_frame_time},
@@ -116,8 +127,8 @@ static int RunMosaic(MosaicSwitches s) {
               100.0 * sum.cpu_seconds / std::max(sum.seconds, 1e-9) / std::max(1u, std::thread::hardware_concurrency()),
               std::max(1u, std::thread::hardware_concurrency()), sum.peak_rss_mb);
   if (s.live)
-    std::printf("live: %d frames skipped to keep up%s\n", sum.frames_skipped,
-                g_stop ? "; stopped by a signal, the open patch written" : "");
+    std::printf("live: %d frames skipped to keep up, coverage lost after %d of them%s\n", sum.frames_skipped,
+                sum.coverage_lost, g_stop ? "; stopped by a signal, the open patch written" : "");
   std::string stages;
   for (const auto& [name, sec] : sum.stage_seconds) {
     char b[64];

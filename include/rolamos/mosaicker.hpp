@@ -128,6 +128,10 @@ struct FrameReport {
   std::string note;       // e.g. "duplicate of frame 5" (placed, not blended)
   int patch_id = 0;
   bool started_patch = false;
+  // Placed relative to the frames before it: in the open patch, or opening the next one linked
+  // to it (the pixel budget). False for a rejected frame and for a patch begun after the thread
+  // broke: the ground between it and the frame before may be missing from the map.
+  bool continues = false;
   int matches = 0, inliers = 0;
   double bilateral_error = 0;  // mean bilateral epipolar error of the survivors, pixels
   double ecc = 0;        // ECC correlation (0 when not run)
@@ -149,14 +153,20 @@ struct MosaicSummary {
   std::string calibration_note;  // what --calibration auto found, when used
   std::string mask_note;         // what --mask auto found, when used
   int frames_skipped = 0;        // live: frames that arrived while the engine was busy, skipped
+  int coverage_lost = 0;         // live: of those skips, the ones after which the thread broke
 };
 
 // Live input (MosaicLive): a folder that grows, or a stream (camera device, rtsp://, udp://, a
 // GStreamer pipeline). See src/input/live_source.h.
 struct LiveOptions {
   double idle_timeout_s = 0;  // 0: wait for frames until stopped
-  double poll_s = 0.1;        // how often a folder is listed
-  int max_waiting = 2;        // frames waiting beyond this many are skipped (oldest first)
+  // How often a folder is listed: frames that arrive are seen at once where the file system
+  // reports them (inotify: written and closed, or renamed into the folder); the listing finds
+  // the others (network file systems), a file counting once its size held over a listing.
+  double poll_s = 0.1;
+  // The backlog: frames received and not yet mapped (those being prepared included) are at most
+  // this many; beyond it the oldest waiting frames are skipped, never the newest.
+  int max_waiting = 3;
   const std::atomic<bool>* stop = nullptr;  // set (e.g. by SIGINT) to end the run cleanly
 
   bool IsValid(std::string* error) const;
@@ -166,6 +176,11 @@ struct LiveOptions {
 struct LiveStatus {
   bool running = false;
   long long frames_received = 0, frames_registered = 0, frames_rejected = 0, frames_skipped = 0;
+  // Frames skipped where the frame taken next did not join the one before it (rejected, or it
+  // opened a patch of its own): ground the map may have missed.
+  long long coverage_lost = 0;
+  int backlog_max = 0;    // the most frames received and not yet mapped at once
+  int backlog_bound = 0;  // the most there may be (LiveOptions::max_waiting)
   int patches = 0;             // written by this run
   int open_patch = 0;          // id of the patch being built (0: none)
   double last_frame_time = 0;  // Unix seconds of the newest frame received

@@ -563,6 +563,7 @@ void Mosaicker::Impl::StartPatch(const std::shared_ptr<PreparedFrame>& p, FrameR
   gate->Reset();
   last = Placed{};
   r.started_patch = true;
+  r.continues = join.has_value();
   r.status = "stitched";
   r.patch_id = patch_id;
   r.keyframe = true;
@@ -808,6 +809,7 @@ FrameReport Mosaicker::Impl::Place(const std::shared_ptr<PreparedFrame>& p, Cand
   r.bilateral_error = best.ego.bilateral_error_mean;
   r.status = "stitched";
   r.patch_id = patch_id;
+  r.continues = true;
   lost = 0;
   auto fill = [&](FrameRecord& rec) {
     if (best.ego.motion && best.tracked()) {

@@ -5,6 +5,7 @@
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
+#include <deque>
 #include <filesystem>
 #include <cstdio>
 #include <map>
@@ -114,17 +115,22 @@ namespace {
 // Returns the seconds spent decoding (all threads).
 double RunPipeline(FrameSource* source, Mosaicker& mosaicker,
                    const std::function<void(const FrameReport&, int)>& on_frame,
-                   const std::function<void(long)>& on_taken) {
+                   const std::function<void(long)>& on_taken, long max_ahead = 0) {
   // Frames are decoded and prepared (undistorted, the tracking pyramid) by one worker per core,
   // several at once, while this thread integrates them in order (tracking, registration, gate,
   // ECC, blending); keyframes are filtered and described on the engine's workers, and closed
   // patches written on the writer's, meanwhile.
   const int workers = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-  const long ahead = workers + 1;  // frames taken from the source ahead of integration, at most
+  // Frames taken from the source ahead of integration, at most (live: within its backlog bound).
+  const long ahead = max_ahead > 0 ? std::min<long>(workers + 1, max_ahead) : workers + 1;
   std::mutex source_mutex, mutex;
   std::condition_variable changed;
   std::map<long, std::shared_ptr<PreparedFrame>> ready;  // prepared, waiting in order
   long taken = 0, integrated = 0, total = -1;             // total known at the end
+  // Frames whose integration has ended: a live source counts the frame being integrated in its
+  // backlog, so the look-ahead is bounded by these there.
+  long finished = 0;
+  const bool bounded = max_ahead > 0;
   bool stopping = false;
   std::exception_ptr failure;
   std::atomic<long long> decode_ns{0};
@@ -133,7 +139,7 @@ double RunPipeline(FrameSource* source, Mosaicker& mosaicker,
       for (;;) {
         {
           std::unique_lock<std::mutex> lock(mutex);
-          changed.wait(lock, [&] { return stopping || total >= 0 || taken - integrated < ahead; });
+          changed.wait(lock, [&] { return stopping || total >= 0 || taken - (bounded ? finished : integrated) < ahead; });
           if (stopping || total >= 0) return;
         }
         InputFrame f;
@@ -195,6 +201,11 @@ double RunPipeline(FrameSource* source, Mosaicker& mosaicker,
       FrameReport r = mosaicker.Integrate(next);
       next.reset();
       if (on_frame) on_frame(r, source->count());
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        ++finished;
+      }
+      changed.notify_all();
     }
   } catch (...) {
     stop();
@@ -253,22 +264,29 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
     }
   }
   auto source = LiveSource::Open(input, live);
+  // Frames taken from the source and not yet mapped: with those waiting in the source, never
+  // more than the backlog bound (the pipeline prepares at most one fewer ahead).
+  std::atomic<long> in_flight{0};
+  source->SetInFlight(&in_flight);
   Mosaicker mosaicker(store, options);
   LiveStatus status;
   status.started = UnixSeconds();
+  status.backlog_bound = live.max_waiting;
   std::mutex mutex;
   std::map<long, std::chrono::steady_clock::time_point> arrivals;
-  std::vector<double> latencies;  // ms, every frame integrated
+  std::deque<double> latencies;  // ms, the last frames mapped
   long integrated = 0;
+  long long skipped_before = 0;  // skips counted when the frame before was mapped
   auto last_report = std::chrono::steady_clock::now();
   auto report = [&](bool running) {
     // Under `mutex`.
     status.running = running;
     status.frames_received = source->counters().received;
     status.frames_skipped = source->counters().skipped;
+    status.backlog_max = source->counters().backlog_max;
     status.last_frame_time = source->counters().last_arrival;
     if (!latencies.empty()) {
-      std::vector<double> l(latencies.end() - std::min<size_t>(latencies.size(), 600), latencies.end());
+      std::vector<double> l(latencies.begin(), latencies.end());
       std::sort(l.begin(), l.end());
       status.latency_ms_p50 = l[l.size() / 2];
       status.latency_ms_p95 = l[std::min(l.size() - 1, l.size() * 95 / 100)];
@@ -290,9 +308,15 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
           auto it = arrivals.find(integrated);
           if (it != arrivals.end()) {
             latencies.push_back(1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - it->second).count());
+            if (latencies.size() > 600) latencies.pop_front();
             arrivals.erase(it);
           }
           ++integrated;
+          --in_flight;
+          // Frames were skipped before this one, and it does not join the frame before it.
+          const long long skipped = source->counters().skipped;
+          if (skipped > skipped_before && !r.continues) ++status.coverage_lost;
+          skipped_before = skipped;
           if (r.status == "stitched") ++status.frames_registered;
           else ++status.frames_rejected;
           status.open_patch = r.patch_id;
@@ -305,19 +329,25 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
         if (on_frame) on_frame(r, total);
       },
       [&](long index) {
+        ++in_flight;
         std::lock_guard<std::mutex> lock(mutex);
         arrivals[index] = source->arrival();
-      });
+      },
+      std::max(1, live.max_waiting - 1));
   MosaicSummary summary = mosaicker.Finish();
   AddDecodeStage(&summary, decode);
   {
     std::lock_guard<std::mutex> lock(mutex);
     status.open_patch = 0;
+    // The engine's own count: frames rejected at first and placed later (second chance) are placed.
+    status.frames_registered = summary.stitched;
+    status.frames_rejected = summary.rejected;
     report(false);
   }
   summary.calibration_note = note;
   summary.mask_note = mask_note;
   summary.frames_skipped = static_cast<int>(source->counters().skipped);
+  summary.coverage_lost = static_cast<int>(status.coverage_lost);
   return summary;
 }
 

@@ -6,7 +6,14 @@
 #include <filesystem>
 #include <map>
 #include <mutex>
+#include <set>
 #include <thread>
+
+#if defined(__linux__)
+#include <poll.h>
+#include <sys/inotify.h>
+#include <unistd.h>
+#endif
 
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
@@ -41,21 +48,38 @@ double UnixNow() {
 
 bool Stopped(const LiveOptions& o) { return o.stop && o.stop->load(); }
 
-// A folder that grows: listed every poll; a file counts once its size has held for a poll.
+// A folder that grows. New files are seen as their writers close them or as they are renamed
+// into the folder (inotify), and by a listing every poll for file systems that do not report
+// them (network mounts), where a file counts once its size held over a listing.
 class GrowingFolderSource : public LiveSource {
  public:
-  GrowingFolderSource(std::string dir, const LiveOptions& o) : dir_(std::move(dir)), options_(o) {}
+  GrowingFolderSource(std::string dir, const LiveOptions& o) : dir_(std::move(dir)), options_(o) {
+#if defined(__linux__)
+    inotify_ = inotify_init1(IN_NONBLOCK | IN_CLOEXEC);
+    if (inotify_ >= 0 && inotify_add_watch(inotify_, dir_.c_str(), IN_CLOSE_WRITE | IN_MOVED_TO) < 0) {
+      close(inotify_);
+      inotify_ = -1;
+    }
+#endif
+  }
+  ~GrowingFolderSource() override {
+#if defined(__linux__)
+    if (inotify_ >= 0) close(inotify_);
+#endif
+  }
 
   bool Next(InputFrame* f) override {
     auto idle_since = std::chrono::steady_clock::now();
     for (;;) {
-      Poll();
+      // A stop is honoured first, however fast frames arrive.
+      if (Stopped(options_)) return false;
+      Collect();
       if (!ready_.empty()) {
-        // Keep up: only the newest frames wait; the rest are skipped.
-        while (static_cast<int>(ready_.size()) > options_.max_waiting) {
+        for (size_t skip = ToSkip(ready_.size(), options_.max_waiting); skip > 0; --skip) {
           ready_.pop_front();
           ++counters_.skipped;
         }
+        NoteBacklog(ready_.size());
         const auto [path, arrived] = ready_.front();
         ready_.pop_front();
         f->index = index_++;
@@ -65,38 +89,76 @@ class GrowingFolderSource : public LiveSource {
         arrival_ = arrived;
         return true;
       }
-      if (Stopped(options_)) return false;
       if (options_.idle_timeout_s > 0 &&
           std::chrono::duration<double>(std::chrono::steady_clock::now() - idle_since).count() > options_.idle_timeout_s)
         return false;
-      std::this_thread::sleep_for(std::chrono::duration<double>(options_.poll_s));
+      Wait();
     }
   }
 
  private:
-  void Poll() {
-    std::error_code ec;
-    std::map<std::string, uintmax_t> sizes;
-    for (const auto& e : fs::directory_iterator(dir_, ec)) {
-      const std::string p = e.path().string();
-      if (!IsImageName(p) || taken_.count(p)) continue;
-      std::error_code ec2;
-      if (!e.is_regular_file(ec2)) continue;
-      sizes[p] = e.file_size(ec2);
+  // Until something may have arrived: an inotify event, or the next listing.
+  void Wait() {
+#if defined(__linux__)
+    if (inotify_ >= 0) {
+      pollfd p{inotify_, POLLIN, 0};
+      poll(&p, 1, static_cast<int>(1000 * options_.poll_s));
+      return;
     }
-    // Complete: the size held since the last poll (and an end marker where the format has one).
+#endif
+    std::this_thread::sleep_for(std::chrono::duration<double>(options_.poll_s));
+  }
+
+  // Files the file system reports complete (closed after writing, or moved in).
+  std::vector<std::string> Reported() {
+    std::vector<std::string> out;
+#if defined(__linux__)
+    if (inotify_ < 0) return out;
+    alignas(inotify_event) char buffer[16384];
+    for (;;) {
+      const ssize_t n = read(inotify_, buffer, sizeof buffer);
+      if (n <= 0) break;
+      for (ssize_t at = 0; at < n;) {
+        const auto* e = reinterpret_cast<const inotify_event*>(buffer + at);
+        if (e->len > 0 && !(e->mask & IN_ISDIR)) out.push_back((fs::path(dir_) / e->name).string());
+        at += static_cast<ssize_t>(sizeof(inotify_event) + e->len);
+      }
+    }
+#endif
+    return out;
+  }
+
+  void Collect() {
     std::vector<std::string> complete;
-    for (const auto& [p, size] : sizes) {
-      auto it = seen_.find(p);
-      if (it != seen_.end() && it->second == size && size > 0 && !LooksTruncated(p)) complete.push_back(p);
+    for (const auto& p : Reported())
+      if (IsImageName(p) && !taken_.count(p) && !LooksTruncated(p)) complete.push_back(p);
+    const auto now = std::chrono::steady_clock::now();
+    if (now - listed_ >= std::chrono::duration<double>(options_.poll_s)) {
+      listed_ = now;
+      std::error_code ec;
+      std::map<std::string, uintmax_t> sizes;
+      for (const auto& e : fs::directory_iterator(dir_, ec)) {
+        const std::string p = e.path().string();
+        if (!IsImageName(p) || taken_.count(p)) continue;
+        std::error_code ec2;
+        if (!e.is_regular_file(ec2)) continue;
+        sizes[p] = e.file_size(ec2);
+      }
+      // Complete: the size held since the last listing (and an end marker where the format has
+      // one). With inotify this catches what it does not see (a file there before the start).
+      for (const auto& [p, size] : sizes) {
+        auto it = seen_.find(p);
+        if (it != seen_.end() && it->second == size && size > 0 && !LooksTruncated(p)) complete.push_back(p);
+      }
+      seen_ = sizes;
     }
-    seen_ = sizes;
     // In name order, and never one that sorts before a frame already taken (a late arrival of an
     // older frame would go backwards in the survey).
     std::sort(complete.begin(), complete.end());
-    const auto now = std::chrono::steady_clock::now();
+    complete.erase(std::unique(complete.begin(), complete.end()), complete.end());
     for (const auto& p : complete) {
-      taken_.insert({p, true});
+      if (taken_.count(p)) continue;
+      taken_.insert(p);
       seen_.erase(p);
       ++counters_.received;
       counters_.last_arrival = UnixNow();
@@ -111,42 +173,60 @@ class GrowingFolderSource : public LiveSource {
 
   std::string dir_;
   LiveOptions options_;
-  std::map<std::string, uintmax_t> seen_;  // not yet complete: size at the last poll
-  std::map<std::string, bool> taken_;
+  int inotify_ = -1;
+  std::chrono::steady_clock::time_point listed_{};
+  std::map<std::string, uintmax_t> seen_;  // not yet complete: size at the last listing
+  std::set<std::string> taken_;
   std::deque<std::pair<std::string, std::chrono::steady_clock::time_point>> ready_;
   std::string last_;
   int index_ = 0;
 };
 
-// A stream: a thread reads frames as fast as they come and keeps the newest; Next takes it.
+// A stream: a thread reads frames as fast as they come and keeps the newest; Next takes them.
+// The reader shares its state rather than the source's: a read that never returns (a stalled
+// stream) leaves the thread behind when the source ends, instead of holding up the end.
 class StreamSource : public LiveSource {
  public:
   StreamSource(std::string name, cv::VideoCapture cap, const LiveOptions& o)
-      : name_(std::move(name)), cap_(std::move(cap)), options_(o) {
-    reader_ = std::thread([this] { Read(); });
+      : name_(std::move(name)), options_(o), shared_(std::make_shared<Shared>()) {
+    shared_->cap = std::move(cap);
+    shared_->stop = o.stop;
+    shared_->max_waiting = o.max_waiting;
+    shared_->source = this;
+    reader_ = std::thread([shared = shared_] { Read(shared); });
   }
   ~StreamSource() override {
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      closing_ = true;
-    }
-    changed_.notify_all();
-    if (reader_.joinable()) reader_.join();
+    std::unique_lock<std::mutex> lock(shared_->mutex);
+    shared_->source = nullptr;  // the reader no longer touches this source
+    shared_->closing = true;
+    shared_->changed.notify_all();
+    // A reader blocked in a stalled read is left to finish on its own.
+    const bool finished =
+        shared_->changed.wait_for(lock, std::chrono::seconds(1), [&] { return shared_->finished; });
+    lock.unlock();
+    if (finished) reader_.join();
+    else reader_.detach();
   }
 
   bool Next(InputFrame* f) override {
-    std::unique_lock<std::mutex> lock(mutex_);
+    std::unique_lock<std::mutex> lock(shared_->mutex);
     auto idle_since = std::chrono::steady_clock::now();
     for (;;) {
-      if (!frames_.empty()) break;
-      if (ended_ || Stopped(options_)) return false;
-      changed_.wait_for(lock, std::chrono::milliseconds(100));
-      if (frames_.empty() && options_.idle_timeout_s > 0 &&
+      if (Stopped(options_)) return false;
+      if (!shared_->frames.empty()) break;
+      if (shared_->ended) return false;
+      shared_->changed.wait_for(lock, std::chrono::milliseconds(100));
+      if (shared_->frames.empty() && options_.idle_timeout_s > 0 &&
           std::chrono::duration<double>(std::chrono::steady_clock::now() - idle_since).count() > options_.idle_timeout_s)
         return false;
     }
-    auto [image, arrived] = std::move(frames_.front());
-    frames_.pop_front();
+    for (size_t skip = ToSkip(shared_->frames.size(), options_.max_waiting); skip > 0; --skip) {
+      shared_->frames.pop_front();
+      ++counters_.skipped;
+    }
+    NoteBacklog(shared_->frames.size());
+    auto [image, arrived] = std::move(shared_->frames.front());
+    shared_->frames.pop_front();
     f->index = index_++;
     f->source = name_ + "#" + std::to_string(f->index);
     f->error.clear();
@@ -156,47 +236,75 @@ class StreamSource : public LiveSource {
   }
 
  private:
-  void Read() {
+  struct Shared {
+    cv::VideoCapture cap;
+    std::mutex mutex;
+    std::condition_variable changed;
+    std::deque<std::pair<cv::Mat, std::chrono::steady_clock::time_point>> frames;
+    const std::atomic<bool>* stop = nullptr;
+    int max_waiting = 1;
+    StreamSource* source = nullptr;  // set while the source lives (its counters)
+    bool ended = false, closing = false, finished = false;
+  };
+
+  static void Read(std::shared_ptr<Shared> s) {
     for (;;) {
       cv::Mat m;
       bool ok = false;
       try {
-        ok = cap_.read(m) && !m.empty();
+        ok = s->cap.read(m) && !m.empty();
       } catch (const cv::Exception&) {
         ok = false;
       }
-      std::lock_guard<std::mutex> lock(mutex_);
-      if (closing_ || Stopped(options_)) break;
+      std::lock_guard<std::mutex> lock(s->mutex);
+      if (s->closing || (s->stop && s->stop->load())) break;
       if (!ok) {
-        ended_ = true;  // the end of the stream (a stall only blocks read)
+        s->ended = true;  // the end of the stream (a stall only blocks read)
         break;
       }
       if (m.channels() == 1) cv::cvtColor(m, m, cv::COLOR_GRAY2BGR);
       if (m.channels() == 4) cv::cvtColor(m, m, cv::COLOR_BGRA2BGR);
-      ++counters_.received;
-      counters_.last_arrival = UnixNow();
-      frames_.emplace_back(m, std::chrono::steady_clock::now());
-      while (static_cast<int>(frames_.size()) > options_.max_waiting) {
-        frames_.pop_front();
-        ++counters_.skipped;
+      if (s->source) {
+        ++s->source->counters_.received;
+        s->source->counters_.last_arrival = UnixNow();
       }
-      changed_.notify_all();
+      s->frames.emplace_back(m, std::chrono::steady_clock::now());
+      // Frames keep arriving while nothing takes them: the backlog stays within the bound.
+      while (s->frames.size() > 1 && s->source && s->source->ToSkip(s->frames.size(), s->max_waiting) > 0) {
+        s->frames.pop_front();
+        ++s->source->counters_.skipped;
+      }
+      if (s->source) s->source->NoteBacklog(s->frames.size());
+      s->changed.notify_all();
     }
-    changed_.notify_all();
+    std::lock_guard<std::mutex> lock(s->mutex);
+    s->finished = true;
+    s->changed.notify_all();
   }
 
   std::string name_;
-  cv::VideoCapture cap_;
   LiveOptions options_;
+  std::shared_ptr<Shared> shared_;
   std::thread reader_;
-  std::mutex mutex_;
-  std::condition_variable changed_;
-  std::deque<std::pair<cv::Mat, std::chrono::steady_clock::time_point>> frames_;
-  bool ended_ = false, closing_ = false;
   int index_ = 0;
 };
 
 }  // namespace
+
+size_t LiveSource::ToSkip(size_t waiting, int max_waiting) const {
+  // The newest waiting frame is always kept: it is the one the map needs.
+  const long in_flight = in_flight_ ? std::max(0L, in_flight_->load()) : 0;
+  const long room = std::max(1L, static_cast<long>(max_waiting) - in_flight);
+  return waiting > static_cast<size_t>(room) ? waiting - static_cast<size_t>(room) : 0;
+}
+
+void LiveSource::NoteBacklog(size_t waiting) {
+  const long in_flight = in_flight_ ? std::max(0L, in_flight_->load()) : 0;
+  const int backlog = static_cast<int>(in_flight + static_cast<long>(waiting));
+  int seen = counters_.backlog_max.load();
+  while (backlog > seen && !counters_.backlog_max.compare_exchange_weak(seen, backlog)) {
+  }
+}
 
 bool LiveSource::IsStream(const std::string& input) {
   return input.rfind("/dev/video", 0) == 0 || input.find("://") != std::string::npos ||

@@ -1,13 +1,17 @@
 // Frames as they arrive, for mapping live on the vehicle (`rolamos mosaic SOURCE --live`):
 //  - a folder a logger writes into: new image files taken in name order as they appear, each
-//    only once it is complete (its size unchanged over one poll and, for JPEG and PNG, its
-//    end-of-image marker written);
+//    only once it is complete: closed by its writer or renamed into the folder (inotify, seen at
+//    once), or, where the file system does not report it, its size unchanged over a listing;
+//    and, for JPEG and PNG, its end-of-image marker written;
 //  - a stream through OpenCV's GStreamer or FFmpeg back ends: a camera device (/dev/videoN), a
 //    network URL (rtsp://, udp://, http://) or a GStreamer pipeline string (ending in appsink).
 // When frames arrive faster than the engine takes them, the older waiting ones are skipped, so the
-// map stays current instead of building a backlog; when they arrive slower, none is skipped.
-// The source ends at the end of the stream, when `stop` is set (SIGINT, SIGTERM), or after
-// `idle_timeout_s` without a new frame; a stream that stalls and comes back within it goes on.
+// map stays current instead of building a backlog: frames received and not yet mapped (waiting
+// here, and taken but not yet mapped: SetInFlight) are at most `max_waiting`; when they arrive
+// slower, none is skipped. The source ends at the end of the stream, when `stop` is set (SIGINT,
+// SIGTERM: checked before any frame is taken, whatever the rate), or after `idle_timeout_s`
+// without a new frame; a stream that stalls and comes back within it goes on, and one stalled
+// for good does not hold up the end (its reader is left behind).
 #pragma once
 
 #include <atomic>
@@ -26,6 +30,9 @@ struct LiveCounters {
   std::atomic<long long> received{0};  // frames that arrived
   std::atomic<long long> skipped{0};   // arrived but skipped to keep up
   std::atomic<double> last_arrival{0}; // Unix seconds of the newest frame
+  // The most frames kept for mapping at once (waiting, and taken but not yet mapped), counted
+  // after the skipping: never more than LiveOptions::max_waiting.
+  std::atomic<int> backlog_max{0};
 };
 
 class LiveSource : public FrameSource {
@@ -38,10 +45,19 @@ class LiveSource : public FrameSource {
   // Arrival time (steady clock) of the frame Next returned last: for latency.
   std::chrono::steady_clock::time_point arrival() const { return arrival_; }
   int count() const override { return -1; }
+  // Frames taken from the source and not yet mapped (kept by the caller): they count towards
+  // the backlog the source keeps within `max_waiting`.
+  void SetInFlight(const std::atomic<long>* in_flight) { in_flight_ = in_flight; }
 
  protected:
+  // How many of `waiting` frames to skip (the oldest) to keep the backlog within the bound.
+  size_t ToSkip(size_t waiting, int max_waiting) const;
+  // Records the backlog once `waiting` frames wait here beside those in flight.
+  void NoteBacklog(size_t waiting);
+
   LiveCounters counters_;
   std::chrono::steady_clock::time_point arrival_{};
+  const std::atomic<long>* in_flight_ = nullptr;
 };
 
 }  // namespace rolamos
