@@ -3,6 +3,7 @@
 // the open patch written; kill -9 leaves a store that opens; a later live run continues the store.
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <thread>
@@ -141,6 +142,72 @@ TEST_F(LiveTest, SigintWritesTheOpenPatchAndKillLeavesAStoreThatOpens) {
     after += p.value("n_images", 0);
   }
   EXPECT_GE(after, frames) << "the first run's patches are still there";
+}
+
+// One process maps and serves: while frames arrive, /api/live places the open patch's preview and
+// the patches it continues in one frame, with a track that runs on without a jump from patch to
+// patch; the preview is served as an image like any other, and is gone once the run ends.
+TEST_F(LiveTest, MosaicLiveServesTheOpenPatchAndThePatchesBeneathIt) {
+  const std::string store = dir_ / "served.rolamos";
+  const int port = 19000 + static_cast<int>(::getpid() % 1000);
+  test::RunShell(std::string(ROLAMOS_CLI) + " mosaic -q " + (dir_ / "incoming") + " -o " + store +
+                 " --live --serve " + std::to_string(port) + " --patch-megapixels 0.4 --preview-interval 0.5 > " +
+                 (dir_ / "run.log") + " 2>&1 & echo $! > " + (dir_ / "run.pid"));
+  std::thread logger([&] { Feed(dir_ / "survey/frames", dir_ / "incoming", 10, 0, 34); });
+  httplib::Client http("127.0.0.1", port);
+  nlohmann::json view;
+  std::string images, tile_type;
+  int tile_status = 0;
+  // Sampled while the logger writes; the last sample with closed patches beneath is kept.
+  for (int i = 0; i < 60; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    auto res = http.Get("/api/live");
+    if (!res || res->status != 200) continue;
+    auto v = nlohmann::json::parse(res->body);
+    if (v["preview"].is_null() || v["patches"].empty()) continue;
+    view = v;
+    if (auto im = http.Get("/api/images")) images = im->body;
+    if (auto t = http.Get("/dzi/live_files/0/0_0.webp")) {
+      tile_status = t->status;
+      tile_type = t->get_header_value("Content-Type");
+    }
+  }
+  logger.join();
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));
+  test::RunShell("kill -INT $(cat " + (dir_ / "run.pid") + ")");
+  while (test::RunShell("kill -0 $(cat " + (dir_ / "run.pid") + ") 2>/dev/null").exit_code == 0)
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  const std::string log = test::RunShell("cat " + (dir_ / "run.log")).output;
+  ASSERT_FALSE(view.is_null()) << "no live view with closed patches beneath it was served\n" << log;
+  EXPECT_GT(view["patch"].get<int>(), view["patches"][0]["patch"].get<int>()) << view.dump();
+  EXPECT_EQ(view["footprint"].size(), 4u);
+  EXPECT_EQ(tile_status, 200);
+  EXPECT_EQ(tile_type, "image/webp");
+  bool listed = false;
+  for (const auto& i : nlohmann::json::parse(images)) listed |= i["name"] == "live" && i.value("changing", false);
+  EXPECT_TRUE(listed) << images;
+  // The track through closed patches and the open one: steps alike, no jump where patches meet.
+  const auto& track = view["track"];
+  ASSERT_GE(track.size(), 10u) << view.dump();
+  std::vector<double> steps;
+  for (size_t k = 1; k < track.size(); ++k)
+    steps.push_back(std::hypot(track[k][0].get<double>() - track[k - 1][0].get<double>(),
+                               track[k][1].get<double>() - track[k - 1][1].get<double>()));
+  std::vector<double> sorted = steps;
+  std::sort(sorted.begin(), sorted.end());
+  const double median = sorted[sorted.size() / 2];
+  for (size_t k = 0; k < steps.size(); ++k)
+    EXPECT_LT(steps[k], 3 * median + 5) << "a jump in the track at point " << k + 1 << ": " << view["track"].dump();
+  // The current frame lies at the track's end.
+  double cx = 0, cy = 0;
+  for (const auto& p : view["footprint"]) cx += p[0].get<double>() / 4, cy += p[1].get<double>() / 4;
+  EXPECT_LT(std::hypot(cx - track.back()[0].get<double>(), cy - track.back()[1].get<double>()), 2.0);
+  // The run over: nothing is open, and the store serves as any other.
+  std::ifstream in(fs::path(store) / "live/preview.json");
+  EXPECT_EQ(nlohmann::json::parse(in)["patch"], 0);
+  EXPECT_NE(log.find("viewer on http://"), std::string::npos) << log;
+  auto r = test::RunCli("info --json " + store);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
 }
 
 // Frames arrive far faster than the engine takes them (large frames, 100 a second, without end):

@@ -14,6 +14,7 @@
 #include "rolamos/error.hpp"
 #include "rolamos/mosaicker.hpp"
 #include "rolamos/store.hpp"
+#include "rolamos/tile_server.hpp"
 #include "util/files.h"
 #include "util/progress.h"
 
@@ -32,6 +33,8 @@ struct MosaicSwitches {
   bool fov_given = false;
   bool live = false;
   LiveOptions live_options;
+  int serve_port = -1;  // --serve: the viewer in this process (0: any free port)
+  std::string serve_bind = "127.0.0.1";
 };
 
 // SIGINT/SIGTERM end a live run cleanly (the open patch is written); a second one says that the
@@ -103,6 +106,9 @@ static int RunMosaic(MosaicSwitches s) {
     progress.Update(total > 0 ? double(r.index + 1) / total : 0.0, detail);
   };
   MosaicSummary sum;
+  if (s.serve_port >= 0 && !s.live)
+    Fail("mosaic", "serving while mapping needs a live run (rolamos serve STORE serves a store once written)");
+  std::unique_ptr<TileServer> server;
   if (s.live) {
     struct sigaction sa {};
     sa.sa_handler = OnStopSignal;
@@ -111,6 +117,21 @@ static int RunMosaic(MosaicSwitches s) {
     s.live_options.stop = &g_stop;
     const std::string status_dir = store.dir() + "/live";
     std::filesystem::create_directories(status_dir);
+    if (s.serve_port >= 0) {
+      // The page may open before the first frame: it sees a run that has started.
+      LiveStatus starting;
+      starting.running = true;
+      WriteFileAtomic(status_dir + "/status.json", StatusJson(starting));
+      TileServerOptions so;
+      so.port = s.serve_port;
+      so.bind = s.serve_bind;
+      so.live = true;
+      server = std::make_unique<TileServer>(store, so);
+      const int port = server->Start();
+      std::printf("viewer on http://%s:%d/ while the run lasts (rolamos serve %s serves it after)\n",
+                  s.serve_bind.c_str(), port, store.dir().c_str());
+      std::fflush(stdout);
+    }
     sum = MosaicLive(s.input, store, o, s.live_options,
                      [&](const LiveStatus& st) { WriteFileAtomic(status_dir + "/status.json", StatusJson(st)); },
                      on_frame);
@@ -118,6 +139,9 @@ static int RunMosaic(MosaicSwitches s) {
     sum = MosaicInput(s.input, store, o, on_frame);
   }
   progress.Done();
+  if (server) server->Stop();
+  if (!sum.preview_problem.empty())
+    std::printf("the open patch's preview could not be written (the patches are): %s\n", sum.preview_problem.c_str());
   if (!sum.calibration_note.empty()) std::printf("%s\n", sum.calibration_note.c_str());
   if (!sum.mask_note.empty()) std::printf("%s\n", sum.mask_note.c_str());
   std::printf("%s: %d frames, %d stitched (%d keyframes, %d on a second chance), %d rejected, %d patches, %.1f s "
@@ -163,6 +187,13 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
                 "map frames as they arrive until the stream ends, SIGINT/SIGTERM (the open patch is written) or "
                 "--idle-timeout; frames that arrive while the engine is busy are skipped; STORE/live/status.json "
                 "says where it stands");
+  cmd->add_option("--serve", s->serve_port,
+                  "live: serve the viewer on this port while mapping (0: any free port): the patches as they are "
+                  "written, and the open patch as it grows");
+  cmd->add_option("--bind", s->serve_bind, "with --serve: address to listen on")->capture_default_str();
+  cmd->add_option("--preview-interval", s->live_options.preview_s,
+                  "live: seconds between previews of the open patch (STORE/live/preview.json; 0 = none)")
+      ->capture_default_str();
   cmd->add_option("--idle-timeout", s->live_options.idle_timeout_s, "live: end after this many seconds without a frame (0 = never)")
       ->capture_default_str();
   cmd->add_option("--checkpoint-frames", o.checkpoint_frames,

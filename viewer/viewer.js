@@ -62,7 +62,8 @@
   }
 
   // A store being written (mosaic --live): every 2 s the run's status, new patches added to the
-  // list as they are written and, when following, the newest opened.
+  // list as they are written and, when following, the live view: the open patch as it grows (the
+  // engine's preview), the patches it continues beneath it, the track and the current frame.
   state.live = null;
   async function pollLive() {
     let st;
@@ -72,23 +73,126 @@
     $('follow-label').hidden = false;
     const age = st.last_frame_time ? Math.max(0, Date.now() / 1000 - st.last_frame_time) : null;
     $('live').textContent = (st.running ? 'live: ' : 'live run ended: ') + st.frames_received + ' frames, ' +
-      st.frames_registered + ' registered, ' + st.frames_rejected + ' rejected, ' + st.frames_skipped + ' skipped, ' +
+      st.frames_registered + ' registered, ' + st.frames_rejected + ' rejected, ' + st.frames_skipped + ' skipped' +
+      (st.coverage_lost ? ' (coverage lost ' + st.coverage_lost + ')' : '') + ', ' +
       st.patches + ' patches' + (st.open_patch ? ', patch ' + st.open_patch + ' open' : '') +
       (st.latency_ms_p50 ? ', latency ' + Math.round(st.latency_ms_p50) + ' ms' : '') +
       (age !== null && st.running ? ', last frame ' + age.toFixed(1) + ' s ago' : '') + ' \u00a0 ';
-    if (st.images_served === state.images.length) return;
-    const listed = new Set(state.images.map((i) => i.name));
-    const fresh = (await json('api/images')).filter((i) => !listed.has(i.name)).map((i) => ({
-      name: i.name, width: i.width, height: i.height, dzi: i.dzi.replace(/^\//, ''), overlays: 'api/overlays/' + i.name }));
-    if (!fresh.length) return;
-    state.images.push(...fresh);
-    addOptions(fresh);
+    if (st.images_served !== state.images.length) {
+      const listed = new Set(state.images.map((i) => i.name));
+      const all = await json('api/images');
+      const fresh = all.filter((i) => !listed.has(i.name)).map((i) => ({
+        name: i.name, width: i.width, height: i.height, dzi: i.dzi.replace(/^\//, ''), overlays: 'api/overlays/' + i.name }));
+      // The preview comes and goes with the open patch.
+      const gone = state.images.filter((i) => i.name === 'live' && !all.some((a) => a.name === 'live'));
+      if (gone.length) { state.images = state.images.filter((i) => i.name !== 'live'); $('image').querySelector('option[value="live"]')?.remove(); }
+      state.images.push(...fresh);
+      addOptions(fresh);
+    }
+    const following = $('follow').checked;
+    if (st.running && (following || (state.current && state.current.name === 'live'))) {
+      await showLive();
+      return;
+    }
     const patches = state.images.filter((i) => i.name.startsWith('patch'))
       .sort((a, b) => parseInt(a.name.slice(6), 10) - parseInt(b.name.slice(6), 10));
-    if ((!state.current || $('follow').checked) && patches.length) open(patches[patches.length - 1]);
+    if ((!state.current || (following && state.current.name === 'live')) && patches.length) open(patches[patches.length - 1]);
+  }
+
+  // The live view: one world in the open patch's coordinates. Each image is placed by the
+  // similarity nearest its homography at its centre (OpenSeadragon places images by position,
+  // width and rotation); tiles keep their alpha (webp) so layers show through where empty.
+  function similarity(H, w, h) {
+    const map = (x, y) => { const z = H[6] * x + H[7] * y + H[8];
+      return [(H[0] * x + H[1] * y + H[2]) / z, (H[3] * x + H[4] * y + H[5]) / z]; };
+    const c = map(w / 2, h / 2), e = map(w / 2 + 1, h / 2);
+    const s = Math.hypot(e[0] - c[0], e[1] - c[1]);
+    return { x: c[0] - s * w / 2, y: c[1] - s * h / 2, width: s * w,
+             degrees: Math.atan2(e[1] - c[1], e[0] - c[0]) * 180 / Math.PI };
+  }
+  function addLayer(image, index) {
+    return new Promise((resolve) => {
+      const p = similarity(image.to_world, image.width, image.height);
+      viewer.addTiledImage({ tileSource: image.dzi.replace(/^\//, '') + '?format=webp', x: p.x, y: p.y, width: p.width,
+        index, success: (e) => { e.item.setRotation(p.degrees, true); resolve(e.item); },
+        error: () => resolve(null) });
+    });
+  }
+  async function showLive() {
+    let view;
+    try { view = await json('api/live'); } catch (e) { return; }
+    if (!view.preview) return;  // nothing open yet (or the run is closing its patch)
+    const lv = state.liveView;
+    const key = view.patch + ':' + view.patches.map((p) => p.patch).join(',');
+    if (!lv || state.current !== lv.image || lv.key !== key) {
+      // A new open patch: a new world.
+      const image = { name: 'live', width: view.preview.width, height: view.preview.height, live: true };
+      state.current = image;
+      state.overlays = null;
+      $('image').value = 'live';
+      viewer.world.removeAll();
+      if (state.svg) { viewer.removeOverlay(state.svg); state.svg = null; }
+      state.liveView = { image, key, preview: null, version: null, layers: [] };
+      const pv = state.liveView;
+      pv.preview = await addLayer(view.preview, 0);
+      pv.version = view.preview.version;
+      for (const p of view.patches.slice().reverse()) pv.layers.push(await addLayer({ ...p, dzi: 'dzi/' + p.name + '.dzi' }));
+      viewer.viewport.fitBounds(worldBounds(view), true);
+    } else if (lv.version !== view.preview.version) {
+      // The same patch grown: the new preview goes in beneath, the old one leaves once it shows.
+      const old = lv.preview;
+      lv.version = view.preview.version;
+      const item = await addLayer(view.preview, 0);
+      if (item) {
+        lv.preview = item;
+        const drop = () => { if (old) viewer.world.removeItem(old); };
+        if (item.getFullyLoaded()) drop(); else item.addOnceHandler('fully-loaded-change', drop);
+      }
+    }
+    state.liveView.view = view;
+    drawLive(view);
+    if ($('follow').checked && view.footprint.length) {
+      const c = view.footprint.reduce((a, p) => [a[0] + p[0] / 4, a[1] + p[1] / 4], [0, 0]);
+      viewer.viewport.panTo(new OpenSeadragon.Point(c[0], c[1]));
+    }
+    state.ready = true;
+    status('live: patch ' + view.patch + ' open, ' + view.patches.length + ' closed beneath it');
+  }
+  function worldBounds(view) {
+    const pts = view.track.concat(view.footprint);
+    const m = view.preview.to_world, w = view.preview.width, h = view.preview.height;
+    for (const [x, y] of [[0, 0], [w, 0], [w, h], [0, h]]) {
+      const z = m[6] * x + m[7] * y + m[8];
+      pts.push([(m[0] * x + m[1] * y + m[2]) / z, (m[3] * x + m[4] * y + m[5]) / z]);
+    }
+    const xs = pts.map((p) => p[0]), ys = pts.map((p) => p[1]);
+    const x0 = Math.min(...xs), y0 = Math.min(...ys);
+    return new OpenSeadragon.Rect(x0, y0, Math.max(1, Math.max(...xs) - x0), Math.max(1, Math.max(...ys) - y0));
+  }
+  // The track and the current frame's footprint, in world coordinates.
+  function drawLive(view) {
+    if (state.svg) viewer.removeOverlay(state.svg);
+    const b = worldBounds(view);
+    const svg = document.createElementNS(SVG, 'svg');
+    svg.setAttribute('class', 'overlay');
+    svg.setAttribute('viewBox', [b.x, b.y, b.width, b.height].join(' '));
+    svg.setAttribute('preserveAspectRatio', 'none');
+    const pts = (list) => list.map((p) => p[0] + ',' + p[1]).join(' ');
+    const add = (tag, cls, attrs) => {
+      const e = document.createElementNS(SVG, tag);
+      e.setAttribute('class', cls);
+      for (const k in attrs) e.setAttribute(k, attrs[k]);
+      svg.appendChild(e);
+    };
+    if ($('show-trajectory').checked && view.track.length > 1) add('polyline', 'trajectory', { points: pts(view.track) });
+    if (view.footprint.length === 4) add('polygon', 'current-frame', { points: pts(view.footprint) });
+    viewer.addOverlay({ element: svg, location: b });
+    state.svg = svg;
   }
 
   function open(image) {
+    if (image.name === 'live') { $('follow').checked = true; state.liveView = null; showLive(); return; }
+    state.liveView = null;
     state.current = image;
     state.overlays = null;
     $('image').value = image.name;
@@ -99,6 +203,7 @@
 
   viewer.addHandler('open', async () => {
     const image = state.current;
+    if (!image || image.live) return;
     status(image.name + ': ' + image.width + ' x ' + image.height + ' px');
     try {
       state.overlays = await json(image.overlays);
@@ -109,6 +214,7 @@
     drawOverlays();
     state.ready = true;
   });
+  function redraw() { if (state.current && state.current.live && state.liveView && state.liveView.view) drawLive(state.liveView.view); else drawOverlays(); }
   viewer.addHandler('tile-loaded', () => { state.tilesLoaded = (state.tilesLoaded || 0) + 1; });
   viewer.addHandler('open-failed', (e) => status('cannot open ' + state.current.name + ': ' + e.message));
 
@@ -147,8 +253,11 @@
     state.svg = svg;
   }
   for (const id of ['show-outlines', 'show-footprints', 'show-trajectory', 'show-detections'])
-    $(id).addEventListener('change', drawOverlays);
-  $('image').addEventListener('change', (e) => open(state.images.find((i) => i.name === e.target.value)));
+    $(id).addEventListener('change', redraw);
+  $('image').addEventListener('change', (e) => {
+    if (e.target.value !== 'live') $('follow').checked = false;  // the user looks elsewhere
+    open(state.images.find((i) => i.name === e.target.value));
+  });
   $('home').addEventListener('click', () => viewer.viewport.goHome());
   $('full').addEventListener('click', () => viewer.viewport.zoomTo(viewer.viewport.imageToViewportZoom(1.0)));
 

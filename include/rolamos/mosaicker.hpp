@@ -154,6 +154,7 @@ struct MosaicSummary {
   std::string mask_note;         // what --mask auto found, when used
   int frames_skipped = 0;        // live: frames that arrived while the engine was busy, skipped
   int coverage_lost = 0;         // live: of those skips, the ones after which the thread broke
+  std::string preview_problem;   // live: why the open patch's preview could not be written
 };
 
 // Live input (MosaicLive): a folder that grows, or a stream (camera device, rtsp://, udp://, a
@@ -167,6 +168,8 @@ struct LiveOptions {
   // The backlog: frames received and not yet mapped (those being prepared included) are at most
   // this many; beyond it the oldest waiting frames are skipped, never the newest.
   int max_waiting = 3;
+  // How often the open patch is written for the page (STORE/live/preview.json); 0: never.
+  double preview_s = 2.0;
   const std::atomic<bool>* stop = nullptr;  // set (e.g. by SIGINT) to end the run cleanly
 
   bool IsValid(std::string* error) const;
@@ -188,6 +191,22 @@ struct LiveStatus {
   double started = 0, updated = 0;
 };
 
+// The patch being built, as the engine sees it (Mosaicker::Preview): what a live page shows
+// before the patch closes. Coordinates are the open patch's own (its first frame's pixel grid,
+// the coordinates its frames have until it closes).
+struct LivePreview {
+  int patch_id = 0;   // 0: no patch is open
+  cv::Mat image;      // the working canvas blended, BGRA 8-bit (alpha 0 where nothing is)
+  cv::Matx33d patch_to_image = cv::Matx33d::eye();  // patch coordinates -> image pixels
+  std::vector<cv::Point2d> track;                    // frame centres, patch coordinates
+  std::vector<cv::Point2d> footprint;                // the last frame placed: its 4 corners
+  int frames = 0;                                    // placed in the patch so far
+  // When the patch continues the one before (the pixel budget closed it): its id, and this
+  // patch's coordinates -> that patch's first frame's grid (before its adjustment).
+  int previous_patch = 0;
+  cv::Matx33d to_previous_first = cv::Matx33d::eye();
+};
+
 class Mosaicker {
  public:
   // Throws Error when the options are invalid or the calibration cannot be read.
@@ -207,6 +226,10 @@ class Mosaicker {
   FrameReport Integrate(const std::shared_ptr<PreparedFrame>& frame);
   // Closes and writes the last patch, waits for the writer. Returns the totals.
   MosaicSummary Finish();
+  // The open patch at `scale` of full resolution (at most the working canvas's half), reduced
+  // further so the image holds at most `max_megapixels`. From the thread that calls Integrate,
+  // between frames.
+  LivePreview Preview(double scale = 0.5, double max_megapixels = 2.0) const;
   // Called (from the writer thread) after each patch is committed to the store.
   void OnPatch(std::function<void(const PatchSidecar&)> callback);
 

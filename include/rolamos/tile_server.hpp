@@ -1,8 +1,8 @@
 // `rolamos serve`: tiles of a store's mosaic and patches over HTTP, cut on demand from the
 // pyramidal BigTIFFs through the bounded tile cache. Speaks XYZ (/tiles/NAME/Z/X/Y.jpg, Z = 0 is
 // the whole image in one tile, for Leaflet/QGIS) and Deep Zoom (/dzi/NAME.dzi, for OpenSeadragon),
-// with ETag/Cache-Control. Image names come from the store's manifest ("mosaic", "patch-N"); no
-// part of a URL is ever used as a file path.
+// with ETag/Cache-Control. Image names come from the store's manifest ("mosaic", "patch-N", and
+// "live" for the open patch of a live run); no part of a URL is ever used as a file path.
 #pragma once
 
 #include <memory>
@@ -19,6 +19,9 @@ struct TileServerOptions {
   double cache_mb = 256;
   int jpeg_quality = 85;
   double max_export_megapixels = 256;  // largest export the page may ask for
+  // The store is being written (mosaic --live --serve): it may have nothing to serve yet; patches
+  // and the open patch's preview ("live", /api/live) are served as they appear.
+  bool live = false;
 
   bool IsValid(std::string* error) const;
 };

@@ -161,6 +161,7 @@ struct Mosaicker::Impl {
   std::vector<FrameRecord> frames;       // frame_to_patch in first-frame coordinates until closed
   std::vector<RejectedFrame> rejected;
   std::optional<PatchLink> link;         // how this patch joins the one before
+  cv::Matx33d link_to_first = cv::Matx33d::eye();  // with a link: this patch -> the previous one's first frame
   std::vector<Key> keys;
   std::vector<FrameLink> links;          // between keyframes, from their tracks
   size_t keyframe_bytes = 0;                // keyframes' images and features held until the patch is written
@@ -854,6 +855,7 @@ FrameReport Mosaicker::Impl::Place(const std::shared_ptr<PreparedFrame>& p, Cand
     closing.links = found;
     PatchLink join;
     join.previous_patch = patch_id;
+    link_to_first = to_patch;  // the closing frame is the next patch's first
     ClosePatch(memory_full ? "frame_memory" : checkpoint ? "checkpoint" : "pixel_budget", closing);
     StartPatch(p, r, join);
     return r;
@@ -1029,6 +1031,31 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
     return done(m.Lost(p, r, reason));
   }
   return done(m.Place(p, std::move(best), r, lap));
+}
+
+LivePreview Mosaicker::Preview(double scale, double max_megapixels) const {
+  const Impl& m = *impl_;
+  LivePreview out;
+  if (!m.canvas || m.canvas->empty() || m.frames.empty()) return out;
+  const cv::Rect& data = m.canvas->data();
+  const double area = std::max(1.0, double(data.width) * data.height);
+  scale = std::min({scale, m.canvas->scale(), std::sqrt(max_megapixels * 1e6 / area)});
+  cv::Point2d origin;
+  if (!m.canvas->RenderColour(scale, &out.image, &origin)) return out;
+  // Image pixel q = (p - origin + 0.5) s - 0.5, with s the image's own scale (its size over the data's).
+  const double s = scale;
+  out.patch_to_image = cv::Matx33d(s, 0, (0.5 - origin.x) * s - 0.5, 0, s, (0.5 - origin.y) * s - 0.5, 0, 0, 1);
+  out.patch_id = m.patch_id;
+  out.frames = static_cast<int>(m.frames.size());
+  const double w = m.frame_size.width, h = m.frame_size.height;
+  for (const FrameRecord& f : m.frames) out.track.push_back(ApplyHomography(ToMatx(f.frame_to_patch), {w / 2, h / 2}));
+  for (const cv::Point2d c : {cv::Point2d(0, 0), cv::Point2d(w, 0), cv::Point2d(w, h), cv::Point2d(0, h)})
+    out.footprint.push_back(ApplyHomography(m.last.to_patch, c));
+  if (m.link) {
+    out.previous_patch = m.link->previous_patch;
+    out.to_previous_first = m.link_to_first;
+  }
+  return out;
 }
 
 MosaicSummary Mosaicker::Finish() {

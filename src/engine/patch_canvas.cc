@@ -248,8 +248,8 @@ cv::Mat PatchCanvas::Render(const cv::Rect& patch_rect) const {
   return out;
 }
 
-bool PatchCanvas::RenderGray(const cv::Rect& wanted, double scale, cv::Mat* gray, cv::Mat* mask,
-                             cv::Point2d* origin) const {
+bool PatchCanvas::Reduced(const cv::Rect& wanted, double scale, cv::Mat* sum, cv::Mat* weight, double* rest,
+                          cv::Point2d* origin) const {
   const double step = scale_ / scale;  // canvas pixels per output pixel
   int factor = 1;
   while (factor * 2 <= step && factor * 2 <= kBlock / 4) factor *= 2;
@@ -261,22 +261,54 @@ bool PatchCanvas::RenderGray(const cv::Rect& wanted, double scale, cv::Mat* gray
   const int x1 = -FloorDiv(-(rect.x + rect.width), factor) * factor;
   const int y1 = -FloorDiv(-(rect.y + rect.height), factor) * factor;
   rect = cv::Rect(x0, y0, x1 - x0, y1 - y0);
+  Dense(rect, sum, weight, factor);
+  *rest = factor / step;  // what remains after the power-of-two reduction
+  // Output q = (u - rect.tl + 0.5) scale / scale_ - 0.5 with canvas pixel u = (p + 0.5) scale_ - 0.5.
+  *origin = cv::Point2d(rect.x, rect.y) * (1.0 / scale_);
+  return true;
+}
+
+bool PatchCanvas::RenderGray(const cv::Rect& wanted, double scale, cv::Mat* gray, cv::Mat* mask,
+                             cv::Point2d* origin) const {
   cv::Mat sum, weight;
-  Dense(rect, &sum, &weight, factor);
+  double rest = 1;
+  if (!Reduced(wanted, scale, &sum, &weight, &rest, origin)) return false;
   std::vector<cv::Mat> ch;
   cv::split(sum, ch);
   cv::Mat g = (0.114 * ch[0] + 0.587 * ch[1] + 0.299 * ch[2]);
   cv::divide(g, cv::max(weight, 1e-12), g);
   cv::Mat valid = weight > kAlphaCut * 4;
-  const double rest = factor / step;  // what remains after the power-of-two reduction
   if (std::abs(rest - 1.0) > 1e-6) {
     cv::resize(g, g, cv::Size(), rest, rest, cv::INTER_AREA);
     cv::resize(valid, valid, g.size(), 0, 0, cv::INTER_NEAREST);
   }
   g.convertTo(*gray, CV_8U);
   *mask = valid;
-  // Output q = (u - rect.tl + 0.5) scale / scale_ - 0.5 with canvas pixel u = (p + 0.5) scale_ - 0.5.
-  *origin = cv::Point2d(rect.x, rect.y) * (1.0 / scale_);
+  return true;
+}
+
+bool PatchCanvas::RenderColour(double scale, cv::Mat* bgra, cv::Point2d* origin) const {
+  cv::Mat sum, weight;
+  double rest = 1;
+  // Everything the canvas holds (Reduced clips to it).
+  const cv::Rect wanted(data_.x - 2, data_.y - 2, data_.width + 4, data_.height + 4);
+  if (cdata_.empty() || !Reduced(wanted, std::min(scale, scale_), &sum, &weight, &rest, origin)) return false;
+  if (std::abs(rest - 1.0) > 1e-6) {
+    cv::resize(sum, sum, cv::Size(), rest, rest, cv::INTER_AREA);
+    cv::resize(weight, weight, sum.size(), 0, 0, cv::INTER_AREA);
+  }
+  *bgra = cv::Mat::zeros(sum.size(), CV_8UC4);
+  for (int y = 0; y < sum.rows; ++y) {
+    const cv::Vec3f* s = sum.ptr<cv::Vec3f>(y);
+    const float* w = weight.ptr<float>(y);
+    cv::Vec4b* o = bgra->ptr<cv::Vec4b>(y);
+    for (int x = 0; x < sum.cols; ++x) {
+      if (w[x] <= kAlphaCut * 4) continue;
+      const float k = 1.0f / w[x];
+      o[x] = cv::Vec4b(cv::saturate_cast<uchar>(s[x][0] * k), cv::saturate_cast<uchar>(s[x][1] * k),
+                       cv::saturate_cast<uchar>(s[x][2] * k), 255);
+    }
+  }
   return true;
 }
 

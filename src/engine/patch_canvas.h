@@ -51,6 +51,10 @@ class PatchCanvas {
   // clipped to the data. Returns false when nothing is there; else `origin` is the patch
   // coordinates that image pixel (0, 0) stands for at `scale` (q = (p - origin + 0.5) scale - 0.5).
   bool RenderGray(const cv::Rect& rect, double scale, cv::Mat* gray, cv::Mat* mask, cv::Point2d* origin) const;
+  // The whole blended canvas in colour (BGRA 8-bit, alpha 0 where nothing was added) at `scale`
+  // of full resolution (at most the canvas's): the open patch as a live preview. `origin` as for
+  // RenderGray. False when the canvas is empty.
+  bool RenderColour(double scale, cv::Mat* bgra, cv::Point2d* origin) const;
   double scale() const { return scale_; }
   const cv::Rect& data() const { return data_; }
   long long pixel_budget() const { return budget_; }
@@ -72,6 +76,10 @@ class PatchCanvas {
   // (1, 2, 4, ... up to the block size) with area averaging; `rect` must be aligned to it.
   void Dense(const cv::Rect& rect, cv::Mat* sum, cv::Mat* weight, int factor = 1) const;
 
+  // The sums over `wanted` (patch coordinates, clipped to the data) reduced by the largest power
+  // of two towards `scale`; `rest` is the resize still needed to reach it, `origin` as RenderGray's.
+  bool Reduced(const cv::Rect& wanted, double scale, cv::Mat* sum, cv::Mat* weight, double* rest,
+               cv::Point2d* origin) const;
   // Patch coordinates -> canvas pixels: u = (p + 0.5) scale - 0.5.
   cv::Matx33d ToCanvas() const;
 

@@ -33,6 +33,43 @@ TEST(PatchCanvas, RendersASingleFrameExactly) {
   }
 }
 
+// The live preview: the whole working canvas in colour at a reduced scale, placed by its origin
+// as RenderGray's image is. A frame at a shift renders where the shift puts it, with its colours,
+// and transparent beyond it.
+TEST(PatchCanvas, ColourPreviewShowsTheFramesWhereTheyLie) {
+  const cv::Mat frame = RenderSeafloor(40, 60, 400, 300);
+  PatchCanvas canvas(10'000'000, 0.5);
+  const cv::Matx33d shift(1, 0, 120, 0, 1, -80, 0, 0, 1);
+  canvas.Add(frame, FeatherCode(FeatherWeights(frame.size(), 0.2)), shift);
+  cv::Mat bgra;
+  cv::Point2d origin;
+  ASSERT_TRUE(canvas.RenderColour(0.25, &bgra, &origin));
+  ASSERT_EQ(bgra.type(), CV_8UC4);
+  // About the frame's size at a quarter (the canvas rounds to its blocks' reduction).
+  EXPECT_NEAR(bgra.cols, 100, 4);
+  EXPECT_NEAR(bgra.rows, 75, 4);
+  cv::Mat reduced;
+  cv::resize(frame, reduced, cv::Size(), 0.25, 0.25, cv::INTER_AREA);
+  double diff = 0;
+  int n = 0;
+  for (int y = 8; y < reduced.rows - 8; ++y)
+    for (int x = 8; x < reduced.cols - 8; ++x) {
+      // Frame pixel (x, y) of the reduced frame -> patch -> preview pixel.
+      const cv::Point2d p((x + 0.5) * 4 - 0.5 + 120, (y + 0.5) * 4 - 0.5 - 80);
+      const int qx = static_cast<int>(std::lround((p.x - origin.x + 0.5) * 0.25 - 0.5));
+      const int qy = static_cast<int>(std::lround((p.y - origin.y + 0.5) * 0.25 - 0.5));
+      ASSERT_TRUE(qx >= 0 && qy >= 0 && qx < bgra.cols && qy < bgra.rows) << qx << "," << qy;
+      const cv::Vec4b v = bgra.at<cv::Vec4b>(qy, qx);
+      ASSERT_EQ(v[3], 255);
+      const cv::Vec3b f = reduced.at<cv::Vec3b>(y, x);
+      for (int k = 0; k < 3; ++k) diff += std::abs(double(v[k]) - f[k]);
+      n += 3;
+    }
+  EXPECT_LT(diff / n, 6.0) << "mean absolute difference from the frame reduced alike";
+  PatchCanvas empty(10'000'000, 0.5);
+  EXPECT_FALSE(empty.RenderColour(0.25, &bgra, &origin));
+}
+
 // ECC's quarter-resolution view of the mosaic comes from sums reduced as frames are added; it
 // must be what reducing the full-resolution mosaic gives.
 TEST(PatchCanvas, QuarterResolutionViewMatchesTheReducedMosaic) {

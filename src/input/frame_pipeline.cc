@@ -9,10 +9,12 @@
 #include <filesystem>
 #include <cstdio>
 #include <map>
+#include <optional>
 #include <mutex>
 #include <thread>
 
 #include "input/frame_source.h"
+#include "input/live_preview.h"
 #include "input/live_source.h"
 #include "engine/prepared_frame.h"
 #include "engine/self_calibration.h"
@@ -269,6 +271,11 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
   std::atomic<long> in_flight{0};
   source->SetInFlight(&in_flight);
   Mosaicker mosaicker(store, options);
+  // The open patch for the page, every preview_s (rendered here, between frames; written on the
+  // preview writer's thread).
+  std::optional<LivePreviewWriter> preview;
+  if (live.preview_s > 0) preview.emplace(dir);
+  auto last_preview = std::chrono::steady_clock::now();
   LiveStatus status;
   status.started = UnixSeconds();
   status.backlog_bound = live.max_waiting;
@@ -326,6 +333,10 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
             report(true);
           }
         }
+        if (preview && std::chrono::duration<double>(std::chrono::steady_clock::now() - last_preview).count() >= live.preview_s) {
+          last_preview = std::chrono::steady_clock::now();
+          preview->Offer(mosaicker.Preview());
+        }
         if (on_frame) on_frame(r, total);
       },
       [&](long index) {
@@ -335,6 +346,10 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
       },
       std::max(1, live.max_waiting - 1));
   MosaicSummary summary = mosaicker.Finish();
+  if (preview) {
+    summary.preview_problem = preview->problem();
+    preview.reset();  // says no patch is open any more
+  }
   AddDecodeStage(&summary, decode);
   {
     std::lock_guard<std::mutex> lock(mutex);

@@ -37,6 +37,10 @@ bool LiveOptions::IsValid(std::string* error) const {
     *error = "frames allowed to wait must be at least 1";
     return false;
   }
+  if (!(preview_s >= 0)) {
+    *error = "preview interval " + std::to_string(preview_s) + " s cannot be negative";
+    return false;
+  }
   return true;
 }
 

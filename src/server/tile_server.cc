@@ -21,6 +21,7 @@
 #include "rolamos/error.hpp"
 #include "rolamos/region_export.hpp"
 #include "rolamos/tiled_image.hpp"
+#include "server/live_view.h"
 #include "server/overlays.h"
 #include "server/tile_pyramid.h"
 #include "server/viewer_assets.h"
@@ -52,6 +53,7 @@ struct Served {
   std::string name, path;
   std::unique_ptr<TilePyramid> tiles;
   std::string version;  // changes when the file does: part of every ETag
+  bool changing = false;  // the live preview: replaced every few seconds, never cached long
 };
 
 bool ParseIndex(const std::string& s, long long* out) {
@@ -69,10 +71,11 @@ struct TileServer::Impl {
   Store store;
   TileServerOptions options;
   std::shared_ptr<TileCache> cache;
-  std::map<std::string, Served> images;
-  // A store being written (mosaic --live): patches appear; Refresh adds them. Served entries are
-  // never removed, so a pointer found under the lock stays valid after it.
+  std::map<std::string, std::shared_ptr<const Served>> images;
+  // A store being written (mosaic --live): patches appear; Refresh adds them, and replaces the
+  // open patch's preview ("live") as the engine rewrites it. Requests hold what they found.
   mutable std::shared_mutex images_mutex;
+  nlohmann::json preview = {{"patch", 0}};  // live/preview.json as last read
   std::mutex refresh_mutex;
   std::chrono::steady_clock::time_point refreshed{};
   httplib::Server http;
@@ -85,7 +88,7 @@ struct TileServer::Impl {
     const std::string etag = "\"" + s.version + "-" + std::to_string(level) + "-" +
                              std::to_string(tx) + "-" + std::to_string(ty) + ext + "\"";
     res.set_header("ETag", etag);
-    res.set_header("Cache-Control", "public, max-age=3600");
+    res.set_header("Cache-Control", s.changing ? "no-cache" : "public, max-age=3600");
     if (req.get_header_value("If-None-Match") == etag) {
       res.status = 304;
       return;
@@ -108,16 +111,55 @@ struct TileServer::Impl {
                     ext == "png" ? "image/png" : ext == "webp" ? "image/webp" : "image/jpeg");
   }
 
-  void Add(const std::string& name, const std::string& path) {
-    Served s;
-    s.name = name;
-    s.path = path;
-    s.tiles = std::make_unique<TilePyramid>(std::make_shared<TiledImage>(TiledImage::Open(path, cache)));
+  void Add(const std::string& name, const std::string& path, bool changing = false) {
+    auto s = std::make_shared<Served>();
+    s->name = name;
+    s->path = path;
+    s->changing = changing;
+    s->tiles = std::make_unique<TilePyramid>(std::make_shared<TiledImage>(TiledImage::Open(path, cache)));
     std::error_code ec;
     const auto t = std::filesystem::last_write_time(path, ec).time_since_epoch().count();
-    s.version = std::to_string(t) + "-" + std::to_string(std::filesystem::file_size(path, ec));
+    s->version = std::to_string(t) + "-" + std::to_string(std::filesystem::file_size(path, ec));
     std::unique_lock<std::shared_mutex> lock(images_mutex);
-    images.emplace(name, std::move(s));
+    images[name] = std::move(s);
+  }
+
+  // The open patch's preview, when the engine has written a newer one (under refresh_mutex).
+  void RefreshPreview() {
+    const std::string file = store.dir() + "/live/preview.json";
+    std::error_code ec;
+    if (!std::filesystem::exists(file, ec)) return;
+    nlohmann::json p;
+    try {
+      p = nlohmann::json::parse(ReadSmallFile(file, 16 << 20));
+    } catch (const std::exception&) {
+      return;  // being replaced: the next refresh reads it
+    }
+    const std::string image = p.value("image", "");
+    std::string served;
+    {
+      std::shared_lock<std::shared_mutex> read(images_mutex);
+      auto it = images.find("live");
+      if (it != images.end()) served = it->second->path;
+    }
+    if (image.empty() || p.value("patch", 0) == 0) {
+      std::unique_lock<std::shared_mutex> lock(images_mutex);
+      images.erase("live");
+      preview = p;
+      return;
+    }
+    const std::string path = store.dir() + "/" + image;
+    if (path != served) {
+      if (image.find("..") != std::string::npos || image.rfind("live/preview-", 0) != 0) return;  // not the engine's
+      try {
+        Add("live", path, /*changing=*/true);
+      } catch (const Error&) {
+        return;  // removed meanwhile: a newer one is named by the next preview.json
+      }
+      if (!served.empty()) cache->Invalidate(served);
+    }
+    std::unique_lock<std::shared_mutex> lock(images_mutex);
+    preview = p;
   }
 
   // New patches (and a mosaic) written since the server started; at most twice a second.
@@ -137,9 +179,10 @@ struct TileServer::Impl {
     } catch (const Error&) {
       // A manifest being replaced, or a patch not yet readable: the next refresh sees it.
     }
+    RefreshPreview();
   }
 
-  const Served* Find(const std::string& name, httplib::Response& res) const {
+  std::shared_ptr<const Served> Find(const std::string& name, httplib::Response& res) const {
     std::shared_lock<std::shared_mutex> lock(images_mutex);
     auto it = images.find(name);
     if (it == images.end()) {
@@ -147,7 +190,7 @@ struct TileServer::Impl {
       res.set_content("no such image (see /api/images)\n", "text/plain");
       return nullptr;
     }
-    return &it->second;
+    return it->second;
   }
 
   void Routes() {
@@ -176,20 +219,21 @@ struct TileServer::Impl {
       std::shared_lock<std::shared_mutex> lock(images_mutex);
       for (const auto& [name, s] : images) {
         nlohmann::json levels = nlohmann::json::array();
-        const TiledImage& image = s.tiles->image();
+        const TiledImage& image = s->tiles->image();
         for (const auto& l : image.info().levels) levels.push_back({l.width, l.height});
         list.push_back({{"name", name}, {"width", image.width()}, {"height", image.height()},
                         {"levels", levels}, {"tile_size", kTile},
                         {"xyz", "/tiles/" + name + "/{z}/{x}/{y}.jpg"},
-                        {"xyz_max_zoom", s.tiles->xyz_max_zoom()},
-                        {"dzi", "/dzi/" + name + ".dzi"}});
+                        {"xyz_max_zoom", s->tiles->xyz_max_zoom()},
+                        {"dzi", "/dzi/" + name + ".dzi"}, {"version", s->version}});
+        if (s->changing) list.back()["changing"] = true;
       }
       res.set_content(list.dump(1), "application/json");
     });
     // XYZ: z = 0 is the whole image within one tile.
     http.Get(R"(/tiles/([^/]+)/([^/]+)/([^/]+)/([^/.]+)\.([a-z]+))",
              [this](const httplib::Request& req, httplib::Response& res) {
-               const Served* s = Find(req.matches[1], res);
+               const auto s = Find(req.matches[1], res);
                if (!s) return;
                long long z, x, y;
                const std::string ext = req.matches[5];
@@ -208,13 +252,21 @@ struct TileServer::Impl {
                Reply(req, res, *s, static_cast<int>(level), x, y, ext);
              });
     http.Get(R"(/dzi/([^/]+)\.dzi)", [this](const httplib::Request& req, httplib::Response& res) {
-      const Served* s = Find(req.matches[1], res);
+      const auto s = Find(req.matches[1], res);
       if (!s) return;
-      res.set_content(s->tiles->DziDescriptor("jpg"), "application/xml");
+      // ?format=webp|png keeps the alpha (no data stays transparent: layers over one another).
+      const std::string format = req.has_param("format") ? req.get_param_value("format") : "jpg";
+      if (format != "jpg" && format != "png" && format != "webp") {
+        res.status = 400;
+        res.set_content("format must be jpg, png or webp\n", "text/plain");
+        return;
+      }
+      if (s->changing) res.set_header("Cache-Control", "no-cache");
+      res.set_content(s->tiles->DziDescriptor(format), "application/xml");
     });
     http.Get(R"(/dzi/([^/]+)_files/([^/]+)/([^/_]+)_([^/.]+)\.([a-z]+))",
              [this](const httplib::Request& req, httplib::Response& res) {
-               const Served* s = Find(req.matches[1], res);
+               const auto s = Find(req.matches[1], res);
                if (!s) return;
                long long level, x, y;
                const std::string ext = req.matches[5];
@@ -241,8 +293,33 @@ struct TileServer::Impl {
       http.Get("/" + path, serve);
       if (path == "index.html") http.Get("/", serve);
     }
+    // The live run's open patch and the patches it continues, placed together (server/live_view.h).
+    http.Get("/api/live", [this](const httplib::Request&, httplib::Response& res) {
+      Refresh();
+      nlohmann::json p;
+      std::string version;
+      {
+        std::shared_lock<std::shared_mutex> lock(images_mutex);
+        p = preview;
+        auto it = images.find("live");
+        if (it != images.end()) version = it->second->version;
+      }
+      nlohmann::json view;
+      try {
+        view = LiveView(Store::Open(store.dir()), p);
+      } catch (const std::exception& e) {
+        view = {{"patch", 0}, {"problem", e.what()}};
+      }
+      if (!view["preview"].is_null()) {
+        view["preview"]["name"] = "live";
+        view["preview"]["dzi"] = "/dzi/live.dzi";
+        view["preview"]["version"] = version;
+      }
+      res.set_header("Cache-Control", "no-store");
+      res.set_content(view.dump(), "application/json");
+    });
     http.Get(R"(/api/overlays/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
-      const Served* s = Find(req.matches[1], res);
+      const auto s = Find(req.matches[1], res);
       if (!s) return;
       // The store read afresh: a live run adds patches (and align replaces sidecars) meanwhile.
       res.set_content(ImageOverlays(Store::Open(store.dir()), s->name, s->path).dump(), "application/json");
@@ -250,7 +327,7 @@ struct TileServer::Impl {
     // Full-resolution export of a region through the export code: ?region=x,y,w,h
     // [&scale=s][&format=png|jpg|tif]. Bounded, so a request cannot fill the disk or memory.
     http.Get(R"(/api/export/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
-      const Served* s = Find(req.matches[1], res);
+      const auto s = Find(req.matches[1], res);
       if (!s) return;
       auto bad = [&](const std::string& why) {
         res.status = 400;
@@ -307,7 +384,7 @@ TileServer::TileServer(Store store, const TileServerOptions& options)
   m.cache = std::make_shared<TileCache>(co);
   for (const auto& [name, path] : StoreImages(store)) m.Add(name, path);
   std::error_code ec;
-  const bool live = std::filesystem::exists(store.dir() + "/live/status.json", ec);
+  const bool live = options.live || std::filesystem::exists(store.dir() + "/live/status.json", ec);
   if (m.images.empty() && !live) Fail(store.dir(), "has no mosaic and no patches to serve");
   m.refreshed = std::chrono::steady_clock::now();
   m.Routes();

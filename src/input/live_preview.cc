@@ -1,0 +1,123 @@
+#include "input/live_preview.h"
+
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+
+#include <nlohmann/json.hpp>
+
+#include "rolamos/error.hpp"
+#include "rolamos/tiff_writer.hpp"
+#include "util/files.h"
+#include "util/homography.h"
+
+namespace rolamos {
+
+namespace {
+
+constexpr int kKeep = 3;  // versions kept on disk: a server may still read the one before
+
+std::string VersionName(long long v) {
+  char name[40];
+  std::snprintf(name, sizeof name, "preview-%06lld.tif", v);
+  return name;
+}
+
+nlohmann::json Points(const std::vector<cv::Point2d>& points) {
+  nlohmann::json out = nlohmann::json::array();
+  for (const auto& p : points) out.push_back({std::round(p.x * 100) / 100, std::round(p.y * 100) / 100});
+  return out;
+}
+
+double UnixNow() {
+  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+}
+
+}  // namespace
+
+LivePreviewWriter::LivePreviewWriter(std::string store_dir) : dir_(std::move(store_dir) + "/live") {
+  std::error_code ec;
+  std::filesystem::create_directories(dir_, ec);
+  // Versions left by an earlier run are not this run's.
+  for (const auto& e : std::filesystem::directory_iterator(dir_, ec))
+    if (e.path().filename().string().rfind("preview-", 0) == 0) std::filesystem::remove(e.path(), ec);
+  thread_ = std::thread([this] { Run(); });
+}
+
+LivePreviewWriter::~LivePreviewWriter() {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    closing_ = true;
+  }
+  changed_.notify_all();
+  thread_.join();
+  // The run is over: its patches are written, nothing is open.
+  try {
+    Write(LivePreview{});
+  } catch (...) {
+  }
+}
+
+void LivePreviewWriter::Offer(LivePreview preview) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    pending_ = std::move(preview);
+  }
+  changed_.notify_all();
+}
+
+std::string LivePreviewWriter::problem() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return problem_;
+}
+
+void LivePreviewWriter::Run() {
+  for (;;) {
+    LivePreview p;
+    {
+      std::unique_lock<std::mutex> lock(mutex_);
+      changed_.wait(lock, [&] { return closing_ || pending_; });
+      if (!pending_) return;
+      p = std::move(*pending_);
+      pending_.reset();
+    }
+    try {
+      Write(p);
+    } catch (const std::exception& e) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (problem_.empty()) problem_ = e.what();
+    }
+  }
+}
+
+void LivePreviewWriter::Write(const LivePreview& p) {
+  nlohmann::json j = {{"format", "rolamos-live-preview"}, {"version", 1}, {"patch", p.patch_id},
+                      {"updated", UnixNow()}};
+  if (p.patch_id > 0 && !p.image.empty()) {
+    const long long v = ++version_;
+    TiffWriteOptions o;
+    o.compression = Compression::kWebp;  // keeps the alpha: where the patch has no data yet
+    o.quality = 80;
+    o.webp_method = 0;
+    o.threads = 1;  // the engine has the cores
+    WritePyramidTiff(dir_ + "/" + VersionName(v), p.image, o);
+    j["image"] = "live/" + VersionName(v);
+    j["width"] = p.image.cols;
+    j["height"] = p.image.rows;
+    j["patch_to_image"] = ToArray9(p.patch_to_image);
+    j["frames"] = p.frames;
+    j["track"] = Points(p.track);
+    j["footprint"] = Points(p.footprint);
+    j["previous_patch"] = p.previous_patch > 0 ? nlohmann::json(p.previous_patch) : nlohmann::json(nullptr);
+    if (p.previous_patch > 0) j["to_previous_first"] = ToArray9(p.to_previous_first);
+  }
+  WriteFileAtomic(dir_ + "/preview.json", j.dump());
+  std::error_code ec;
+  for (long long old = version_ - kKeep; old > 0 && old > version_ - kKeep - 4; --old)
+    std::filesystem::remove(dir_ + "/" + VersionName(old), ec);
+  if (p.patch_id == 0)
+    for (long long old = version_; old > version_ - kKeep && old > 0; --old)
+      std::filesystem::remove(dir_ + "/" + VersionName(old), ec);
+}
+
+}  // namespace rolamos
