@@ -133,7 +133,7 @@ static int RunMosaic(MosaicSwitches s) {
       std::fflush(stdout);
     }
     sum = MosaicLive(s.input, store, o, s.live_options,
-                     [&](const LiveStatus& st) { WriteFileAtomic(status_dir + "/status.json", StatusJson(st)); },
+                     [&](const LiveStatus& st) { WriteFileAtomic(status_dir + "/status.json", StatusJson(st), /*durable=*/false); },
                      on_frame);
   } else {
     sum = MosaicInput(s.input, store, o, on_frame);

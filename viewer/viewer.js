@@ -61,7 +61,7 @@
     }
   }
 
-  // A store being written (mosaic --live): every 2 s the run's status, new patches added to the
+  // A store being written (mosaic --live): every second the run's status, new patches added to the
   // list as they are written and, when following, the live view: the open patch as it grows (the
   // engine's preview), the patches it continues beneath it, the track and the current frame.
   state.live = null;
@@ -340,7 +340,10 @@
   }
   loadImages().catch((e) => status(e.message));
   if (!statics) {
-    pollLive();
-    setInterval(pollLive, 2000);
+    // Once a second: a frame's footprint reaches the page within about 1.5 s of its arrival.
+    let polling = false;
+    const poll = async () => { if (polling) return; polling = true; try { await pollLive(); } finally { polling = false; } };
+    poll();
+    setInterval(poll, 1000);
   }
 })();

@@ -201,6 +201,8 @@ struct LivePreview {
   std::vector<cv::Point2d> track;                    // frame centres, patch coordinates
   std::vector<cv::Point2d> footprint;                // the last frame placed: its 4 corners
   int frames = 0;                                    // placed in the patch so far
+  int last_index = -1;                               // the frame placed last: its index and name
+  std::string last_source;
   // When the patch continues the one before (the pixel budget closed it): its id, and this
   // patch's coordinates -> that patch's first frame's grid (before its adjustment).
   int previous_patch = 0;
@@ -229,7 +231,8 @@ class Mosaicker {
   // The open patch at `scale` of full resolution (at most the working canvas's half), reduced
   // further so the image holds at most `max_megapixels`. From the thread that calls Integrate,
   // between frames.
-  LivePreview Preview(double scale = 0.5, double max_megapixels = 2.0) const;
+  // Without `image`, everything but the image (cheap: for the track between images).
+  LivePreview Preview(double scale = 0.5, double max_megapixels = 2.0, bool image = true) const;
   // Called (from the writer thread) after each patch is committed to the store.
   void OnPatch(std::function<void(const PatchSidecar&)> callback);
 

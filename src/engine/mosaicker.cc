@@ -1033,20 +1033,24 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   return done(m.Place(p, std::move(best), r, lap));
 }
 
-LivePreview Mosaicker::Preview(double scale, double max_megapixels) const {
+LivePreview Mosaicker::Preview(double scale, double max_megapixels, bool image) const {
   const Impl& m = *impl_;
   LivePreview out;
   if (!m.canvas || m.canvas->empty() || m.frames.empty()) return out;
-  const cv::Rect& data = m.canvas->data();
-  const double area = std::max(1.0, double(data.width) * data.height);
-  scale = std::min({scale, m.canvas->scale(), std::sqrt(max_megapixels * 1e6 / area)});
-  cv::Point2d origin;
-  if (!m.canvas->RenderColour(scale, &out.image, &origin)) return out;
-  // Image pixel q = (p - origin + 0.5) s - 0.5, with s the image's own scale (its size over the data's).
-  const double s = scale;
-  out.patch_to_image = cv::Matx33d(s, 0, (0.5 - origin.x) * s - 0.5, 0, s, (0.5 - origin.y) * s - 0.5, 0, 0, 1);
+  if (image) {
+    const cv::Rect& data = m.canvas->data();
+    const double area = std::max(1.0, double(data.width) * data.height);
+    scale = std::min({scale, m.canvas->scale(), std::sqrt(max_megapixels * 1e6 / area)});
+    cv::Point2d origin;
+    if (!m.canvas->RenderColour(scale, &out.image, &origin)) return out;
+    // Image pixel q = (p - origin + 0.5) s - 0.5.
+    const double s = scale;
+    out.patch_to_image = cv::Matx33d(s, 0, (0.5 - origin.x) * s - 0.5, 0, s, (0.5 - origin.y) * s - 0.5, 0, 0, 1);
+  }
   out.patch_id = m.patch_id;
   out.frames = static_cast<int>(m.frames.size());
+  out.last_index = m.frames.back().index;
+  out.last_source = m.frames.back().source;
   const double w = m.frame_size.width, h = m.frame_size.height;
   for (const FrameRecord& f : m.frames) out.track.push_back(ApplyHomography(ToMatx(f.frame_to_patch), {w / 2, h / 2}));
   for (const cv::Point2d c : {cv::Point2d(0, 0), cv::Point2d(w, 0), cv::Point2d(w, h), cv::Point2d(0, h)})

@@ -333,9 +333,14 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
             report(true);
           }
         }
-        if (preview && std::chrono::duration<double>(std::chrono::steady_clock::now() - last_preview).count() >= live.preview_s) {
-          last_preview = std::chrono::steady_clock::now();
-          preview->Offer(mosaicker.Preview());
+        if (preview) {
+          // The track and the current frame after every frame (written at most four times a
+          // second); the image every preview_s, and at once for a new patch.
+          const auto now = std::chrono::steady_clock::now();
+          const bool image = std::chrono::duration<double>(now - last_preview).count() >= live.preview_s ||
+                             (r.patch_id != preview->imaged_patch() && r.patch_id > 0);
+          if (image) last_preview = now;
+          preview->Offer(mosaicker.Preview(0.5, 2.0, image));
         }
         if (on_frame) on_frame(r, total);
       },

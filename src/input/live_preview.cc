@@ -59,8 +59,14 @@ LivePreviewWriter::~LivePreviewWriter() {
 }
 
 void LivePreviewWriter::Offer(LivePreview preview) {
+  if (!preview.image.empty()) imaged_patch_ = preview.patch_id;
   {
     std::lock_guard<std::mutex> lock(mutex_);
+    // An image waiting to be written is kept when only the track is newer.
+    if (pending_ && !pending_->image.empty() && preview.image.empty() && pending_->patch_id == preview.patch_id) {
+      preview.image = pending_->image;
+      preview.patch_to_image = pending_->patch_to_image;
+    }
     pending_ = std::move(preview);
   }
   changed_.notify_all();
@@ -87,6 +93,9 @@ void LivePreviewWriter::Run() {
       std::lock_guard<std::mutex> lock(mutex_);
       if (problem_.empty()) problem_ = e.what();
     }
+    // At most four writes a second; what is offered meanwhile waits, the newest replacing the rest.
+    std::unique_lock<std::mutex> lock(mutex_);
+    changed_.wait_for(lock, std::chrono::milliseconds(250), [&] { return closing_; });
   }
 }
 
@@ -101,17 +110,23 @@ void LivePreviewWriter::Write(const LivePreview& p) {
     o.webp_method = 0;
     o.threads = 1;  // the engine has the cores
     WritePyramidTiff(dir_ + "/" + VersionName(v), p.image, o);
-    j["image"] = "live/" + VersionName(v);
-    j["width"] = p.image.cols;
-    j["height"] = p.image.rows;
-    j["patch_to_image"] = ToArray9(p.patch_to_image);
+    written_ = {p.patch_id, "live/" + VersionName(v), p.image.cols, p.image.rows, p.patch_to_image};
+  }
+  if (p.patch_id > 0 && written_.patch == p.patch_id) {
+    j["image"] = written_.image;
+    j["width"] = written_.width;
+    j["height"] = written_.height;
+    j["patch_to_image"] = ToArray9(written_.patch_to_image);
+  }
+  if (p.patch_id > 0) {
     j["frames"] = p.frames;
+    j["last_frame"] = {{"index", p.last_index}, {"source", p.last_source}};
     j["track"] = Points(p.track);
     j["footprint"] = Points(p.footprint);
     j["previous_patch"] = p.previous_patch > 0 ? nlohmann::json(p.previous_patch) : nlohmann::json(nullptr);
     if (p.previous_patch > 0) j["to_previous_first"] = ToArray9(p.to_previous_first);
   }
-  WriteFileAtomic(dir_ + "/preview.json", j.dump());
+  WriteFileAtomic(dir_ + "/preview.json", j.dump(), /*durable=*/false);
   std::error_code ec;
   for (long long old = version_ - kKeep; old > 0 && old > version_ - kKeep - 4; --old)
     std::filesystem::remove(dir_ + "/" + VersionName(old), ec);

@@ -23,8 +23,12 @@ class LivePreviewWriter {
   LivePreviewWriter(const LivePreviewWriter&) = delete;
   LivePreviewWriter& operator=(const LivePreviewWriter&) = delete;
 
-  // The newest preview replaces one not yet written (the page wants the current state only).
+  // The newest preview replaces one not yet written (the page wants the current state only); at
+  // most four are written a second, the last one always. One without an image updates the track
+  // and footprint beside the last image of the same patch.
   void Offer(LivePreview preview);
+  // The patch of the last image offered (0: none): a new patch needs its image at once.
+  int imaged_patch() const { return imaged_patch_; }
   // Problems writing (a full disk): the run goes on without previews, and says so once.
   std::string problem() const;
 
@@ -36,6 +40,14 @@ class LivePreviewWriter {
   mutable std::mutex mutex_;
   std::condition_variable changed_;
   std::optional<LivePreview> pending_;
+  int imaged_patch_ = 0;   // Offer's thread
+  // The last image written (writer's thread): what a preview without one is shown with.
+  struct Written {
+    int patch = 0;
+    std::string image;
+    int width = 0, height = 0;
+    cv::Matx33d patch_to_image = cv::Matx33d::eye();
+  } written_;
   bool closing_ = false;
   long long version_ = 0;
   std::string problem_;

@@ -39,6 +39,7 @@ nlohmann::json LiveView(const Store& store, const nlohmann::json& preview, int m
   out["preview"] = {{"image", preview.at("image")}, {"width", preview.at("width")},
                     {"height", preview.at("height")}, {"to_world", Matrix(image_to_world)}};
   out["footprint"] = preview.value("footprint", nlohmann::json::array());
+  if (preview.contains("last_frame")) out["last_frame"] = preview["last_frame"];
 
   // Closed patches back along the chain, each placed through the links.
   std::vector<nlohmann::json> tracks;  // oldest patch's frames first, in the end

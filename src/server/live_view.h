@@ -16,7 +16,7 @@ namespace rolamos {
 // `preview`: live/preview.json as read (patch 0 when nothing is open). Returns
 //   {"patch": id, "preview": {"image", "width", "height", "to_world"} | null,
 //    "patches": [{"patch", "name", "width", "height", "to_world"}, ...] (newest first),
-//    "track": [[x, y], ...], "footprint": [[x, y] x 4]}
+//    "track": [[x, y], ...], "footprint": [[x, y] x 4], "last_frame": {"index", "source"}}
 // with 3 x 3 homographies (row-major) from image pixels to world coordinates. At most
 // `max_patches` closed patches; a sidecar not yet written ends the chain.
 nlohmann::json LiveView(const Store& store, const nlohmann::json& preview, int max_patches = 8);

@@ -162,11 +162,12 @@ struct TileServer::Impl {
     preview = p;
   }
 
-  // New patches (and a mosaic) written since the server started; at most twice a second.
+  // New patches (and a mosaic) written since the server started, and the live preview; at most
+  // four times a second.
   void Refresh() {
     std::lock_guard<std::mutex> lock(refresh_mutex);
     const auto now = std::chrono::steady_clock::now();
-    if (now - refreshed < std::chrono::milliseconds(500)) return;
+    if (now - refreshed < std::chrono::milliseconds(250)) return;
     refreshed = now;
     try {
       for (const auto& [name, path] : StoreImages(Store::Open(store.dir()))) {

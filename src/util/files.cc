@@ -24,7 +24,7 @@ std::string TemporarySibling(const std::string& path) {
   return (p.parent_path() / name).string();
 }
 
-void WriteFileAtomic(const std::string& path, const std::string& text) {
+void WriteFileAtomic(const std::string& path, const std::string& text, bool durable) {
   std::string tmp = TemporarySibling(path);
   int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
   if (fd < 0) Fail(path, std::string("cannot write: ") + std::strerror(errno));
@@ -40,7 +40,7 @@ void WriteFileAtomic(const std::string& path, const std::string& text) {
     }
     done += static_cast<size_t>(n);
   }
-  if (::fsync(fd) != 0 || ::close(fd) != 0) {
+  if ((durable && ::fsync(fd) != 0) || ::close(fd) != 0) {
     int e = errno;
     ::unlink(tmp.c_str());
     Fail(path, std::string("cannot write: ") + std::strerror(e));

@@ -7,8 +7,10 @@ namespace rolamos {
 
 // A unique temporary name next to `path` (same directory, so rename is atomic).
 std::string TemporarySibling(const std::string& path);
-// Writes `text` to `path` atomically (temporary file, fsync, rename). Throws Error.
-void WriteFileAtomic(const std::string& path, const std::string& text);
+// Writes `text` to `path` atomically (temporary file, fsync, rename). Throws Error. Without
+// `durable`, no fsync: readers never see a partial file, but a crash may lose the newest version
+// (files rewritten several times a second, such as a live run's status).
+void WriteFileAtomic(const std::string& path, const std::string& text, bool durable = true);
 // Reads a whole (small) file; throws Error naming it when missing or larger than `max_bytes`.
 std::string ReadSmallFile(const std::string& path, size_t max_bytes = 64u << 20);
 // Renames, throwing Error with both names on failure.
