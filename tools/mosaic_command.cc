@@ -35,6 +35,8 @@ struct MosaicSwitches {
   LiveOptions live_options;
   int serve_port = -1;  // --serve: the viewer in this process (0: any free port)
   std::string serve_bind = "127.0.0.1";
+  std::string navigation, navigation_crs;  // --serve: georeferences the live view
+  double focal_px = 0;
 };
 
 // SIGINT/SIGTERM end a live run cleanly (the open patch is written); a second one says that the
@@ -108,6 +110,9 @@ static int RunMosaic(MosaicSwitches s) {
   MosaicSummary sum;
   if (s.serve_port >= 0 && !s.live)
     Fail("mosaic", "serving while mapping needs a live run (rolamos serve STORE serves a store once written)");
+  if (!s.navigation.empty() && s.serve_port < 0)
+    Fail("mosaic", "navigation georeferences the live view, which needs --serve (compose --navigation "
+                   "georeferences the map)");
   std::unique_ptr<TileServer> server;
   if (s.live) {
     struct sigaction sa {};
@@ -126,6 +131,9 @@ static int RunMosaic(MosaicSwitches s) {
       so.port = s.serve_port;
       so.bind = s.serve_bind;
       so.live = true;
+      so.navigation = s.navigation;
+      so.navigation_crs = s.navigation_crs;
+      so.focal_px = s.focal_px;
       server = std::make_unique<TileServer>(store, so);
       const int port = server->Start();
       std::printf("viewer on http://%s:%d/ while the run lasts (rolamos serve %s serves it after)\n",
@@ -191,6 +199,11 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
                   "live: serve the viewer on this port while mapping (0: any free port): the patches as they are "
                   "written, and the open patch as it grows");
   cmd->add_option("--bind", s->serve_bind, "with --serve: address to listen on")->capture_default_str();
+  cmd->add_option("--navigation", s->navigation,
+                  "with --serve: the vehicle's navigation CSV as it grows (compose --navigation's columns): "
+                  "georeferences the live view as fixes arrive; lines that do not parse are skipped with a warning");
+  cmd->add_option("--crs", s->navigation_crs, "with --navigation: CRS of eastings/northings without an epsg column");
+  cmd->add_option("--focal", s->focal_px, "with --navigation: focal length in pixels (default: the camera's)");
   cmd->add_option("--preview-interval", s->live_options.preview_s,
                   "live: seconds between previews of the open patch (STORE/live/preview.json; 0 = none)")
       ->capture_default_str();

@@ -38,6 +38,11 @@ void AddServeCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--port", s->options.port, "port (0: any free one)")->capture_default_str();
   cmd->add_option("--bind", s->options.bind, "address to listen on")->capture_default_str();
   cmd->add_option("--cache-mb", s->options.cache_mb, "tile cache memory")->capture_default_str();
+  cmd->add_option("--navigation", s->options.navigation,
+                  "a live run's vehicle navigation CSV, read as it grows (compose --navigation's columns): "
+                  "georeferences the live view");
+  cmd->add_option("--crs", s->options.navigation_crs, "with --navigation: CRS of eastings/northings without an epsg column");
+  cmd->add_option("--focal", s->options.focal_px, "with --navigation: focal length in pixels (default: the store's camera)");
   cmd->add_option("--threads", s->options.threads, "request threads (0: 4 per core, at least 16)")
       ->capture_default_str();
   cmd->callback([s, run] { *run = [s] { return RunServe(*s); }; });

@@ -151,6 +151,11 @@
     }
     state.liveView.view = view;
     drawLive(view);
+    const g = view.georef;
+    $('live').textContent += g ? 'georeferenced by ' + g.frames + ' fixes (' + g.crs + ', residual ' +
+      g.residual_median_m.toFixed(2) + ' m) \u00a0 ' : (view.navigation ? 'navigation: waiting for fixes \u00a0 ' : '');
+    if (view.navigation && view.navigation.lines_skipped)
+      $('live').textContent += view.navigation.lines_skipped + ' navigation lines skipped \u00a0 ';
     if ($('follow').checked && view.footprint.length) {
       const c = view.footprint.reduce((a, p) => [a[0] + p[0] / 4, a[1] + p[1] / 4], [0, 0]);
       viewer.viewport.panTo(new OpenSeadragon.Point(c[0], c[1]));
@@ -266,9 +271,11 @@
     element: viewer.element,
     moveHandler: (e) => {
       if (!state.current || !viewer.world.getItemCount()) return;
-      const p = viewer.viewport.viewerElementToImageCoordinates(e.position);
+      const live = state.current.live && state.liveView && state.liveView.view;
+      // The live view's world is viewport coordinates (open patch pixels); images are not.
+      const p = live ? viewer.viewport.pointFromPixel(e.position) : viewer.viewport.viewerElementToImageCoordinates(e.position);
       let text = 'x ' + p.x.toFixed(1) + '  y ' + p.y.toFixed(1) + ' px';
-      const g = state.overlays && state.overlays.georef;
+      const g = live ? state.liveView.view.georef : state.overlays && state.overlays.georef;
       if (g) {
         const t = g.geotransform;
         const mx = t[0] + p.x * t[1] + p.y * t[2], my = t[3] + p.x * t[4] + p.y * t[5];

@@ -24,7 +24,13 @@ struct FrameNavigation {
 // Reads a CSV with the columns frame, epsg, gt0..gt5 (GDAL geotransform order; headers may carry
 // a suffix, as gt1_dE_dcol) and optionally sequence. Keys: "sequence/frame" or "frame".
 // Throws Error naming the file, the line and the column.
-std::map<std::string, FrameNavigation> ReadFrameNavigationCsv(const std::string& path);
+//
+// With `skipped` (these readers alike), for a CSV that grows while a live run reads it: a line
+// that does not parse is left out and described there ("FILE:LINE: reason") instead of failing
+// the read, the last line is left for later when its newline is not yet written, and no line at
+// all is no error. The header must still be right.
+std::map<std::string, FrameNavigation> ReadFrameNavigationCsv(const std::string& path,
+                                                              std::vector<std::string>* skipped = nullptr);
 
 // The camera the navigation needs to turn a position into a frame's footprint: a nadir camera
 // with focal length `focal_px` (pixels) and principal point (cx, cy) (< 0: the frame's centre).
@@ -46,11 +52,13 @@ NavigationCamera FrameCamera(const Store& store, NavigationCamera camera);
 // Throws Error naming the file, the line and the column.
 std::map<std::string, FrameNavigation> ReadVehicleNavigationCsv(const std::string& path,
                                                                 const NavigationCamera& camera,
-                                                                const std::string& crs = "");
+                                                                const std::string& crs = "",
+                                                                std::vector<std::string>* skipped = nullptr);
 
 // Either kind of CSV, told apart by its header (gt0..gt5 columns: per-frame affines).
 std::map<std::string, FrameNavigation> ReadNavigationCsv(const std::string& path, const NavigationCamera& camera,
-                                                         const std::string& crs = "");
+                                                         const std::string& crs = "",
+                                                         std::vector<std::string>* skipped = nullptr);
 
 struct GeoreferenceResult {
   Georef georef;

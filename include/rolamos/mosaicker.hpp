@@ -152,7 +152,7 @@ struct MosaicSummary {
   std::vector<std::string> keyframe_stages;  // the stages that run for keyframes only
   std::string calibration_note;  // what --calibration auto found, when used
   std::string mask_note;         // what --mask auto found, when used
-  int frames_skipped = 0;        // live: frames that arrived while the engine was busy, skipped
+  int frames_skipped = 0;        // live: frames that arrived and were not mapped (busy, or left at a stop)
   int coverage_lost = 0;         // live: of those skips, the ones after which the thread broke
   std::string preview_problem;   // live: why the open patch's preview could not be written
 };
@@ -199,6 +199,8 @@ struct LivePreview {
   cv::Mat image;      // the working canvas blended, BGRA 8-bit (alpha 0 where nothing is)
   cv::Matx33d patch_to_image = cv::Matx33d::eye();  // patch coordinates -> image pixels
   std::vector<cv::Point2d> track;                    // frame centres, patch coordinates
+  std::vector<std::string> track_frames;             // those frames' names (sources)
+  cv::Size frame_size;
   std::vector<cv::Point2d> footprint;                // the last frame placed: its 4 corners
   int frames = 0;                                    // placed in the patch so far
   int last_index = -1;                               // the frame placed last: its index and name

@@ -22,6 +22,11 @@ struct TileServerOptions {
   // The store is being written (mosaic --live --serve): it may have nothing to serve yet; patches
   // and the open patch's preview ("live", /api/live) are served as they appear.
   bool live = false;
+  // A vehicle navigation CSV that grows during a live run (compose --navigation's columns): the
+  // live view is georeferenced from it as it arrives. `navigation_crs` for eastings/northings
+  // without an epsg column; `focal_px` 0: the store's camera.
+  std::string navigation, navigation_crs;
+  double focal_px = 0;
 
   bool IsValid(std::string* error) const;
 };

@@ -36,7 +36,8 @@ std::vector<std::string> SplitCsv(const std::string& line) {
 
 }  // namespace
 
-std::map<std::string, FrameNavigation> ReadFrameNavigationCsv(const std::string& path) {
+std::map<std::string, FrameNavigation> ReadFrameNavigationCsv(const std::string& path,
+                                                              std::vector<std::string>* skipped) {
   std::ifstream in(path);
   if (!in) Fail(path, "cannot be read");
   std::string line;
@@ -58,28 +59,34 @@ std::map<std::string, FrameNavigation> ReadFrameNavigationCsv(const std::string&
   while (std::getline(in, line)) {
     ++number;
     if (line.empty()) continue;
-    const auto cells = SplitCsv(line);
+    if (skipped && in.eof()) break;  // a growing file's last line, perhaps half written
     const std::string where = path + ":" + std::to_string(number);
-    if (cells.size() < header.size()) Fail(where, "has " + std::to_string(cells.size()) + " columns, the header " +
-                                                      std::to_string(header.size()));
-    FrameNavigation f;
-    f.crs = "EPSG:" + cells[static_cast<size_t>(epsg)];
-    for (int k = 0; k < 6; ++k) {
-      try {
-        size_t used = 0;
-        f.geotransform[static_cast<size_t>(k)] = std::stod(cells[static_cast<size_t>(gt[k])], &used);
-        if (used != cells[static_cast<size_t>(gt[k])].size()) throw std::invalid_argument("");
-      } catch (const std::exception&) {
-        Fail(where, "column " + header[static_cast<size_t>(gt[k])] + " is not a number");
+    try {
+      const auto cells = SplitCsv(line);
+      if (cells.size() < header.size()) Fail(where, "has " + std::to_string(cells.size()) + " columns, the header " +
+                                                        std::to_string(header.size()));
+      FrameNavigation f;
+      f.crs = "EPSG:" + cells[static_cast<size_t>(epsg)];
+      for (int k = 0; k < 6; ++k) {
+        try {
+          size_t used = 0;
+          f.geotransform[static_cast<size_t>(k)] = std::stod(cells[static_cast<size_t>(gt[k])], &used);
+          if (used != cells[static_cast<size_t>(gt[k])].size()) throw std::invalid_argument("");
+        } catch (const std::exception&) {
+          Fail(where, "column " + header[static_cast<size_t>(gt[k])] + " is not a number");
+        }
+        if (!std::isfinite(f.geotransform[static_cast<size_t>(k)]))
+          Fail(where, "column " + header[static_cast<size_t>(gt[k])] + " is not finite");
       }
-      if (!std::isfinite(f.geotransform[static_cast<size_t>(k)]))
-        Fail(where, "column " + header[static_cast<size_t>(gt[k])] + " is not finite");
+      const std::string key = (sequence >= 0 ? cells[static_cast<size_t>(sequence)] + "/" : "") +
+                              cells[static_cast<size_t>(frame)];
+      nav[key] = f;
+    } catch (const Error& e) {
+      if (!skipped) throw;
+      skipped->push_back(e.what());
     }
-    const std::string key = (sequence >= 0 ? cells[static_cast<size_t>(sequence)] + "/" : "") +
-                            cells[static_cast<size_t>(frame)];
-    nav[key] = f;
   }
-  if (nav.empty()) Fail(path, "lists no frames");
+  if (nav.empty() && !skipped) Fail(path, "lists no frames");
   return nav;
 }
 
@@ -127,7 +134,8 @@ class ToUtm {
 
 std::map<std::string, FrameNavigation> ReadVehicleNavigationCsv(const std::string& path,
                                                                 const NavigationCamera& camera,
-                                                                const std::string& crs) {
+                                                                const std::string& crs,
+                                                                std::vector<std::string>* skipped) {
   std::string error;
   if (!camera.IsValid(&error)) Fail(path, error);
   std::ifstream in(path);
@@ -160,52 +168,58 @@ std::map<std::string, FrameNavigation> ReadVehicleNavigationCsv(const std::strin
   while (std::getline(in, line)) {
     ++number;
     if (line.empty() || line == "\r") continue;
+    if (skipped && in.eof()) break;  // a growing file's last line, perhaps half written
     const std::string where = path + ":" + std::to_string(number);
-    const auto cells = SplitCsv(line);
-    if (cells.size() < header.size()) Fail(where, "has fewer columns than the header");
-    auto number_at = [&](int c) {
-      try {
-        size_t used = 0;
-        const double v = std::stod(cells[static_cast<size_t>(c)], &used);
-        if (used != cells[static_cast<size_t>(c)].size() || !std::isfinite(v)) throw std::invalid_argument("");
-        return v;
-      } catch (const std::exception&) {
-        Fail(where, "column " + header[static_cast<size_t>(c)] + " is not a number");
+    try {
+      const auto cells = SplitCsv(line);
+      if (cells.size() < header.size()) Fail(where, "has fewer columns than the header");
+      auto number_at = [&](int c) {
+        try {
+          size_t used = 0;
+          const double v = std::stod(cells[static_cast<size_t>(c)], &used);
+          if (used != cells[static_cast<size_t>(c)].size() || !std::isfinite(v)) throw std::invalid_argument("");
+          return v;
+        } catch (const std::exception&) {
+          Fail(where, "column " + header[static_cast<size_t>(c)] + " is not a number");
+        }
+      };
+      cv::Point2d position;
+      FrameNavigation f;
+      if (geographic) {
+        const double la = number_at(lat), lo = number_at(lon);
+        if (std::abs(la) > 90 || std::abs(lo) > 180) Fail(where, "latitude/longitude out of range");
+        if (!to_utm) to_utm = std::make_unique<ToUtm>(la, lo);
+        position = (*to_utm)(la, lo);
+        f.crs = "EPSG:" + std::to_string(to_utm->epsg());
+      } else {
+        position = {number_at(e), number_at(n)};
+        f.crs = epsg >= 0 ? "EPSG:" + cells[static_cast<size_t>(epsg)] : crs;
       }
-    };
-    cv::Point2d position;
-    FrameNavigation f;
-    if (geographic) {
-      const double la = number_at(lat), lo = number_at(lon);
-      if (std::abs(la) > 90 || std::abs(lo) > 180) Fail(where, "latitude/longitude out of range");
-      if (!to_utm) to_utm = std::make_unique<ToUtm>(la, lo);
-      position = (*to_utm)(la, lo);
-      f.crs = "EPSG:" + std::to_string(to_utm->epsg());
-    } else {
-      position = {number_at(e), number_at(n)};
-      f.crs = epsg >= 0 ? "EPSG:" + cells[static_cast<size_t>(epsg)] : crs;
+      const double altitude = number_at(alt);
+      if (!(altitude > 0)) Fail(where, "altitude must be positive (metres above the seabed)");
+      const double psi = number_at(heading) * CV_PI / 180.0, gsd = altitude / camera.focal_px;
+      // Nadir camera, image top towards the heading: right = (cos, -sin), down = (-sin, -cos) in (E, N).
+      const double g1 = gsd * std::cos(psi), g2 = -gsd * std::sin(psi);
+      const double g4 = -gsd * std::sin(psi), g5 = -gsd * std::cos(psi);
+      f.geotransform = {position.x - g1 * cx - g2 * cy, g1, g2, position.y - g4 * cx - g5 * cy, g4, g5};
+      std::string key = cells[static_cast<size_t>(frame)];
+      nav[key] = f;
+    } catch (const Error& e) {
+      if (!skipped) throw;
+      skipped->push_back(e.what());
     }
-    const double altitude = number_at(alt);
-    if (!(altitude > 0)) Fail(where, "altitude must be positive (metres above the seabed)");
-    const double psi = number_at(heading) * CV_PI / 180.0, gsd = altitude / camera.focal_px;
-    // Nadir camera, image top towards the heading: right = (cos, -sin), down = (-sin, -cos) in (E, N).
-    const double g1 = gsd * std::cos(psi), g2 = -gsd * std::sin(psi);
-    const double g4 = -gsd * std::sin(psi), g5 = -gsd * std::cos(psi);
-    f.geotransform = {position.x - g1 * cx - g2 * cy, g1, g2, position.y - g4 * cx - g5 * cy, g4, g5};
-    std::string key = cells[static_cast<size_t>(frame)];
-    nav[key] = f;
   }
-  if (nav.empty()) Fail(path, "lists no frames");
+  if (nav.empty() && !skipped) Fail(path, "lists no frames");
   return nav;
 }
 
 std::map<std::string, FrameNavigation> ReadNavigationCsv(const std::string& path, const NavigationCamera& camera,
-                                                         const std::string& crs) {
+                                                         const std::string& crs, std::vector<std::string>* skipped) {
   std::ifstream in(path);
   std::string line;
   if (!in || !std::getline(in, line)) Fail(path, "cannot be read or is empty");
-  return ToLower(line).find("gt0") != std::string::npos ? ReadFrameNavigationCsv(path)
-                                                         : ReadVehicleNavigationCsv(path, camera, crs);
+  return ToLower(line).find("gt0") != std::string::npos ? ReadFrameNavigationCsv(path, skipped)
+                                                         : ReadVehicleNavigationCsv(path, camera, crs, skipped);
 }
 
 NavigationCamera FrameCamera(const Store& store, NavigationCamera camera) {

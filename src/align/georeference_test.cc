@@ -89,5 +89,45 @@ TEST(Navigation, BadNavigationFilesAreClearErrors) {
   EXPECT_NE(test::ErrorOf([&] { ReadNavigationCsv(dir / "e.csv", camera); }).find("needs the columns"), std::string::npos);
 }
 
+// A navigation CSV that grows while a live run reads it: a bad line is skipped and named, the
+// last line is left until its newline is written, and the good lines are read; the strict reader
+// (compose) still fails on the bad line, naming it.
+TEST(Navigation, AGrowingCsvSkipsBadLinesAndWaitsForTheLastOne) {
+  test::ScratchDir dir;
+  NavigationCamera camera;
+  camera.focal_px = 420;
+  camera.width = 480;
+  camera.height = 360;
+  const std::string csv = dir / "nav.csv";
+  {
+    std::ofstream out(csv);
+    out << "frame,easting,northing,epsg,altitude,heading\n"
+        << "a.jpg,500000,5200000,32755,4.2,0\n"
+        << "b.jpg,500001,north,32755,4.2,0\n"
+        << "c.jpg,500002,5200000,32755,4.2,0\n"
+        << "d.jpg,500003,52000";  // being written
+  }
+  std::vector<std::string> skipped;
+  const auto nav = ReadNavigationCsv(csv, camera, "", &skipped);
+  EXPECT_EQ(nav.size(), 2u);
+  EXPECT_TRUE(nav.count("a.jpg") && nav.count("c.jpg"));
+  ASSERT_EQ(skipped.size(), 1u);
+  EXPECT_NE(skipped[0].find("nav.csv:3"), std::string::npos) << skipped[0];
+  EXPECT_NE(skipped[0].find("northing"), std::string::npos) << skipped[0];
+  EXPECT_NE(test::ErrorOf([&] { ReadNavigationCsv(csv, camera); }).find("nav.csv:3"), std::string::npos);
+  {
+    std::ofstream out(csv, std::ios::app);
+    out << "00,32755,4.2,0\n";
+  }
+  skipped.clear();
+  EXPECT_EQ(ReadNavigationCsv(csv, camera, "", &skipped).size(), 3u) << "the last line, once finished";
+  // A header alone is no error while growing.
+  {
+    std::ofstream out(csv);
+    out << "frame,easting,northing,epsg,altitude,heading\n";
+  }
+  EXPECT_TRUE(ReadNavigationCsv(csv, camera, "", &skipped).empty());
+}
+
 }  // namespace
 }  // namespace rolamos

@@ -1052,7 +1052,11 @@ LivePreview Mosaicker::Preview(double scale, double max_megapixels, bool image) 
   out.last_index = m.frames.back().index;
   out.last_source = m.frames.back().source;
   const double w = m.frame_size.width, h = m.frame_size.height;
-  for (const FrameRecord& f : m.frames) out.track.push_back(ApplyHomography(ToMatx(f.frame_to_patch), {w / 2, h / 2}));
+  out.frame_size = m.frame_size;
+  for (const FrameRecord& f : m.frames) {
+    out.track.push_back(ApplyHomography(ToMatx(f.frame_to_patch), {w / 2, h / 2}));
+    out.track_frames.push_back(f.source);
+  }
   for (const cv::Point2d c : {cv::Point2d(0, 0), cv::Point2d(w, 0), cv::Point2d(w, h), cv::Point2d(0, h)})
     out.footprint.push_back(ApplyHomography(m.last.to_patch, c));
   if (m.link) {

@@ -77,19 +77,17 @@ MosaickerOptions AutoCalibrate(const std::string& input, const Store& store,
   return options;
 }
 
-// Automatic overlay mask: fixed overlays found in the first frames (as the engine will see them,
-// undistorted), written into the store as an image the user can look at, edit and give back.
-MosaickerOptions AutoMask(const std::string& input, const Store& store, MosaickerOptions options,
-                          std::string* note) {
+// Automatic overlay mask from frames as they came (undistorted here as the engine will see
+// them), written into the store as an image the user can look at, edit and give back.
+MosaickerOptions MaskFromFrames(const std::vector<cv::Mat>& raw, const Store& store, MosaickerOptions options,
+                                std::string* note) {
   StaticMaskOptions mo;
-  auto source = FrameSource::Open(input);
   Preprocessor pre(ToPreprocessOptions(options));
   std::vector<cv::Mat> frames;
-  InputFrame f;
-  for (int read = 0; static_cast<int>(frames.size()) < mo.frames && read < 3 * mo.frames && source->Next(&f); ++read) {
-    if (f.image.empty()) continue;
+  for (const cv::Mat& image : raw) {
+    if (image.empty()) continue;
     try {
-      frames.push_back(pre.Undistort(f.image));
+      frames.push_back(pre.Undistort(image));
     } catch (const Error&) {
       // A frame the calibration does not fit is the engine's to report.
     }
@@ -107,6 +105,43 @@ MosaickerOptions AutoMask(const std::string& input, const Store& store, Mosaicke
   }
   return options;
 }
+
+// The same from the first frames of a folder, list or video (read again by the mosaicking).
+MosaickerOptions AutoMask(const std::string& input, const Store& store, MosaickerOptions options,
+                          std::string* note) {
+  const StaticMaskOptions mo;
+  auto source = FrameSource::Open(input);
+  std::vector<cv::Mat> frames;
+  InputFrame f;
+  for (int read = 0; static_cast<int>(frames.size()) < mo.frames && read < 3 * mo.frames && source->Next(&f); ++read)
+    if (!f.image.empty()) frames.push_back(f.image);
+  return MaskFromFrames(frames, store, options, note);
+}
+
+// A live source whose first frames were taken early (to find the overlay mask from them): those
+// are handed out first, with their arrival times, then the source's own.
+class ReplayedSource : public FrameSource {
+ public:
+  explicit ReplayedSource(LiveSource* source) : source_(source) {}
+  std::deque<std::pair<InputFrame, std::chrono::steady_clock::time_point>> first;
+  bool Next(InputFrame* f) override {
+    if (!first.empty()) {
+      *f = std::move(first.front().first);
+      arrival_ = first.front().second;
+      first.pop_front();
+      return true;
+    }
+    if (!source_->Next(f)) return false;
+    arrival_ = source_->arrival();
+    return true;
+  }
+  int count() const override { return -1; }
+  std::chrono::steady_clock::time_point arrival() const { return arrival_; }
+
+ private:
+  LiveSource* source_;
+  std::chrono::steady_clock::time_point arrival_{};
+};
 
 }  // namespace
 
@@ -256,16 +291,28 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
     options.calibration = dir + "/calibration.yml";
     note = "calibration from " + options.calibration;
   }
+  auto source = LiveSource::Open(input, live);
+  ReplayedSource feed(source.get());
   if (options.mask == "auto") {
     if (fs::exists(dir + "/static_mask.png")) {
       options.mask = dir + "/static_mask.png";
-      mask_note = "overlay mask from " + options.mask;
+      mask_note = "overlay mask from " + options.mask + " (found by an earlier run)";
     } else {
-      options.mask = "";
-      mask_note = "no overlay mask (live mapping does not search the first frames for one; give --mask FILE)";
+      // As the folder mode does, from the first frames: they wait (every one kept) until the
+      // search has enough, then are mapped first.
+      const StaticMaskOptions mo;
+      std::vector<cv::Mat> images;
+      InputFrame f;
+      while (static_cast<int>(feed.first.size()) < mo.frames && source->Next(&f)) {
+        images.push_back(f.image);
+        feed.first.emplace_back(std::move(f), source->arrival());
+        f = InputFrame{};
+      }
+      options = MaskFromFrames(images, store, options, &mask_note);
+      source->CatchUp(mo.frames);  // what arrived meanwhile is mapped, not skipped
+      mask_note += " (from the first " + std::to_string(images.size()) + " frames of the live run)";
     }
   }
-  auto source = LiveSource::Open(input, live);
   // Frames taken from the source and not yet mapped: with those waiting in the source, never
   // more than the backlog bound (the pipeline prepares at most one fewer ahead).
   std::atomic<long> in_flight{0};
@@ -308,7 +355,7 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
   });
   report(true);
   const double decode = RunPipeline(
-      source.get(), mosaicker,
+      &feed, mosaicker,
       [&](const FrameReport& r, int total) {
         {
           std::lock_guard<std::mutex> lock(mutex);
@@ -347,7 +394,7 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
       [&](long index) {
         ++in_flight;
         std::lock_guard<std::mutex> lock(mutex);
-        arrivals[index] = source->arrival();
+        arrivals[index] = feed.arrival();
       },
       std::max(1, live.max_waiting - 1));
   MosaicSummary summary = mosaicker.Finish();

@@ -122,6 +122,8 @@ void LivePreviewWriter::Write(const LivePreview& p) {
     j["frames"] = p.frames;
     j["last_frame"] = {{"index", p.last_index}, {"source", p.last_source}};
     j["track"] = Points(p.track);
+    j["track_frames"] = p.track_frames;
+    j["frame_size"] = {p.frame_size.width, p.frame_size.height};
     j["footprint"] = Points(p.footprint);
     j["previous_patch"] = p.previous_patch > 0 ? nlohmann::json(p.previous_patch) : nlohmann::json(nullptr);
     if (p.previous_patch > 0) j["to_previous_first"] = ToArray9(p.to_previous_first);

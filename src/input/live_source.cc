@@ -1,4 +1,5 @@
 #include "input/live_source.h"
+#include "util/files.h"
 
 #include <algorithm>
 #include <condition_variable>
@@ -58,12 +59,10 @@ bool Stopped(const LiveOptions& o) { return o.stop && o.stop->load(); }
 class GrowingFolderSource : public LiveSource {
  public:
   GrowingFolderSource(std::string dir, const LiveOptions& o) : dir_(std::move(dir)), options_(o) {
+    options_max_waiting_ = o.max_waiting;
 #if defined(__linux__)
     inotify_ = inotify_init1(IN_NONBLOCK | IN_CLOEXEC);
-    if (inotify_ >= 0 && inotify_add_watch(inotify_, dir_.c_str(), IN_CLOSE_WRITE | IN_MOVED_TO) < 0) {
-      close(inotify_);
-      inotify_ = -1;
-    }
+    Watch();
 #endif
   }
   ~GrowingFolderSource() override {
@@ -76,7 +75,7 @@ class GrowingFolderSource : public LiveSource {
     auto idle_since = std::chrono::steady_clock::now();
     for (;;) {
       // A stop is honoured first, however fast frames arrive.
-      if (Stopped(options_)) return false;
+      if (Stopped(options_)) return StopWith(ready_.size());
       Collect();
       if (!ready_.empty()) {
         for (size_t skip = ToSkip(ready_.size(), options_.max_waiting); skip > 0; --skip) {
@@ -87,6 +86,7 @@ class GrowingFolderSource : public LiveSource {
         const auto [path, arrived] = ready_.front();
         ready_.pop_front();
         f->index = index_++;
+        Took();
         f->source = path;
         f->error.clear();
         f->image = ReadFrameImage(path, &f->error);
@@ -114,10 +114,21 @@ class GrowingFolderSource : public LiveSource {
   }
 
   // Files the file system reports complete (closed after writing, or moved in).
+  // The folder watched once it exists (a logger may create it after the run starts).
+  void Watch() {
+#if defined(__linux__)
+    if (inotify_ >= 0 && !watching_) {
+      watching_ = inotify_add_watch(inotify_, dir_.c_str(), IN_CLOSE_WRITE | IN_MOVED_TO) >= 0;
+      if (watching_) listed_ = {};  // list at once what came before the watch
+    }
+#endif
+  }
+
   std::vector<std::string> Reported() {
     std::vector<std::string> out;
 #if defined(__linux__)
-    if (inotify_ < 0) return out;
+    Watch();
+    if (inotify_ < 0 || !watching_) return out;
     alignas(inotify_event) char buffer[16384];
     for (;;) {
       const ssize_t n = read(inotify_, buffer, sizeof buffer);
@@ -148,11 +159,15 @@ class GrowingFolderSource : public LiveSource {
         if (!e.is_regular_file(ec2)) continue;
         sizes[p] = e.file_size(ec2);
       }
-      // Complete: the size held since the last listing (and an end marker where the format has
-      // one). With inotify this catches what it does not see (a file there before the start).
+      // Complete: a JPEG or PNG whose end-of-image marker is written, at once; another format once
+      // its size held since the last listing. With inotify this catches what it does not see (a
+      // file there before the folder was watched), in the same pass as what it sees.
       for (const auto& [p, size] : sizes) {
+        if (size == 0 || LooksTruncated(p)) continue;
+        const std::string ext = Extension(p);
+        const bool marked = ext == ".jpg" || ext == ".jpeg" || ext == ".png";
         auto it = seen_.find(p);
-        if (it != seen_.end() && it->second == size && size > 0 && !LooksTruncated(p)) complete.push_back(p);
+        if (marked || (it != seen_.end() && it->second == size)) complete.push_back(p);
       }
       seen_ = sizes;
     }
@@ -178,6 +193,7 @@ class GrowingFolderSource : public LiveSource {
   std::string dir_;
   LiveOptions options_;
   int inotify_ = -1;
+  bool watching_ = false;
   std::chrono::steady_clock::time_point listed_{};
   std::map<std::string, uintmax_t> seen_;  // not yet complete: size at the last listing
   std::set<std::string> taken_;
@@ -193,6 +209,7 @@ class StreamSource : public LiveSource {
  public:
   StreamSource(std::string name, cv::VideoCapture cap, const LiveOptions& o)
       : name_(std::move(name)), options_(o), shared_(std::make_shared<Shared>()) {
+    options_max_waiting_ = o.max_waiting;
     shared_->cap = std::move(cap);
     shared_->stop = o.stop;
     shared_->max_waiting = o.max_waiting;
@@ -216,7 +233,7 @@ class StreamSource : public LiveSource {
     std::unique_lock<std::mutex> lock(shared_->mutex);
     auto idle_since = std::chrono::steady_clock::now();
     for (;;) {
-      if (Stopped(options_)) return false;
+      if (Stopped(options_)) return StopWith(shared_->frames.size());
       if (!shared_->frames.empty()) break;
       if (shared_->ended) return false;
       shared_->changed.wait_for(lock, std::chrono::milliseconds(100));
@@ -232,6 +249,7 @@ class StreamSource : public LiveSource {
     auto [image, arrived] = std::move(shared_->frames.front());
     shared_->frames.pop_front();
     f->index = index_++;
+    Took();
     f->source = name_ + "#" + std::to_string(f->index);
     f->error.clear();
     f->image = image;
@@ -298,13 +316,27 @@ class StreamSource : public LiveSource {
 size_t LiveSource::ToSkip(size_t waiting, int max_waiting) const {
   // The newest waiting frame is always kept: it is the one the map needs.
   const long in_flight = in_flight_ ? std::max(0L, in_flight_->load()) : 0;
-  const long room = std::max(1L, static_cast<long>(max_waiting) - in_flight);
+  const long room = std::max(1L, static_cast<long>(max_waiting) + catch_up_.load() - in_flight);
   return waiting > static_cast<size_t>(room) ? waiting - static_cast<size_t>(room) : 0;
+}
+
+bool LiveSource::StopWith(size_t waiting) {
+  // Frames that arrived and will not be mapped: counted with the skipped, never dropped unsaid.
+  if (!stopped_) counters_.skipped += static_cast<long long>(waiting);
+  stopped_ = true;
+  return false;
+}
+
+void LiveSource::Took() {
+  int left = catch_up_.load();
+  while (left > 0 && !catch_up_.compare_exchange_weak(left, left - 1)) {
+  }
 }
 
 void LiveSource::NoteBacklog(size_t waiting) {
   const long in_flight = in_flight_ ? std::max(0L, in_flight_->load()) : 0;
   const int backlog = static_cast<int>(in_flight + static_cast<long>(waiting));
+  if (catch_up_ > 0 && backlog > options_max_waiting_) return;  // catching up: beyond the bound by design
   int seen = counters_.backlog_max.load();
   while (backlog > seen && !counters_.backlog_max.compare_exchange_weak(seen, backlog)) {
   }

@@ -15,6 +15,7 @@
 #pragma once
 
 #include <atomic>
+#include <algorithm>
 #include <chrono>
 #include <memory>
 #include <string>
@@ -28,7 +29,7 @@ namespace rolamos {
 // What a live source has seen so far (read from any thread).
 struct LiveCounters {
   std::atomic<long long> received{0};  // frames that arrived
-  std::atomic<long long> skipped{0};   // arrived but skipped to keep up
+  std::atomic<long long> skipped{0};   // arrived and not mapped: skipped to keep up, or left by a stop
   std::atomic<double> last_arrival{0}; // Unix seconds of the newest frame
   // The most frames kept for mapping at once (waiting, and taken but not yet mapped), counted
   // after the skipping: never more than LiveOptions::max_waiting.
@@ -48,16 +49,26 @@ class LiveSource : public FrameSource {
   // Frames taken from the source and not yet mapped (kept by the caller): they count towards
   // the backlog the source keeps within `max_waiting`.
   void SetInFlight(const std::atomic<long>* in_flight) { in_flight_ = in_flight; }
+  // After frames were held at the start (the overlay search): the next `frames` frames taken are
+  // kept beyond the bound, so those that arrived meanwhile are mapped rather than skipped.
+  void CatchUp(int frames) { catch_up_ = std::max(0, frames); }
 
  protected:
   // How many of `waiting` frames to skip (the oldest) to keep the backlog within the bound.
   size_t ToSkip(size_t waiting, int max_waiting) const;
   // Records the backlog once `waiting` frames wait here beside those in flight.
   void NoteBacklog(size_t waiting);
+  // A frame taken (the catch-up counts down).
+  void Took();
+  // Ends the source on a stop: the `waiting` frames are counted as skipped. Returns false.
+  bool StopWith(size_t waiting);
 
   LiveCounters counters_;
   std::chrono::steady_clock::time_point arrival_{};
   const std::atomic<long>* in_flight_ = nullptr;
+  std::atomic<int> catch_up_{0};
+  bool stopped_ = false;
+  int options_max_waiting_ = 1;  // set by the sources: LiveOptions::max_waiting
 };
 
 }  // namespace rolamos

@@ -9,6 +9,9 @@
 
 #include <nlohmann/json.hpp>
 
+#include <map>
+
+#include "rolamos/georeference.hpp"
 #include "rolamos/store.hpp"
 
 namespace rolamos {
@@ -19,6 +22,10 @@ namespace rolamos {
 //    "track": [[x, y], ...], "footprint": [[x, y] x 4], "last_frame": {"index", "source"}}
 // with 3 x 3 homographies (row-major) from image pixels to world coordinates. At most
 // `max_patches` closed patches; a sidecar not yet written ends the chain.
-nlohmann::json LiveView(const Store& store, const nlohmann::json& preview, int max_patches = 8);
+// With `nav` (frames' navigation by name), also "georef": {"crs", "geotransform" (world -> map,
+// GDAL order), "frames" (with navigation), "residual_median_m", "residual_max_m"}, fitted over
+// the frames shown, once two of them have navigation.
+nlohmann::json LiveView(const Store& store, const nlohmann::json& preview, int max_patches = 8,
+                        const std::map<std::string, FrameNavigation>* nav = nullptr);
 
 }  // namespace rolamos

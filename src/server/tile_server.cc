@@ -21,6 +21,7 @@
 #include "rolamos/error.hpp"
 #include "rolamos/region_export.hpp"
 #include "rolamos/tiled_image.hpp"
+#include "server/live_navigation.h"
 #include "server/live_view.h"
 #include "server/overlays.h"
 #include "server/tile_pyramid.h"
@@ -76,6 +77,7 @@ struct TileServer::Impl {
   // open patch's preview ("live") as the engine rewrites it. Requests hold what they found.
   mutable std::shared_mutex images_mutex;
   nlohmann::json preview = {{"patch", 0}};  // live/preview.json as last read
+  std::unique_ptr<LiveNavigation> navigation;  // a growing navigation CSV, when given
   std::mutex refresh_mutex;
   std::chrono::steady_clock::time_point refreshed{};
   httplib::Server http;
@@ -307,7 +309,23 @@ struct TileServer::Impl {
       }
       nlohmann::json view;
       try {
-        view = LiveView(Store::Open(store.dir()), p);
+        const Store now = Store::Open(store.dir());
+        std::map<std::string, FrameNavigation> nav;
+        nlohmann::json nav_state = nullptr;
+        if (navigation) {
+          const auto size = p.value("frame_size", nlohmann::json::array());
+          std::vector<std::string> warnings;
+          try {
+            if (size.size() == 2) nav = navigation->Read(now, cv::Size(size[0].get<int>(), size[1].get<int>()), &warnings);
+            nav_state = {{"fixes", nav.size()}, {"lines_skipped", navigation->lines_skipped()}};
+          } catch (const Error& e) {
+            nav_state = {{"problem", e.what()}};
+          }
+          // Each bad line once, where the run is watched: the run goes on without it.
+          for (const auto& w : warnings) std::fprintf(stderr, "rolamos: warning: navigation %s (line skipped)\n", w.c_str());
+        }
+        view = LiveView(now, p, 8, navigation ? &nav : nullptr);
+        if (navigation) view["navigation"] = nav_state;
       } catch (const std::exception& e) {
         view = {{"patch", 0}, {"problem", e.what()}};
       }
@@ -388,6 +406,13 @@ TileServer::TileServer(Store store, const TileServerOptions& options)
   const bool live = options.live || std::filesystem::exists(store.dir() + "/live/status.json", ec);
   if (m.images.empty() && !live) Fail(store.dir(), "has no mosaic and no patches to serve");
   m.refreshed = std::chrono::steady_clock::now();
+  if (!options.navigation.empty()) {
+    LiveNavigationOptions no;
+    no.csv = options.navigation;
+    no.crs = options.navigation_crs;
+    no.focal_px = options.focal_px;
+    m.navigation = std::make_unique<LiveNavigation>(no);
+  }
   m.Routes();
   // Browsers keep ~6 connections open per site and cpp-httplib holds a thread per open
   // connection: with fewer threads than that, a page waits on idle keep-alive sockets.
