@@ -12,6 +12,7 @@ PACKAGES=(
   libzstd-dev libwebp-dev libjpeg-dev time wrk curl
   slurm-wlm munge python3-numpy
   chromium
+  gstreamer1.0-tools gstreamer1.0-plugins-base gstreamer1.0-plugins-good
 )
 
 missing=()

@@ -313,6 +313,38 @@ TEST_F(LiveTest, MaskAutoFindsTheOverlayFromTheFirstLiveFrames) {
   EXPECT_GE(st["frames_registered"].get<int>(), 30) << st.dump();
 }
 
+// The disk fills during a live run (the store on a 700 KiB tmpfs, in a mount namespace of the
+// run's own): the status stops being written with a warning, the run ends with a message that
+// says the disk is full and what the store holds, and the store opens with every patch written
+// before. Skipped where a private tmpfs cannot be mounted (not root).
+TEST_F(LiveTest, ADiskThatFillsLeavesAStoreThatOpensAndSaysSo) {
+  if (test::RunShell("unshare -m sh -c 'mount -t tmpfs -o size=64k tmpfs /mnt' 2>/dev/null").exit_code != 0)
+    GTEST_SKIP() << "cannot mount a private tmpfs here (needs root and unshare)";
+  const fs::path small = dir_ / "small";
+  fs::create_directories(small);
+  std::thread logger([&] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(500));
+    Feed(dir_ / "survey/frames", dir_ / "incoming", 20, 0, 40);
+  });
+  const std::string store = (small / "d.rolamos").string();
+  const std::string script =
+      "mount -t tmpfs -o size=700k tmpfs " + small.string() + " && " + std::string(ROLAMOS_CLI) + " mosaic " +
+      (dir_ / "incoming") + " -o " + store + " --live --idle-timeout 3 --mask none --checkpoint-frames 8; echo exit=$?; " +
+      ROLAMOS_CLI + " info --json " + store + " > " + (dir_ / "info.json") + "; echo info=$?";
+  std::ofstream(dir_ / "full.sh") << script;
+  fs::create_directories(dir_ / "incoming");
+  const auto r = test::RunShell("unshare -m sh " + (dir_ / "full.sh") + " 2>&1");
+  logger.join();
+  EXPECT_NE(r.output.find("exit=1"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("the disk is full"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("the store holds the"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("info=0"), std::string::npos) << "the store opens:\n" << r.output;
+  std::ifstream in(dir_ / "info.json");
+  const auto info = nlohmann::json::parse(in);
+  EXPECT_GE(info["patches"].size(), 1u) << info.dump();
+  for (const auto& p : info["patches"]) EXPECT_FALSE(p.contains("problem")) << p.dump();
+}
+
 // Frames arrive far faster than the engine takes them (large frames, 100 a second, without end):
 // the signal is still honoured while they pour in, and the open patch is written.
 TEST_F(LiveTest, SigintIsHonouredWhileFramesArriveFasterThanTheEngineTakesThem) {

@@ -140,8 +140,18 @@ static int RunMosaic(MosaicSwitches s) {
                   s.serve_bind.c_str(), port, store.dir().c_str());
       std::fflush(stdout);
     }
+    std::atomic<bool> status_failed{false};
     sum = MosaicLive(s.input, store, o, s.live_options,
-                     [&](const LiveStatus& st) { WriteFileAtomic(status_dir + "/status.json", StatusJson(st), /*durable=*/false); },
+                     [&](const LiveStatus& st) {
+                       // The status is for watching the run: failing to write it (a full disk) must
+                       // not stop the map; said once.
+                       try {
+                         WriteFileAtomic(status_dir + "/status.json", StatusJson(st), /*durable=*/false);
+                       } catch (const Error& e) {
+                         if (!status_failed.exchange(true))
+                           std::fprintf(stderr, "rolamos: warning: %s (the run goes on without a status)\n", e.what());
+                       }
+                     },
                      on_frame);
   } else {
     sum = MosaicInput(s.input, store, o, on_frame);
@@ -204,6 +214,9 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
                   "georeferences the live view as fixes arrive; lines that do not parse are skipped with a warning");
   cmd->add_option("--crs", s->navigation_crs, "with --navigation: CRS of eastings/northings without an epsg column");
   cmd->add_option("--focal", s->focal_px, "with --navigation: focal length in pixels (default: the camera's)");
+  cmd->add_option("--max-waiting", s->live_options.max_waiting,
+                  "live: frames waiting or being mapped at once, at most; beyond it the oldest waiting are skipped")
+      ->capture_default_str();
   cmd->add_option("--preview-interval", s->live_options.preview_s,
                   "live: seconds between previews of the open patch (STORE/live/preview.json; 0 = none)")
       ->capture_default_str();

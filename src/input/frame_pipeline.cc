@@ -354,50 +354,67 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
     report(true);
   });
   report(true);
-  const double decode = RunPipeline(
-      &feed, mosaicker,
-      [&](const FrameReport& r, int total) {
-        {
+  double decode = 0;
+  MosaicSummary summary;
+  try {
+    decode = RunPipeline(
+        &feed, mosaicker,
+        [&](const FrameReport& r, int total) {
+          {
+            std::lock_guard<std::mutex> lock(mutex);
+            auto it = arrivals.find(integrated);
+            if (it != arrivals.end()) {
+              latencies.push_back(1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - it->second).count());
+              if (latencies.size() > 600) latencies.pop_front();
+              arrivals.erase(it);
+            }
+            ++integrated;
+            --in_flight;
+            // Frames were skipped before this one, and it does not join the frame before it.
+            const long long skipped = source->counters().skipped;
+            if (skipped > skipped_before && !r.continues) ++status.coverage_lost;
+            skipped_before = skipped;
+            if (r.status == "stitched") ++status.frames_registered;
+            else ++status.frames_rejected;
+            status.open_patch = r.patch_id;
+            const auto now = std::chrono::steady_clock::now();
+            if (now - last_report > std::chrono::milliseconds(500)) {
+              last_report = now;
+              report(true);
+            }
+          }
+          if (preview) {
+            // The track and the current frame after every frame (written at most four times a
+            // second); the image every preview_s, and at once for a new patch.
+            const auto now = std::chrono::steady_clock::now();
+            const bool image = std::chrono::duration<double>(now - last_preview).count() >= live.preview_s ||
+                               (r.patch_id != preview->imaged_patch() && r.patch_id > 0);
+            if (image) last_preview = now;
+            preview->Offer(mosaicker.Preview(0.5, 2.0, image));
+          }
+          if (on_frame) on_frame(r, total);
+        },
+        [&](long index) {
+          ++in_flight;
           std::lock_guard<std::mutex> lock(mutex);
-          auto it = arrivals.find(integrated);
-          if (it != arrivals.end()) {
-            latencies.push_back(1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - it->second).count());
-            if (latencies.size() > 600) latencies.pop_front();
-            arrivals.erase(it);
-          }
-          ++integrated;
-          --in_flight;
-          // Frames were skipped before this one, and it does not join the frame before it.
-          const long long skipped = source->counters().skipped;
-          if (skipped > skipped_before && !r.continues) ++status.coverage_lost;
-          skipped_before = skipped;
-          if (r.status == "stitched") ++status.frames_registered;
-          else ++status.frames_rejected;
-          status.open_patch = r.patch_id;
-          const auto now = std::chrono::steady_clock::now();
-          if (now - last_report > std::chrono::milliseconds(500)) {
-            last_report = now;
-            report(true);
-          }
-        }
-        if (preview) {
-          // The track and the current frame after every frame (written at most four times a
-          // second); the image every preview_s, and at once for a new patch.
-          const auto now = std::chrono::steady_clock::now();
-          const bool image = std::chrono::duration<double>(now - last_preview).count() >= live.preview_s ||
-                             (r.patch_id != preview->imaged_patch() && r.patch_id > 0);
-          if (image) last_preview = now;
-          preview->Offer(mosaicker.Preview(0.5, 2.0, image));
-        }
-        if (on_frame) on_frame(r, total);
-      },
-      [&](long index) {
-        ++in_flight;
-        std::lock_guard<std::mutex> lock(mutex);
-        arrivals[index] = feed.arrival();
-      },
-      std::max(1, live.max_waiting - 1));
-  MosaicSummary summary = mosaicker.Finish();
+          arrivals[index] = feed.arrival();
+        },
+        std::max(1, live.max_waiting - 1));
+    summary = mosaicker.Finish();
+  } catch (const Error& e) {
+    // A write failed (a full disk): what was written stays a valid store; say what it holds and
+    // what was not saved, rather than only the failure.
+    std::lock_guard<std::mutex> lock(mutex);
+    std::error_code ec;
+    const auto space = fs::space(dir, ec);
+    const bool full = !ec && space.available < (4u << 20);
+    Fail(dir, std::string(e.what()) +
+                  (full ? " (the disk is full: " + std::to_string(space.available >> 10) + " KiB free)" : "") +
+                  "; the live run stopped there: the store holds the " +
+                  std::to_string(status.patches) + " patches written before (it opens and composes), the " +
+                  std::to_string(integrated) + " frames mapped since the run began were saved only as far as those "
+                  "patches go");
+  }
   if (preview) {
     summary.preview_problem = preview->problem();
     preview.reset();  // says no patch is open any more
