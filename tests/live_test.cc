@@ -345,6 +345,27 @@ TEST_F(LiveTest, ADiskThatFillsLeavesAStoreThatOpensAndSaysSo) {
   for (const auto& p : info["patches"]) EXPECT_FALSE(p.contains("problem")) << p.dump();
 }
 
+// A file cut short in the watched folder (its writer died) is not waited for for ever: it is taken
+// as it is, counted as incomplete, and the frame is accounted for with the others.
+TEST_F(LiveTest, AFileCutShortIsTakenAndCounted) {
+  const std::string store = dir_ / "cut.rolamos";
+  std::thread logger([&] {
+    Feed(dir_ / "survey/frames", dir_ / "incoming", 10, 0, 10);
+    std::ifstream in(dir_ / "survey/frames/frame_00010.jpg", std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(in)), {});
+    std::ofstream(dir_ / "incoming/frame_00010.jpg", std::ios::binary).write(bytes.data(), static_cast<std::streamsize>(bytes.size() / 3));
+    std::this_thread::sleep_for(std::chrono::seconds(4));  // the writer is gone; no later frame
+  });
+  auto r = test::RunCli("mosaic -q " + (dir_ / "incoming") + " -o " + store + " --live --idle-timeout 6 --mask none");
+  logger.join();
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto st = Status(store);
+  EXPECT_EQ(st["frames_received"], 11) << st.dump();
+  EXPECT_EQ(st["frames_incomplete"], 1) << st.dump();
+  EXPECT_EQ(st["frames_registered"].get<int>() + st["frames_rejected"].get<int>() + st["frames_skipped"].get<int>(), 11)
+      << st.dump();
+}
+
 // Frames arrive far faster than the engine takes them (large frames, 100 a second, without end):
 // the signal is still honoured while they pour in, and the open patch is written.
 TEST_F(LiveTest, SigintIsHonouredWhileFramesArriveFasterThanTheEngineTakesThem) {

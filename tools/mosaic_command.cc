@@ -62,6 +62,7 @@ static std::string StatusJson(const LiveStatus& st) {
                       {"frames_rejected", st.frames_rejected},
                       {"frames_skipped", st.frames_skipped},
                       {"coverage_lost", st.coverage_lost},
+                      {"frames_incomplete", st.frames_incomplete},
                       {"backlog_max", st.backlog_max},
                       {"backlog_bound", st.backlog_bound},
                       {"patches", st.patches},

@@ -182,6 +182,7 @@ struct LiveStatus {
   // Frames skipped where the frame taken next did not join the one before it (rejected, or it
   // opened a patch of its own): ground the map may have missed.
   long long coverage_lost = 0;
+  long long frames_incomplete = 0;  // files cut short and never finished (taken as they are)
   int backlog_max = 0;    // the most frames received and not yet mapped at once
   int backlog_bound = 0;  // the most there may be (LiveOptions::max_waiting)
   int patches = 0;             // written by this run

@@ -338,6 +338,7 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
     status.frames_received = source->counters().received;
     status.frames_skipped = source->counters().skipped;
     status.backlog_max = source->counters().backlog_max;
+    status.frames_incomplete = source->counters().incomplete;
     status.last_frame_time = source->counters().last_arrival;
     if (!latencies.empty()) {
       std::vector<double> l(latencies.begin(), latencies.end());

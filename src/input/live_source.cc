@@ -162,14 +162,29 @@ class GrowingFolderSource : public LiveSource {
       // Complete: a JPEG or PNG whose end-of-image marker is written, at once; another format once
       // its size held since the last listing. With inotify this catches what it does not see (a
       // file there before the folder was watched), in the same pass as what it sees.
+      // A file cut short (its writer died) stays unfinished: once its size has not moved for
+      // kAbandonedS it is taken all the same, and the engine reports it (unreadable, or the part
+      // that decodes), rather than it waiting unseen for ever.
+      std::map<std::string, std::chrono::steady_clock::time_point> since;
       for (const auto& [p, size] : sizes) {
-        if (size == 0 || LooksTruncated(p)) continue;
+        auto it = seen_.find(p);
+        const bool held = it != seen_.end() && it->second == size;
+        auto s = unchanged_since_.find(p);
+        since[p] = held && s != unchanged_since_.end() ? s->second : now;
+        if (size == 0) continue;
+        if (LooksTruncated(p)) {
+          if (held && now - since[p] >= std::chrono::duration<double>(kAbandonedS)) {
+            complete.push_back(p);
+            ++counters_.incomplete;
+          }
+          continue;
+        }
         const std::string ext = Extension(p);
         const bool marked = ext == ".jpg" || ext == ".jpeg" || ext == ".png";
-        auto it = seen_.find(p);
-        if (marked || (it != seen_.end() && it->second == size)) complete.push_back(p);
+        if (marked || held) complete.push_back(p);
       }
       seen_ = sizes;
+      unchanged_since_ = since;
     }
     // In name order, and never one that sorts before a frame already taken (a late arrival of an
     // older frame would go backwards in the survey).
@@ -196,6 +211,8 @@ class GrowingFolderSource : public LiveSource {
   bool watching_ = false;
   std::chrono::steady_clock::time_point listed_{};
   std::map<std::string, uintmax_t> seen_;  // not yet complete: size at the last listing
+  std::map<std::string, std::chrono::steady_clock::time_point> unchanged_since_;  // and since when
+  static constexpr double kAbandonedS = 3.0;
   std::set<std::string> taken_;
   std::deque<std::pair<std::string, std::chrono::steady_clock::time_point>> ready_;
   std::string last_;

@@ -2,7 +2,8 @@
 //  - a folder a logger writes into: new image files taken in name order as they appear, each
 //    only once it is complete: closed by its writer or renamed into the folder (inotify, seen at
 //    once), or, where the file system does not report it, its size unchanged over a listing;
-//    and, for JPEG and PNG, its end-of-image marker written;
+//    and, for JPEG and PNG, its end-of-image marker written (one cut short whose size has not moved
+//    for 3 s is taken as it is, counted as incomplete, and reported by the engine);
 //  - a stream through OpenCV's GStreamer or FFmpeg back ends: a camera device (/dev/videoN), a
 //    network URL (rtsp://, udp://, http://) or a GStreamer pipeline string (ending in appsink).
 // When frames arrive faster than the engine takes them, the older waiting ones are skipped, so the
@@ -31,6 +32,7 @@ struct LiveCounters {
   std::atomic<long long> received{0};  // frames that arrived
   std::atomic<long long> skipped{0};   // arrived and not mapped: skipped to keep up, or left by a stop
   std::atomic<double> last_arrival{0}; // Unix seconds of the newest frame
+  std::atomic<long long> incomplete{0};  // files cut short and never finished, taken as they are
   // The most frames kept for mapping at once (waiting, and taken but not yet mapped), counted
   // after the skipping: never more than LiveOptions::max_waiting.
   std::atomic<int> backlog_max{0};
