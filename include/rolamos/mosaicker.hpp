@@ -236,6 +236,11 @@ class Mosaicker {
   // between frames.
   // Without `image`, everything but the image (cheap: for the track between images).
   LivePreview Preview(double scale = 0.5, double max_megapixels = 2.0, bool image = true) const;
+  // How far the last frame placed moved from the one placed before it, as a fraction of the
+  // frame's extent along that motion (0 to 1+; 0 when fewer than two frames of the open patch):
+  // a live source's measure of how many frames it may skip without losing ground. Same thread
+  // as Integrate.
+  double LastStepFraction() const;
   // Called (from the writer thread) after each patch is committed to the store.
   void OnPatch(std::function<void(const PatchSidecar&)> callback);
 

@@ -1066,6 +1066,20 @@ LivePreview Mosaicker::Preview(double scale, double max_megapixels, bool image) 
   return out;
 }
 
+double Mosaicker::LastStepFraction() const {
+  const Impl& m = *impl_;
+  if (m.frames.size() < 2) return 0;
+  const double w = m.frame_size.width, h = m.frame_size.height;
+  const cv::Point2d a = ApplyHomography(ToMatx(m.frames[m.frames.size() - 2].frame_to_patch), {w / 2, h / 2});
+  const cv::Point2d b = ApplyHomography(ToMatx(m.frames.back().frame_to_patch), {w / 2, h / 2});
+  const cv::Point2d d = b - a;
+  const double length = std::hypot(d.x, d.y);
+  if (length < 1e-9) return 0;
+  // The frame's extent along the motion (an axis-aligned frame in its own grid, roughly).
+  const double extent = w * std::abs(d.x) / length + h * std::abs(d.y) / length;
+  return length / extent;
+}
+
 MosaicSummary Mosaicker::Finish() {
   Impl& m = *impl_;
   m.ClosePatch("end");

@@ -276,6 +276,9 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
   return summary;
 }
 
+// When frames must be skipped, those kept overlap each other at least this much where the room allows.
+constexpr double kMinOverlap = 0.6;
+
 MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerOptions& given,
                          const LiveOptions& live, const std::function<void(const LiveStatus&)>& on_status,
                          const std::function<void(const FrameReport&, int)>& on_frame) {
@@ -374,6 +377,12 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
             // Frames were skipped before this one, and it does not join the frame before it.
             const long long skipped = source->counters().skipped;
             if (skipped > skipped_before && !r.continues) ++status.coverage_lost;
+            // What the source may skip at the vehicle's speed and keep each frame overlapping the
+            // one before by kMinOverlap (the step measured over the camera frames it spans).
+            if (const double step = mosaicker.LastStepFraction(); step > 0 && r.continues) {
+              const double per_frame = step / double(1 + skipped - skipped_before);
+              source->SetMaxGap(static_cast<int>(std::clamp((1 - kMinOverlap) / per_frame, 1.0, 1000.0)));
+            }
             skipped_before = skipped;
             if (r.status == "stitched") ++status.frames_registered;
             else ++status.frames_rejected;

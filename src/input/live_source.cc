@@ -78,10 +78,7 @@ class GrowingFolderSource : public LiveSource {
       if (Stopped(options_)) return StopWith(ready_.size());
       Collect();
       if (!ready_.empty()) {
-        for (size_t skip = ToSkip(ready_.size(), options_.max_waiting); skip > 0; --skip) {
-          ready_.pop_front();
-          ++counters_.skipped;
-        }
+        Thin(&ready_, options_.max_waiting);
         NoteBacklog(ready_.size());
         const auto [path, arrived] = ready_.front();
         ready_.pop_front();
@@ -258,10 +255,7 @@ class StreamSource : public LiveSource {
           std::chrono::duration<double>(std::chrono::steady_clock::now() - idle_since).count() > options_.idle_timeout_s)
         return false;
     }
-    for (size_t skip = ToSkip(shared_->frames.size(), options_.max_waiting); skip > 0; --skip) {
-      shared_->frames.pop_front();
-      ++counters_.skipped;
-    }
+    Thin(&shared_->frames, options_.max_waiting);
     NoteBacklog(shared_->frames.size());
     auto [image, arrived] = std::move(shared_->frames.front());
     shared_->frames.pop_front();
@@ -309,10 +303,7 @@ class StreamSource : public LiveSource {
       }
       s->frames.emplace_back(m, std::chrono::steady_clock::now());
       // Frames keep arriving while nothing takes them: the backlog stays within the bound.
-      while (s->frames.size() > 1 && s->source && s->source->ToSkip(s->frames.size(), s->max_waiting) > 0) {
-        s->frames.pop_front();
-        ++s->source->counters_.skipped;
-      }
+      if (s->source) s->source->Thin(&s->frames, s->max_waiting);
       if (s->source) s->source->NoteBacklog(s->frames.size());
       s->changed.notify_all();
     }
@@ -330,11 +321,28 @@ class StreamSource : public LiveSource {
 
 }  // namespace
 
-size_t LiveSource::ToSkip(size_t waiting, int max_waiting) const {
-  // The newest waiting frame is always kept: it is the one the map needs.
+std::vector<bool> LiveSource::Keep(size_t waiting, int max_waiting) const {
   const long in_flight = in_flight_ ? std::max(0L, in_flight_->load()) : 0;
   const long room = std::max(1L, static_cast<long>(max_waiting) + catch_up_.load() - in_flight);
-  return waiting > static_cast<size_t>(room) ? waiting - static_cast<size_t>(room) : 0;
+  const long n = static_cast<long>(waiting);
+  std::vector<bool> keep(waiting, n <= room);
+  if (n <= room) return keep;
+  keep[size_t(n - 1)] = true;  // the newest: the one the map needs
+  long slots = room - 1;
+  // Stepping stones from the last frame taken, each as far as still overlaps the one before.
+  if (const long gap = max_gap_.load(); gap > 0) {
+    long prev = -1 - run_;  // the last frame taken
+    while (slots > 0 && n - 1 - prev > gap) {
+      const long at = std::max(prev + gap, 0L);
+      if (at >= n - 1) break;
+      keep[size_t(at)] = true;
+      --slots;
+      prev = at;
+    }
+  }
+  for (long i = n - 2; i >= 0 && slots > 0; --i)
+    if (!keep[size_t(i)]) keep[size_t(i)] = true, --slots;
+  return keep;
 }
 
 bool LiveSource::StopWith(size_t waiting) {
@@ -345,6 +353,7 @@ bool LiveSource::StopWith(size_t waiting) {
 }
 
 void LiveSource::Took() {
+  run_ = 0;
   int left = catch_up_.load();
   while (left > 0 && !catch_up_.compare_exchange_weak(left, left - 1)) {
   }

@@ -18,6 +18,8 @@
 #include <atomic>
 #include <algorithm>
 #include <chrono>
+#include <deque>
+#include <vector>
 #include <memory>
 #include <string>
 
@@ -54,10 +56,30 @@ class LiveSource : public FrameSource {
   // After frames were held at the start (the overlay search): the next `frames` frames taken are
   // kept beyond the bound, so those that arrived meanwhile are mapped rather than skipped.
   void CatchUp(int frames) { catch_up_ = std::max(0, frames); }
+  // How many frames apart two frames may be and still overlap enough, at the vehicle's present
+  // speed (from the engine after each frame); 0: unknown (the newest frames are kept).
+  void SetMaxGap(int frames) { max_gap_ = std::max(0, frames); }
 
  protected:
-  // How many of `waiting` frames to skip (the oldest) to keep the backlog within the bound.
-  size_t ToSkip(size_t waiting, int max_waiting) const;
+  // Which of `waiting` frames (oldest first) to keep so the backlog stays within the bound: the
+  // newest always; where the room allows, frames spaced at most SetMaxGap() apart from the last
+  // one taken (a skipped frame then adds nothing the frames kept around it do not); then the
+  // newest others.
+  std::vector<bool> Keep(size_t waiting, int max_waiting) const;
+  // Drops from `waiting` what Keep does not keep, counting them as skipped.
+  template <class T>
+  void Thin(std::deque<T>* waiting, int max_waiting) {
+    const std::vector<bool> keep = Keep(waiting->size(), max_waiting);
+    if (std::all_of(keep.begin(), keep.end(), [](bool k) { return k; })) return;
+    std::deque<T> kept;
+    for (size_t i = 0; i < keep.size(); ++i) {
+      if (keep[i]) kept.push_back(std::move((*waiting)[i]));
+      else ++counters_.skipped;
+    }
+    // Frames skipped right after the last one taken widen the first gap.
+    for (size_t i = 0; i < keep.size() && !keep[i]; ++i) ++run_;
+    *waiting = std::move(kept);
+  }
   // Records the backlog once `waiting` frames wait here beside those in flight.
   void NoteBacklog(size_t waiting);
   // A frame taken (the catch-up counts down).
@@ -69,6 +91,8 @@ class LiveSource : public FrameSource {
   std::chrono::steady_clock::time_point arrival_{};
   const std::atomic<long>* in_flight_ = nullptr;
   std::atomic<int> catch_up_{0};
+  std::atomic<int> max_gap_{0};
+  int run_ = 0;  // frames skipped since the last one taken (under the source's own lock)
   bool stopped_ = false;
   int options_max_waiting_ = 1;  // set by the sources: LiveOptions::max_waiting
 };
