@@ -300,7 +300,7 @@ void Mosaicker::Impl::InitCamera(cv::Size size) {
 
 std::shared_ptr<const Features> Mosaicker::Impl::FeaturesOf(PreparedFrame& p) {
   std::call_once(p.features_once, [&] {
-    Laps lap{this};
+    Laps lap{this, {}};
     const double scale = extractor.options().ScaleFor(p.size);
     cv::Mat specks;
     const cv::Mat detect = pre.DetectionImage(p.image, scale, &specks);
@@ -361,7 +361,7 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Assess(EgomotionResult ego, const cv
 // The frame followed from the current keyframe, starting where the motion model puts it (or,
 // `coarse`, where one phase correlation of the coarsest levels does).
 Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<PreparedFrame>& p, bool coarse) {
-  Laps lap{this};
+  Laps lap{this, {}};
   const Key& key = keys.back();
   // Where the frame is expected: the last placed frame moved by the predicted motion.
   const std::optional<FrameMotion> predicted = gate->Predicted();
@@ -630,7 +630,7 @@ std::vector<OlderKeyframe> Mosaicker::Impl::LinkCandidates(const cv::Matx33d& to
 
 void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch,
                                   const Candidate* c, std::vector<FrameLink> found, FrameRecord rec, bool current) {
-  Laps lap{this};
+  Laps lap{this, {}};
   canvas->Add(p->image, *weights, to_patch);
   if (options.flat_field || options.water_colour)
     colour->Add(p->image, usable.size() == p->image.size() ? usable : cv::Mat());
@@ -685,7 +685,7 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
     keys.insert(keys.end() - 1, std::move(key));
   } else {
     keys.push_back(std::move(key));
-    last = Placed{keys.back().index, to_patch, p, true};
+    last = Placed{keys.back().index, to_patch, p, true, {}};
   }
   // Keyframes behind the recent ones are not followed from again: their pyramids go.
   if (keys.size() > 3) keys[keys.size() - 4].frame.reset();
@@ -912,7 +912,7 @@ std::shared_ptr<PreparedFrame> Mosaicker::Prepare(const cv::Mat& input, const st
   p->source = source;
   p->error = input.empty() ? (error.empty() ? "unreadable" : error) : "";
   if (input.empty()) return p;
-  Impl::Laps lap{&m};
+  Impl::Laps lap{&m, {}};
   cv::Mat frame = input;
   if (frame.depth() != CV_8U) frame.convertTo(frame, CV_8U, frame.depth() == CV_16U ? 1.0 / 257.0 : 255.0);
   if (frame.channels() == 1) cv::cvtColor(frame, frame, cv::COLOR_GRAY2BGR);
@@ -950,7 +950,7 @@ FrameReport Mosaicker::Push(const cv::Mat& frame, const std::string& source, con
 FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   Impl& m = *impl_;
   const auto t0 = std::chrono::steady_clock::now();
-  Impl::Laps lap{&m};
+  Impl::Laps lap{&m, {}};
   FrameReport r;
   r.index = m.summary.frames++;
   r.source = p->source;
