@@ -13,7 +13,10 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "rolamos/compose.hpp"
 #include "rolamos/describe.hpp"
+#include "rolamos/global_align.hpp"
+#include "rolamos/region_export.hpp"
 #include "rolamos/error.hpp"
 #include "rolamos/mosaicker.hpp"
 #include "rolamos/store.hpp"
@@ -157,6 +160,89 @@ MosaickerOptions ToOptions(const py::kwargs& kwargs) {
   return o;
 }
 
+// A library progress callback for a long call made without the GIL: it takes the GIL, calls the
+// user's `progress(fraction, message)` (when given) and honours Ctrl-C (KeyboardInterrupt), by
+// throwing out of the library call (its writes are atomic: nothing half-written stays).
+ProgressFn PythonProgress(const py::object& progress, const std::string& message) {
+  return [progress, message](double fraction) {
+    py::gil_scoped_acquire acquire;
+    if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+    if (!progress.is_none()) progress(fraction, message);
+  };
+}
+
+py::dict Compose(const std::string& store, long long max_pixels, int bands, bool exposure, bool restart,
+                 const py::object& progress) {
+  ComposeOptions o;
+  o.max_pixels = max_pixels;
+  o.bands = bands;
+  o.exposure = exposure;
+  o.restart = restart;
+  // The CLI's defaults (rolamos compose): WebP at quality 90 in 256-pixel tiles.
+  o.tiff.compression = Compression::kWebp;
+  o.tiff.quality = 90;
+  std::string error;
+  if (!o.IsValid(&error)) throw py::value_error(error);
+  ComposeResult r;
+  {
+    py::gil_scoped_release release;
+    r = ComposeMosaic(Store::Open(store), o, PythonProgress(progress, "compose"));
+  }
+  py::dict d;
+  d["width"] = r.width;
+  d["height"] = r.height;
+  d["scale"] = r.scale;
+  d["patches_used"] = r.patches_used;
+  py::list left;
+  for (const auto& [id, why] : r.left_out) left.append(py::make_tuple(id, why));
+  d["left_out"] = left;
+  return d;
+}
+
+py::dict Align(const std::string& store, const py::object& progress) {
+  AlignOptions o;
+  AlignSummary r;
+  {
+    py::gil_scoped_release release;
+    r = AlignStore(Store::Open(store), o, PythonProgress(progress, "align"));
+  }
+  py::dict d;
+  d["frames"] = r.frames;
+  d["components"] = r.components;
+  d["component_frames"] = r.component_frames;
+  d["edges_dropped"] = r.edges_dropped;
+  d["rms_before_px"] = r.rms_before_px;
+  d["rms_after_px"] = r.rms_after_px;
+  d["seconds"] = r.seconds;
+  return d;
+}
+
+py::dict Export(const std::string& image_path, const std::string& output, std::optional<std::vector<double>> region,
+                int level, double scale, const py::object& progress) {
+  ExportOptions o;
+  o.output = output;
+  o.level = level;
+  o.scale = scale;
+  if (region) {
+    if (region->size() != 4) throw py::value_error("region: expected (x, y, w, h)");
+    o.region = cv::Rect2d((*region)[0], (*region)[1], (*region)[2], (*region)[3]);
+  }
+  std::string error;
+  if (!o.IsValid(&error)) throw py::value_error(error);
+  ExportResult r;
+  {
+    py::gil_scoped_release release;
+    const TiledImage image = TiledImage::Open(image_path);
+    r = ExportRegion(image, o, PythonProgress(progress, "export"));
+  }
+  py::dict d;
+  d["width"] = r.width;
+  d["height"] = r.height;
+  d["level"] = r.level;
+  d["scale"] = r.scale;
+  return d;
+}
+
 py::dict ReportDict(const FrameReport& r) {
   py::dict d;
   d["index"] = r.index;
@@ -251,6 +337,15 @@ PYBIND11_MODULE(_rolamos, m) {
            "Maps one frame (uint8 array (h, w, 3) RGB or (h, w) gray); returns the frame's report.")
       .def("close", &PyMosaicker::Close, "Writes the last patch; returns the run's totals.");
 
+  m.def("compose", &Compose, py::arg("store"), py::kw_only(), py::arg("max_pixels") = 0, py::arg("bands") = 0,
+        py::arg("exposure") = true, py::arg("restart") = false, py::arg("progress") = py::none(),
+        "Composes the store's patches into mosaic.tif (rolamos compose). `progress(fraction, message)` is "
+        "called as it goes; Ctrl-C interrupts it (a later compose resumes).");
+  m.def("align", &Align, py::arg("store"), py::kw_only(), py::arg("progress") = py::none(),
+        "The global map over every frame (rolamos align); compose draws it.");
+  m.def("export", &Export, py::arg("image"), py::arg("output"), py::kw_only(), py::arg("region") = py::none(),
+        py::arg("level") = -1, py::arg("scale") = 1.0, py::arg("progress") = py::none(),
+        "A region (x, y, w, h in level-0 pixels) of a tiled image to .tif (streamed), .png or .jpg.");
   m.def("describe_store", [](const std::string& dir) { return ToPython(DescribeStore(dir)); }, py::arg("path"),
         "What `rolamos info --json` prints for a store.");
   m.def("describe_image", [](const std::string& path) { return ToPython(DescribeImage(path)); }, py::arg("path"),

@@ -16,9 +16,19 @@ import os
 from dataclasses import dataclass, field
 from typing import List, Optional, Tuple, Union
 
-from ._rolamos import Error, Image, Mosaicker, describe_image, describe_store
+from ._rolamos import Error, Image, Mosaicker, align, compose, describe_image, describe_store
+from ._rolamos import export as _export
 
-__all__ = ["Error", "Image", "Mosaicker", "Patch", "Store", "open_image"]
+__all__ = ["Error", "Image", "Mosaicker", "Patch", "Store", "align", "compose", "export", "open_image"]
+
+
+def export(image: Union[str, os.PathLike, "Image"], output: Union[str, os.PathLike], *, region=None, level: int = -1,
+           scale: float = 1.0, progress=None) -> dict:
+    """A region (x, y, w, h in level-0 pixels; None: all) of an image (a path or an Image from
+    open_image) at full resolution, a level or a scale, to .tif (streamed, pyramidal), .png or .jpg."""
+    path = image.path if isinstance(image, Image) else os.fspath(image)
+    return _export(path, os.fspath(output), region=None if region is None else [float(v) for v in region],
+                   level=level, scale=scale, progress=progress)
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,10 @@ def store(tmp_path_factory):
     assert totals["frames"] == 16
     assert sum(r["status"] == "stitched" for r in reports) >= 15
     assert totals["patches"] >= 2
-    subprocess.run([CLI, "compose", "-q", str(d / "s.rolamos")], check=True)
+    seen = []
+    result = rolamos.compose(str(d / "s.rolamos"), progress=lambda f, what: seen.append((f, what)))
+    assert result["patches_used"] == totals["patches"] and result["width"] > 0
+    assert seen and seen[-1][0] == pytest.approx(1.0) and seen[0][1] == "compose"
     return rolamos.Store(str(d / "s.rolamos"))
 
 
@@ -89,3 +92,37 @@ def test_errors_name_the_file_and_bad_options_name_the_option(tmp_path):
         rolamos.Mosaicker(str(tmp_path / "y.rolamos"), keyframe_overlap="high")
     with pytest.raises(ValueError):
         rolamos.Mosaicker(str(tmp_path / "z.rolamos"), max_features=-5)
+
+
+def test_align_then_compose_and_export_from_python(store, tmp_path):
+    summary = rolamos.align(store.path)
+    assert summary["components"] == 1 and summary["rms_after_px"] < 2.0, summary
+    rolamos.compose(store.path)
+    image = rolamos.open_image(store.path, "mosaic")
+    out = tmp_path / "region.png"
+    r = rolamos.export(image, out, region=(10, 20, 200, 100))
+    assert (r["width"], r["height"]) == (200, 100)
+    with rasterio.open(out) as src:
+        exported = np.moveaxis(src.read(), 0, -1)
+    assert np.array_equal(exported, image.read(10, 20, 200, 100)[..., : exported.shape[2]])
+
+
+def test_progress_can_interrupt_a_long_call(store):
+    def stop(fraction, what):
+        raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt):
+        rolamos.compose(store.path, restart=True, progress=stop)
+    rolamos.compose(store.path)  # the store is whole: a compose afterwards finishes it
+    assert rolamos.open_image(store.path, "mosaic").width > 0
+
+
+def test_the_example_plots_the_overview(store, tmp_path):
+    out = tmp_path / "overview.png"
+    example = os.path.join(os.path.dirname(__file__), "..", "..", "examples", "plot_overview.py")
+    r = subprocess.run(["/usr/bin/python3", example, store.path, "-o", str(out)], capture_output=True, text=True,
+                       env=dict(os.environ))
+    assert r.returncode == 0, r.stderr
+    assert out.stat().st_size > 10_000
+    import matplotlib.image
+    picture = matplotlib.image.imread(str(out))
+    assert picture.shape[0] >= 600 and picture.std() > 0.05  # a picture, not a blank page
