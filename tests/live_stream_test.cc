@@ -74,7 +74,11 @@ TEST(LiveStream, RtpMjpegOverUdpIsMappedThroughAStallAndStopsWhileStalled) {
   EXPECT_GE(after["frames_received"].get<int>() - before["frames_received"].get<int>(), 36)
       << "frames after the stall: " << after.dump();
   const auto st = status();
-  EXPECT_GE(st["frames_registered"].get<int>(), 70) << st.dump();
+  // Most frames are mapped (on a loaded machine some are skipped to keep up, and said so).
+  EXPECT_GE(st["frames_registered"].get<int>(), 40) << st.dump();
+  EXPECT_EQ(st["frames_registered"].get<int>() + st["frames_rejected"].get<int>() + st["frames_skipped"].get<int>(),
+            st["frames_received"].get<int>()) << st.dump();
+  EXPECT_LE(st["backlog_max"].get<int>(), st["backlog_bound"].get<int>()) << st.dump();
   EXPECT_FALSE(st["running"].get<bool>());
   r = test::RunCli("info --json " + store);
   ASSERT_EQ(r.exit_code, 0) << r.output;

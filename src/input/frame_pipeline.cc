@@ -126,6 +126,7 @@ class ReplayedSource : public FrameSource {
   std::deque<std::pair<InputFrame, std::chrono::steady_clock::time_point>> first;
   bool Next(InputFrame* f) override {
     if (!first.empty()) {
+      if (in_flight) ++*in_flight;  // the live source counts its own frames as it hands them out
       *f = std::move(first.front().first);
       arrival_ = first.front().second;
       first.pop_front();
@@ -137,6 +138,7 @@ class ReplayedSource : public FrameSource {
   }
   int count() const override { return -1; }
   std::chrono::steady_clock::time_point arrival() const { return arrival_; }
+  std::atomic<long>* in_flight = nullptr;
 
  private:
   LiveSource* source_;
@@ -174,22 +176,20 @@ double RunPipeline(FrameSource* source, Mosaicker& mosaicker,
   auto prepare_frames = [&] {
     try {
       for (;;) {
-        {
-          std::unique_lock<std::mutex> lock(mutex);
-          changed.wait(lock, [&] { return stopping || total >= 0 || taken - (bounded ? finished : integrated) < ahead; });
-          if (stopping || total >= 0) return;
-        }
         InputFrame f;
         long index;
         {
           // Frames leave the source in order, numbered as they leave (video decodes in order).
+          // The room ahead is checked under the source's lock: two workers that both saw one
+          // free slot must not both take a frame (the live backlog would pass its bound).
           std::lock_guard<std::mutex> source_lock(source_mutex);
-          CpuLaps cpu;
-          bool more;
           {
-            std::lock_guard<std::mutex> lock(mutex);
-            more = total < 0;
+            std::unique_lock<std::mutex> lock(mutex);
+            changed.wait(lock, [&] { return stopping || total >= 0 || taken - (bounded ? finished : integrated) < ahead; });
+            if (stopping || total >= 0) return;
           }
+          CpuLaps cpu;
+          bool more = true;
           more = more && source->Next(&f);
           decode_ns += cpu.Lap();
           std::lock_guard<std::mutex> lock(mutex);
@@ -320,6 +320,7 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
   // more than the backlog bound (the pipeline prepares at most one fewer ahead).
   std::atomic<long> in_flight{0};
   source->SetInFlight(&in_flight);
+  feed.in_flight = &in_flight;
   Mosaicker mosaicker(store, options);
   // The open patch for the page, every preview_s (rendered here, between frames; written on the
   // preview writer's thread).
@@ -405,7 +406,6 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
           if (on_frame) on_frame(r, total);
         },
         [&](long index) {
-          ++in_flight;
           std::lock_guard<std::mutex> lock(mutex);
           arrivals[index] = feed.arrival();
         },

@@ -354,6 +354,7 @@ bool LiveSource::StopWith(size_t waiting) {
 
 void LiveSource::Took() {
   run_ = 0;
+  if (in_flight_) ++*in_flight_;
   int left = catch_up_.load();
   while (left > 0 && !catch_up_.compare_exchange_weak(left, left - 1)) {
   }

@@ -52,7 +52,9 @@ class LiveSource : public FrameSource {
   int count() const override { return -1; }
   // Frames taken from the source and not yet mapped (kept by the caller): they count towards
   // the backlog the source keeps within `max_waiting`.
-  void SetInFlight(const std::atomic<long>* in_flight) { in_flight_ = in_flight; }
+  // The source counts each frame it hands out there, under its own lock (no moment where a frame
+  // taken is counted neither waiting nor in flight); the caller counts it down once mapped.
+  void SetInFlight(std::atomic<long>* in_flight) { in_flight_ = in_flight; }
   // After frames were held at the start (the overlay search): the next `frames` frames taken are
   // kept beyond the bound, so those that arrived meanwhile are mapped rather than skipped.
   void CatchUp(int frames) { catch_up_ = std::max(0, frames); }
@@ -89,7 +91,7 @@ class LiveSource : public FrameSource {
 
   LiveCounters counters_;
   std::chrono::steady_clock::time_point arrival_{};
-  const std::atomic<long>* in_flight_ = nullptr;
+  std::atomic<long>* in_flight_ = nullptr;
   std::atomic<int> catch_up_{0};
   std::atomic<int> max_gap_{0};
   int run_ = 0;  // frames skipped since the last one taken (under the source's own lock)
