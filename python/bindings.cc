@@ -121,6 +121,7 @@ void SetOption(MosaickerOptions& o, std::string name, const py::handle& v) {
       {"track_pixels", num(&MosaickerOptions::track_pixels)}, {"track_points", integer(&MosaickerOptions::track_points)},
       {"keyframe_overlap", num(&MosaickerOptions::keyframe_overlap)},
       {"keyframe_min_overlap", num(&MosaickerOptions::keyframe_min_overlap)},
+      {"describe_overlap", num(&MosaickerOptions::describe_overlap)},
       {"features", text(&MosaickerOptions::features)}, {"max_features", integer(&MosaickerOptions::max_features)},
       {"detect_scale", num(&MosaickerOptions::detect_scale)}, {"sift_upsample", flag(&MosaickerOptions::sift_upsample)},
       {"ratio", num(&MosaickerOptions::ratio)}, {"cross_check", flag(&MosaickerOptions::cross_check)},

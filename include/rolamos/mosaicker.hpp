@@ -55,6 +55,14 @@ struct MosaickerOptions {
   // points followed thin out. 1 = every frame is a keyframe.
   double keyframe_overlap = 0.75;
   double keyframe_min_overlap = 0.5;
+  // A keyframe is described (SIFT: stored for the global map's appearance links and loop
+  // closures, matched for the patch's loop links and recovery) when it overlaps the patch's last
+  // described keyframe less than this, or was not simply followed (recovered, doubtful, first or
+  // last of its patch); the others are linked by their tracks, their ground described by their
+  // neighbours. 1 = every keyframe (the default). 0.5 on stills at 70 % overlap: every other
+  // keyframe, 15-25 % more frames a second for 7-25 % more error per patch (half the links of
+  // the patch adjustment are SIFT's); on video twice the error (bench/RESULTS.md).
+  double describe_overlap = 1.0;
   std::string features = "sift";  // sift | orb | akaze
   int max_features = 1000;
   double detect_scale = 0;        // 0 = by frame size (about detect_pixels)
@@ -142,6 +150,7 @@ struct FrameReport {
 struct MosaicSummary {
   int frames = 0, stitched = 0, rejected = 0, patches = 0;
   int keyframes = 0;  // of the stitched: blended (the others are placed between them)
+  int described = 0;  // of the keyframes: their features found and stored
   int recovered = 0;  // of the stitched: rejected at first, registered against a later frame
   int adjusted = 0, unadjusted = 0;  // patches whose placements the adjustment replaced, or not
   double seconds = 0;

@@ -52,7 +52,12 @@ struct FrameRecord {
   // between keyframes and placed, not blended; `placed_from` is the keyframe it was followed from.
   std::optional<bool> keyframe;
   std::optional<int> placed_from;
+  // Absent or true: a keyframe's features were found and stored (when it had any). false: a
+  // keyframe the engine linked by its tracks only, its ground described by its neighbours; its
+  // frame is never read again to describe it.
+  std::optional<bool> described;
   bool is_keyframe() const { return keyframe.value_or(true); }
+  bool is_described() const { return is_keyframe() && described.value_or(true); }
   nlohmann::json extra = nlohmann::json::object();  // fields added by later versions, kept as read
 };
 

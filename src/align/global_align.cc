@@ -198,10 +198,13 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
   if (!(focal > 0)) focal = 0.5 * frame.width / std::tan(35.0 * CV_PI / 180);  // the engine's default camera
   const cv::Matx33d K = CameraMatrix(focal, frame);
   {
-    // Frames without stored features are read and described again, in parallel.
+    // Frames without stored features are read and described again, in parallel; not those the
+    // engine chose not to describe (their ground is described by their neighbours).
     std::vector<int> missing;
-    for (int i = 0; i < N; ++i)
-      if (nodes[size_t(i)].points.empty()) missing.push_back(i);
+    for (int i = 0; i < N; ++i) {
+      const Node& n = nodes[size_t(i)];
+      if (n.points.empty() && sidecars[n.patch].frames[n.record].is_described()) missing.push_back(i);
+    }
     const FeatureExtractor extractor(StoredFrameFeatureOptions());
     std::atomic<int> described{0};
     ParallelFor(static_cast<long long>(missing.size()), [&](long long k, int) {

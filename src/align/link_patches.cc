@@ -72,7 +72,7 @@ LinkSummary LinkPatches(Store store, const LinkOptions& options, const ProgressF
     const PatchSidecar& s = patches[i];
     Found best;
     for (size_t p = 0, probed = 0; p < s.frames.size() && probed < static_cast<size_t>(options.probe_frames); ++p) {
-      if (!s.frames[p].is_keyframe()) continue;  // only keyframes have stored features
+      if (!s.frames[p].is_described()) continue;  // only described keyframes have stored features
       ++probed;
       const Features& probe = describe(s, p);
       for (size_t j = 0; j < patches.size(); ++j) {

@@ -25,6 +25,7 @@ KeyframeProducts RunKeyframeJob(const KeyframeJob& job, const KeyframeTools& too
   if (out.features && !out.features->empty()) {
     for (const auto& older : job.older) {
       const KeyframeProducts& theirs = older.products.get();
+      if (!theirs.features || theirs.features->empty()) continue;
       PatchFrame f;
       f.index = older.index;
       f.to_patch = older.to_patch;

@@ -68,6 +68,10 @@ bool MosaickerOptions::IsValid(std::string* error) const {
              std::to_string(keyframe_min_overlap) + " in (0.05, keyframe overlap]";
     return false;
   }
+  if (!(describe_overlap > 0 && describe_overlap <= 1.0)) {
+    *error = "describe overlap " + std::to_string(describe_overlap) + " must be in (0, 1]";
+    return false;
+  }
   if (!(feather_sigma >= 0 && feather_sigma <= 10)) {
     *error = "feather sigma must be in [0, 10] (0 = plain averaging)";
     return false;
@@ -144,6 +148,7 @@ struct Mosaicker::Impl {
     std::vector<cv::Point2f> points;       // followed into the frames after it
     std::vector<long long> ids;            // their tracks
     KeyframeFuture products;
+    bool described = true;                 // its features are found (products.features)
   };
   // The frame placed last, keyframe or not.
   struct Placed {
@@ -166,8 +171,8 @@ struct Mosaicker::Impl {
   std::vector<FrameLink> links;          // between keyframes, from their tracks
   size_t keyframe_bytes = 0;                // keyframes' images and features held until the patch is written
   // What a keyframe holds until its patch is written: its filtered image and its features.
-  size_t KeyframeBytes(const PreparedFrame& p) const {
-    return p.image.total() * p.image.elemSize() + size_t(options.max_features) * 128 * sizeof(float);
+  size_t KeyframeBytes(const PreparedFrame& p, bool described = true) const {
+    return p.image.total() * p.image.elemSize() + (described ? size_t(options.max_features) * 128 * sizeof(float) : 0);
   }
   Placed last;
   long long next_track = 0;
@@ -246,11 +251,14 @@ struct Mosaicker::Impl {
     return MotionOf(last.to_patch.inv() * to_patch, frame_size);
   }
   Candidate Assess(EgomotionResult ego, const cv::Matx33d& target_to_patch, const std::string& by, int target);
-  Candidate Track(const std::shared_ptr<PreparedFrame>& p, bool coarse);
+  // `shifted`: whether the coarse correlation moved the start away from the prediction.
+  Candidate Track(const std::shared_ptr<PreparedFrame>& p, bool coarse, bool* shifted = nullptr);
   std::vector<Candidate> Recover(const std::shared_ptr<PreparedFrame>& p, Laps& lap);
   bool Usable(const Candidate& c) const;
   const Candidate* Pick(const std::vector<Candidate>& all) const;
   bool WantsKeyframe(const Candidate& c, const cv::Matx33d& to_patch) const;
+  // Whether a new keyframe is described (MosaickerOptions::describe_overlap).
+  bool Describes(const PreparedFrame& p, const cv::Matx33d& to_patch, const Candidate* c) const;
   cv::Matx33d FitToKeyframes(const PreparedFrame& p, const Candidate& c, std::vector<FrameLink>* fitted, int* frames);
 
   void StartPatch(const std::shared_ptr<PreparedFrame>& p, FrameReport& r, const std::optional<PatchLink>& join);
@@ -360,7 +368,7 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Assess(EgomotionResult ego, const cv
 
 // The frame followed from the current keyframe, starting where the motion model puts it (or,
 // `coarse`, where one phase correlation of the coarsest levels does).
-Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<PreparedFrame>& p, bool coarse) {
+Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<PreparedFrame>& p, bool coarse, bool* shifted) {
   Laps lap{this, {}};
   const Key& key = keys.back();
   // Where the frame is expected: the last placed frame moved by the predicted motion.
@@ -370,8 +378,11 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<Prepared
   cv::Matx33d guess = frame_to_key.inv();  // key -> frame
   if (coarse || !predicted) {
     double response = 0;
-    const cv::Matx33d shifted = tracker.CoarseShift(*key.frame->track, *p->track, guess, &response);
-    if (response > 0.05 || !predicted) guess = shifted;
+    const cv::Matx33d moved = tracker.CoarseShift(*key.frame->track, *p->track, guess, &response);
+    if (response > 0.05 || !predicted) {
+      guess = moved;
+      if (shifted) *shifted = predicted.has_value();
+    }
   }
   const TrackFlow flow = tracker.Follow(*key.frame->track, *p->track, key.points, guess);
   std::vector<cv::Point2f> from, to;
@@ -401,7 +412,7 @@ std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const std::shar
   // 1. The patch's recent keyframes that overlap the last frame, newest first.
   int tried = 0;
   for (auto it = keys.rbegin(); it != keys.rend() && tried < 4; ++it) {
-    if (FootprintOverlap(last.to_patch, it->to_patch, frame_size) < 0.1) continue;
+    if (!it->described || FootprintOverlap(last.to_patch, it->to_patch, frame_size) < 0.1) continue;
     ++tried;
     const auto& theirs = it->products.get().features;
     if (!theirs) continue;
@@ -614,11 +625,12 @@ std::vector<OlderKeyframe> Mosaicker::Impl::LinkCandidates(const cv::Matx33d& to
   const size_t recent = end > size_t(fit_options.recent_frames) ? end - size_t(fit_options.recent_frames) : 0;
   for (size_t k = end; k-- > recent;) {
     if (static_cast<int>(out.size()) >= fit_options.max_frames) break;
-    if (FootprintOverlap(to_patch, keys[k].to_patch, frame_size) >= fit_options.min_overlap)
+    if (keys[k].described && FootprintOverlap(to_patch, keys[k].to_patch, frame_size) >= fit_options.min_overlap)
       out.push_back({keys[k].index, keys[k].to_patch, keys[k].products});
   }
   std::vector<std::pair<double, const Key*>> under;
   for (size_t k = 0; k < recent; ++k) {
+    if (!keys[k].described) continue;
     const double overlap = FootprintOverlap(to_patch, keys[k].to_patch, frame_size);
     if (overlap >= 2 * fit_options.min_overlap) under.emplace_back(overlap, &keys[k]);
   }
@@ -628,9 +640,24 @@ std::vector<OlderKeyframe> Mosaicker::Impl::LinkCandidates(const cv::Matx33d& to
   return out;
 }
 
+// Every keyframe's ground must be described for the global map, not every keyframe: on stills at
+// 70 % overlap each frame is a keyframe, and features are the largest part of its cost. A keyframe
+// followed with strong support is described when it has moved far enough from the last one that
+// was; one placed any other way (the first of a patch, recovered, doubtful, the last) always is,
+// as is one whose features were found already, or that rejected frames wait to be tried against.
+bool Mosaicker::Impl::Describes(const PreparedFrame& p, const cv::Matx33d& to_patch, const Candidate* c) const {
+  if (!c || !c->tracked() || !c->support.strong || p.features || !pending.empty()) return true;
+  if (options.describe_overlap >= 1.0) return true;
+  for (auto it = keys.rbegin(); it != keys.rend(); ++it)
+    if (it->described) return FootprintOverlap(to_patch, it->to_patch, frame_size) < options.describe_overlap;
+  return true;
+}
+
 void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch,
                                   const Candidate* c, std::vector<FrameLink> found, FrameRecord rec, bool current) {
   Laps lap{this, {}};
+  const bool described = Describes(*p, to_patch, c);
+  if (!described) rec.described = false;
   canvas->Add(p->image, *weights, to_patch);
   if (options.flat_field || options.water_colour)
     colour->Add(p->image, usable.size() == p->image.size() ? usable : cv::Mat());
@@ -643,6 +670,7 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   key.index = frames.back().index;
   key.to_patch = to_patch;
   key.frame = p;
+  key.described = described;
   if (c) {
     key.points = c->at;
     key.ids = c->ids;
@@ -656,7 +684,7 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   lap(kTracking);
   // Filtering, features and loop closures on the workers; the job keeps what it needs and
   // releases the unfiltered image when done: it is not read here once the job is submitted.
-  keyframe_bytes += KeyframeBytes(*p);  // until the patch is written
+  keyframe_bytes += KeyframeBytes(*p, described);  // until the patch is written
   KeyframeJob job;
   job.index = key.index;
   job.frame = p;
@@ -665,12 +693,13 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
     job.to_before = last.to_patch.inv() * to_patch;
   }
   job.to_patch = to_patch;
-  if (adjust_options.enabled) job.older = LinkCandidates(to_patch, current);
+  if (adjust_options.enabled && described) job.older = LinkCandidates(to_patch, current);
   KeyframeTools tools;
   tools.pre = &pre;
   tools.bilateral = options.bilateral;
   tools.temporal = options.temporal;
-  tools.features = [this](PreparedFrame& f) { return FeaturesOf(f); };
+  if (described) tools.features = [this](PreparedFrame& f) { return FeaturesOf(f); };
+  else tools.features = [](PreparedFrame&) { return std::shared_ptr<const Features>(); };
   tools.fit = fit_options;
   auto task = std::make_shared<std::packaged_task<KeyframeProducts()>>([this, job, tools] {
     KeyframeProducts out = RunKeyframeJob(job, tools);
@@ -691,6 +720,7 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   if (keys.size() > 3) keys[keys.size() - 4].frame.reset();
   ++summary.stitched;
   ++summary.keyframes;
+  summary.described += described;
 }
 
 void Mosaicker::Impl::AddFollowed(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, FrameRecord rec,
@@ -1001,12 +1031,16 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
     return done(r);
   }
   m.gate->Predict(r.index - m.last.index);
-  // 1. Followed from the current keyframe, from where the motion model expects it; again from a
-  //    coarse correlation when that failed.
-  Impl::Candidate best = m.Track(p, false);
-  if (!m.Usable(best) || !best.support.strong) {
-    Impl::Candidate coarse = m.Track(p, true);
-    if (m.Usable(coarse) && (!m.Usable(best) || coarse.support.strong)) best = std::move(coarse);
+  // 1. Followed from the current keyframe, from where the motion model expects it corrected by
+  //    one phase correlation of the coarsest levels (a fraction of a millisecond): roll and pitch
+  //    jitter moves a still frame tens of pixels from any prediction, and Lucas-Kanade started
+  //    that far off settles on a wrong minimum (half the frames of a jittered survey, followed
+  //    twice before). Again from the prediction alone when the correlated start failed.
+  bool shifted = false;
+  Impl::Candidate best = m.Track(p, true, &shifted);
+  if (shifted && (!m.Usable(best) || !best.support.strong)) {
+    Impl::Candidate plain = m.Track(p, false);
+    if (m.Usable(plain) && (!m.Usable(best) || plain.support.strong)) best = std::move(plain);
   }
   lap.Restart();  // Track timed itself
   // 2. The motion model arbitrates between what following and recovery found.

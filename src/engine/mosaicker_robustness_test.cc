@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <set>
 
 #include <gtest/gtest.h>
 #include <opencv2/calib3d.hpp>
@@ -13,6 +14,8 @@
 #include <opencv2/imgproc.hpp>
 
 #include "engine/static_mask.h"
+#include "rolamos/global_align.hpp"
+#include "store/frame_data.h"
 #include "rolamos/mosaicker.hpp"
 #include "rolamos/survey.hpp"
 #include "synth/seafloor_texture.h"
@@ -297,6 +300,46 @@ TEST(StaticMask, StillFramesAndCleanSurveysGiveNoMask) {
   ASSERT_FALSE(m.mask.empty());
   EXPECT_GT(m.mask.at<uchar>(180, 240), 0);
   EXPECT_EQ(m.mask.at<uchar>(20, 20), 0);
+}
+
+}  // namespace
+}  // namespace rolamos
+
+namespace rolamos {
+namespace {
+
+// Stills at 70 % overlap make every frame a keyframe; with --describe-overlap 0.5 every other
+// one is described. The others are marked, hold no stored features, are never read again by
+// align, and the patches stay within a pixel of the truth.
+TEST(MosaickerRobustness, KeyframesBetweenDescribedOnesAreMarkedAndNeverDescribedAgain) {
+  test::ScratchDir dir;
+  const Survey survey = WriteSurvey(JitteredSurvey(36, 2), dir / "survey");
+  MosaickerOptions o = Options();
+  o.describe_overlap = 0.5;
+  Store store = Store::Create(dir / "s.rolamos");
+  const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, o);
+  EXPECT_EQ(sum.stitched, 36);
+  EXPECT_GT(sum.described, 0);
+  EXPECT_LT(sum.described, sum.keyframes);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  int undescribed = 0;
+  for (const auto& p : reopened.patches()) {
+    const PatchSidecar s = reopened.ReadSidecar(p.id);
+    ASSERT_TRUE(s.frame_features.has_value());
+    std::set<int> stored;
+    for (const auto& f : ReadFrameFeatures((fs::path(reopened.dir()) / *s.frame_features).string())) stored.insert(f.index);
+    for (const auto& f : s.frames) {
+      if (!f.is_keyframe()) continue;
+      EXPECT_EQ(stored.count(f.index) > 0, f.is_described()) << "frame " << f.index;
+      undescribed += !f.is_described();
+    }
+    EXPECT_LT(PatchRms(s, survey), 1.0) << "patch " << p.id;
+  }
+  EXPECT_EQ(undescribed, sum.keyframes - sum.described);
+  // align reads no frame again: the frames are still on disk, but none needs describing.
+  const AlignSummary aligned = AlignStore(reopened, AlignOptions());
+  EXPECT_EQ(aligned.frames_described, 0);
+  EXPECT_EQ(aligned.frames, 36);
 }
 
 }  // namespace

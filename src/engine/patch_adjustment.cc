@@ -40,6 +40,45 @@ FrameLink Thin(FrameLink link, int max_pairs, cv::Size frame) {
   return out;
 }
 
+namespace {
+
+int Root(std::vector<int>& parent, int i) {
+  while (parent[size_t(i)] != i) i = parent[size_t(i)] = parent[size_t(parent[size_t(i)])];
+  return i;
+}
+
+// Frames whose links do not reach the first frame's would float free in the solve (a frame
+// registered against the patch image, the tracks it handed on): each such group is tied to the
+// frame before it by its online placement, the measurement that put it there (a 4 x 4 grid of
+// points through the two online homographies). Returns the ties added.
+int TieUnlinked(const std::vector<cv::Matx33d>& online, cv::Size frame, std::vector<PlaneLink>* links) {
+  const int n = static_cast<int>(online.size());
+  std::vector<int> parent(static_cast<size_t>(n));
+  for (int i = 0; i < n; ++i) parent[size_t(i)] = i;
+  for (const auto& l : *links) parent[size_t(Root(parent, l.a))] = Root(parent, l.b);
+  int ties = 0;
+  for (int i = 1; i < n; ++i) {
+    if (Root(parent, i) == Root(parent, i - 1)) continue;
+    PlaneLink tie;
+    tie.a = i;
+    tie.b = i - 1;
+    const cv::Matx33d H = online[size_t(i - 1)].inv() * online[size_t(i)];
+    for (int gy = 0; gy < 4; ++gy)
+      for (int gx = 0; gx < 4; ++gx) {
+        const cv::Point2d p((gx + 0.5) * frame.width / 4, (gy + 0.5) * frame.height / 4);
+        const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1);
+        tie.in_a.emplace_back(p);
+        tie.in_b.emplace_back(q[0] / q[2], q[1] / q[2]);
+      }
+    links->push_back(std::move(tie));
+    parent[size_t(Root(parent, i))] = Root(parent, i - 1);
+    ++ties;
+  }
+  return ties;
+}
+
+}  // namespace
+
 PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<cv::Matx33d>& online,
                             const std::vector<FrameLink>& links, double focal, cv::Size frame,
                             const PatchAdjustmentOptions& o) {
@@ -81,6 +120,7 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
       out.note = "frame " + std::to_string(indices[i]) + " has no link";
       return out;
     }
+  out.ties = TieUnlinked(online, frame, &plane_links);
   double f = focal;
   out.stats = AdjustPlanePoses(&poses, &f, frame, plane_links, 0, {}, {}, o.solver);
   if (!out.stats.ok) {

@@ -35,6 +35,9 @@ struct PatchAdjustment {
   std::vector<cv::Matx33d> frame_to_patch;  // per frame, in the order given
   std::vector<PlanePose> poses;
   double focal = 0;             // pixels: as given, or as refined
+  // Groups of frames whose links did not reach the rest, tied to the frame before them by their
+  // online placements (otherwise free in the solve).
+  int ties = 0;
   PlaneAdjustment stats;
 };
 

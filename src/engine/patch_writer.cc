@@ -247,6 +247,7 @@ void PatchWriter::Write(PatchJob& job) {
                                    {"online_rms_px", adjusted.stats.initial_rms_px},
                                    {"links", static_cast<int>(job.links.size() + loop_links.size())},
                                    {"links_dropped", adjusted.stats.links_dropped},
+                                   {"ties", adjusted.ties},
                                    {"focal_px", adjusted.focal}};
   } else if (job.adjust.enabled) {
     sidecar.extra["adjustment"] = {{"skipped", adjusted.note}};

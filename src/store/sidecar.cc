@@ -122,6 +122,7 @@ json SidecarToJson(const PatchSidecar& s) {
     if (f.patch_frames) fj["patch_frames"] = *f.patch_frames;
     if (f.keyframe) fj["keyframe"] = *f.keyframe;
     if (f.placed_from) fj["placed_from"] = *f.placed_from;
+    if (f.described) fj["described"] = *f.described;
     frames.push_back(std::move(fj));
   }
   j["frames"] = std::move(frames);
@@ -196,10 +197,14 @@ PatchSidecar SidecarFromJson(const json& j, const std::string& where) {
       f.keyframe = fr.Get("keyframe").get<bool>();
     }
     if (fr.Has("placed_from")) f.placed_from = static_cast<int>(fr.Int("placed_from", 0, kMaxInt));
+    if (fr.Has("described")) {
+      if (!fr.Get("described").is_boolean()) Fail(fr.Where("described"), "must be true or false");
+      f.described = fr.Get("described").get<bool>();
+    }
     f.extra = Extra(frames[i], {"index", "source", "frame_to_patch", "egomotion", "matches",
                                 "inliers", "ecc", "status", "bilateral_error", "ecc_shift_px",
                                 "frame_to_global", "registered_by", "doubtful", "patch_frames",
-                                "keyframe", "placed_from"});
+                                "keyframe", "placed_from", "described"});
     s.frames.push_back(std::move(f));
   }
   const json& rejected = r.Get("rejected");

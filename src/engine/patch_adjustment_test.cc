@@ -1,0 +1,84 @@
+#include "engine/patch_adjustment.h"
+
+#include <gtest/gtest.h>
+
+#include "util/homography.h"
+
+namespace rolamos {
+namespace {
+
+const cv::Size kFrame(640, 480);
+
+// A level camera moving along a lane: frame i is shifted `step` pixels right of frame 0.
+cv::Matx33d Truth(int i, double step = 150) { return cv::Matx33d(1, 0, step * i, 0, 1, 3.0 * i, 0, 0, 1); }
+
+// Exact correspondences between frames a and b where they overlap (a grid in frame a).
+FrameLink LinkOf(int a, int b) {
+  FrameLink l;
+  l.a = a;
+  l.b = b;
+  const cv::Matx33d a_to_b = Truth(b).inv() * Truth(a);
+  for (int y = 20; y < kFrame.height; y += 40)
+    for (int x = 20; x < kFrame.width; x += 40) {
+      const cv::Point2d q = ApplyHomography(a_to_b, cv::Point2d(x, y));
+      if (q.x < 0 || q.y < 0 || q.x >= kFrame.width || q.y >= kFrame.height) continue;
+      l.in_a.emplace_back(float(x), float(y));
+      l.in_b.emplace_back(q);
+    }
+  return l;
+}
+
+double CornerError(const cv::Matx33d& a, const cv::Matx33d& b) {
+  double worst = 0;
+  for (const cv::Point2d p : {cv::Point2d(0, 0), cv::Point2d(kFrame.width, 0), cv::Point2d(0, kFrame.height),
+                              cv::Point2d(kFrame.width, kFrame.height)})
+    worst = std::max(worst, cv::norm(ApplyHomography(a, p) - ApplyHomography(b, p)));
+  return worst;
+}
+
+// Frames 5..7 are linked among themselves but not to frames 0..4 (frame 5 was registered against
+// the patch image, which leaves no frame link): alone, their group would float free in the solve.
+// They are tied to the frame before them by their online placements, and land where those put them.
+TEST(PatchAdjustment, AGroupNoLinkJoinsIsTiedByItsOnlinePlacement) {
+  std::vector<int> indices;
+  std::vector<cv::Matx33d> online;
+  std::vector<FrameLink> links;
+  for (int i = 0; i < 8; ++i) {
+    indices.push_back(i);
+    // Online placements a little off (a chain's drift), the adjustment's starting point.
+    online.push_back(Truth(i) * cv::Matx33d(1, 0, 0.4 * i, 0, 1, -0.3 * i, 0, 0, 1));
+    if (i > 0 && i != 5) links.push_back(LinkOf(i, i - 1));
+    if (i > 1 && i != 5 && i != 6) links.push_back(LinkOf(i, i - 2));
+  }
+  const double focal = 0.5 * kFrame.width / std::tan(35.0 * CV_PI / 180);
+  const PatchAdjustment adjusted = AdjustPatch(indices, online, links, focal, kFrame, PatchAdjustmentOptions());
+  ASSERT_TRUE(adjusted.used) << adjusted.note;
+  EXPECT_EQ(adjusted.ties, 1);
+  // The adjusted patch is the truth up to one similarity of the whole (the first frame's pose):
+  // every frame's placement relative to frame 0, against the truth's.
+  const cv::Matx33d first = adjusted.frame_to_patch[0];
+  for (int i = 1; i < 8; ++i) {
+    const cv::Matx33d ours = first.inv() * adjusted.frame_to_patch[size_t(i)];
+    // Linked frames agree with the truth; the tied group carries the online error of frame 5.
+    const double allowed = i < 5 ? 0.5 : 0.5 + CornerError(online[5], Truth(5)) + CornerError(online[4], Truth(4));
+    EXPECT_LT(CornerError(ours, Truth(i)), allowed) << "frame " << i;
+  }
+}
+
+TEST(PatchAdjustment, LinkedPatchesNeedNoTies) {
+  std::vector<int> indices;
+  std::vector<cv::Matx33d> online;
+  std::vector<FrameLink> links;
+  for (int i = 0; i < 6; ++i) {
+    indices.push_back(i);
+    online.push_back(Truth(i));
+    if (i > 0) links.push_back(LinkOf(i, i - 1));
+  }
+  const double focal = 0.5 * kFrame.width / std::tan(35.0 * CV_PI / 180);
+  const PatchAdjustment adjusted = AdjustPatch(indices, online, links, focal, kFrame, PatchAdjustmentOptions());
+  ASSERT_TRUE(adjusted.used) << adjusted.note;
+  EXPECT_EQ(adjusted.ties, 0);
+}
+
+}  // namespace
+}  // namespace rolamos
