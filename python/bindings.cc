@@ -1,8 +1,6 @@
 // The rolamos Python module's native part (`rolamos._rolamos`): pybind11 bindings of the library
 // the CLI calls. Pixels cross as NumPy arrays (h, w, channels) in RGB(A) order; library errors
 // become rolamos.Error with the library's message; long calls release the GIL.
-#include <pybind11/numpy.h>
-#include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
 #include <cmath>
@@ -23,15 +21,16 @@
 #include "rolamos/tile_cache.hpp"
 #include "rolamos/tiled_image.hpp"
 
-namespace py = pybind11;
+#include "py_common.h"
 
-namespace rolamos {
-namespace {
+#include <signal.h>
 
-// JSON into Python objects, through the json module (exact types, nested).
+#include <atomic>
+
+namespace rolamos::py_bind {
+
 py::object ToPython(const nlohmann::json& j) { return py::module_::import("json").attr("loads")(j.dump()); }
 
-// OpenCV's BGR(A)/gray Mat -> a NumPy array (h, w, c) in RGB(A) order, owning its copy.
 py::array ToArray(cv::Mat m) {
   if (m.channels() == 3) cv::cvtColor(m, m, cv::COLOR_BGR2RGB);
   else if (m.channels() == 4) cv::cvtColor(m, m, cv::COLOR_BGRA2RGBA);
@@ -43,25 +42,72 @@ py::array ToArray(cv::Mat m) {
   return py::array_t<uint8_t>(shape, keep->data, owner);
 }
 
-// A NumPy frame (h, w, 3) RGB or (h, w) gray, uint8 -> BGR Mat (a copy).
-cv::Mat FromArray(const py::array& a) {
-  const auto frame = py::array_t<uint8_t, py::array::c_style | py::array::forcecast>::ensure(a);
-  if (!frame) throw py::value_error("frame: expected a NumPy array of uint8");
-  if (frame.ndim() == 2) {
-    cv::Mat gray(static_cast<int>(frame.shape(0)), static_cast<int>(frame.shape(1)), CV_8UC1,
-                 const_cast<uint8_t*>(frame.data()));
-    cv::Mat bgr;
-    cv::cvtColor(gray, bgr, cv::COLOR_GRAY2BGR);
-    return bgr;
+cv::Mat FromArray(const py::handle& handle) {
+  if (!py::isinstance<py::array>(handle))
+    throw py::value_error("frame: expected a NumPy array, not " + std::string(py::str(handle.get_type())));
+  const py::array a = py::reinterpret_borrow<py::array>(handle);
+  const std::string dtype = py::str(a.dtype());
+  const bool deep = a.dtype().is(py::dtype::of<uint16_t>());
+  if (!a.dtype().is(py::dtype::of<uint8_t>()) && !deep)
+    throw py::value_error("frame: dtype " + dtype + " is not uint8 or uint16");
+  const bool gray = a.ndim() == 2, colour = a.ndim() == 3 && (a.shape(2) == 3 || a.shape(2) == 4);
+  if (!gray && !colour) {
+    std::string shape;
+    for (py::ssize_t i = 0; i < a.ndim(); ++i) shape += (i ? ", " : "") + std::to_string(a.shape(i));
+    throw py::value_error("frame: shape (" + shape + ") is not (h, w, 3) RGB, (h, w, 4) RGBA or (h, w) gray");
   }
-  if (frame.ndim() != 3 || (frame.shape(2) != 3 && frame.shape(2) != 4))
-    throw py::value_error("frame: expected shape (h, w, 3) RGB, (h, w, 4) RGBA or (h, w) gray");
-  cv::Mat rgb(static_cast<int>(frame.shape(0)), static_cast<int>(frame.shape(1)), CV_8UC(static_cast<int>(frame.shape(2))),
-              const_cast<uint8_t*>(frame.data()));
+  if (a.shape(0) < 16 || a.shape(1) < 16)
+    throw py::value_error("frame: " + std::to_string(a.shape(1)) + " x " + std::to_string(a.shape(0)) +
+                          " pixels is too small to map");
+  const int channels = gray ? 1 : static_cast<int>(a.shape(2));
+  // A C-contiguous copy of whatever layout came in (views, slices, Fortran order).
+  const py::array c = py::module_::import("numpy").attr("ascontiguousarray")(a);
+  const cv::Mat in(static_cast<int>(a.shape(0)), static_cast<int>(a.shape(1)),
+                   CV_MAKETYPE(deep ? CV_16U : CV_8U, channels), const_cast<void*>(c.data()));
   cv::Mat bgr;
-  cv::cvtColor(rgb, bgr, frame.shape(2) == 3 ? cv::COLOR_RGB2BGR : cv::COLOR_RGBA2BGR);
+  if (channels == 1) cv::cvtColor(in, bgr, cv::COLOR_GRAY2BGR);
+  else cv::cvtColor(in, bgr, channels == 3 ? cv::COLOR_RGB2BGR : cv::COLOR_RGBA2BGR);
   return bgr;
 }
+
+namespace {
+std::atomic<bool> g_interrupted{false};
+struct sigaction g_python_sigint;
+void OnSigint(int) { g_interrupted = true; }
+}  // namespace
+
+InterruptScope::InterruptScope() {
+  const py::module_ threading = py::module_::import("threading");
+  if (!threading.attr("current_thread")().is(threading.attr("main_thread")())) return;
+  g_interrupted = false;
+  struct sigaction sa {};
+  sa.sa_handler = OnSigint;
+  sigemptyset(&sa.sa_mask);
+  installed_ = sigaction(SIGINT, &sa, &g_python_sigint) == 0;
+}
+
+InterruptScope::~InterruptScope() {
+  if (installed_) sigaction(SIGINT, &g_python_sigint, nullptr);
+}
+
+ProgressFn PythonProgress(const py::object& progress, const std::string& message) {
+  // The callable is shared by the callback's copies (made on any thread, without the GIL) and
+  // released under the GIL.
+  std::shared_ptr<py::object> callable;
+  if (!progress.is_none())
+    callable.reset(new py::object(progress), [](py::object* o) {
+      py::gil_scoped_acquire acquire;
+      delete o;
+    });
+  return [callable, message](double fraction) {
+    if (g_interrupted) throw Interrupted();
+    if (!callable) return;
+    py::gil_scoped_acquire acquire;
+    (*callable)(fraction, message);
+  };
+}
+
+namespace {
 
 // An image of a store (the mosaic or a patch) or any tiled TIFF, read through the tile cache.
 class Image {
@@ -85,17 +131,23 @@ class Image {
     return out;
   }
   py::array Read(long long x, long long y, long long w, long long h, int level, std::optional<double> scale) const {
-    if (w <= 0 || h <= 0) throw py::value_error("w and h must be positive");
+    if (w <= 0 || h <= 0)
+      throw py::value_error("window " + std::to_string(w) + " x " + std::to_string(h) + ": w and h must be positive");
+    if (scale && level != 0) throw py::value_error("give level or scale, not both");
+    if (scale && !(*scale > 0 && *scale <= 1)) throw py::value_error("scale " + std::to_string(*scale) + " is not in (0, 1]");
+    if (!scale && (level < 0 || level >= levels()))
+      throw py::value_error("level " + std::to_string(level) + " is outside 0.." + std::to_string(levels() - 1));
+    // The window must lie inside the level it reads (level 0 with a scale).
+    const auto& l = image_->info().levels[size_t(scale ? 0 : level)];
+    if (x < 0 || y < 0 || x + w > l.width || y + h > l.height)
+      throw py::value_error("window (" + std::to_string(x) + ", " + std::to_string(y) + ", " + std::to_string(w) + ", " +
+                            std::to_string(h) + ") leaves level " + std::to_string(scale ? 0 : level) + " of " +
+                            image_->info().path + " (" + std::to_string(l.width) + " x " + std::to_string(l.height) + ")");
+    const cv::Rect r(static_cast<int>(x), static_cast<int>(y), static_cast<int>(w), static_cast<int>(h));
     cv::Mat m;
-    if (scale) {
-      if (!(*scale > 0 && *scale <= 1)) throw py::value_error("scale must be in (0, 1]");
-      if (level != 0) throw py::value_error("give level or scale, not both");
+    {
       py::gil_scoped_release release;
-      m = image_->ReadScaled(cv::Rect(static_cast<int>(x), static_cast<int>(y), static_cast<int>(w), static_cast<int>(h)), *scale);
-    } else {
-      if (level < 0 || level >= levels()) throw py::value_error("level " + std::to_string(level) + " is outside 0.." + std::to_string(levels() - 1));
-      py::gil_scoped_release release;
-      m = image_->ReadRegion(level, cv::Rect(static_cast<int>(x), static_cast<int>(y), static_cast<int>(w), static_cast<int>(h)));
+      m = scale ? image_->ReadScaled(r, *scale) : image_->ReadRegion(level, r);
     }
     return ToArray(m);
   }
@@ -104,56 +156,43 @@ class Image {
   std::shared_ptr<TiledImage> image_;
 };
 
-// Options by the CLI's names (dashes or underscores), each checked for its type; unknown names and
-// values the library refuses raise ValueError naming the option.
-void SetOption(MosaickerOptions& o, std::string name, const py::handle& v) {
-  for (char& c : name)
-    if (c == '-') c = '_';
-  using Setter = std::function<void(MosaickerOptions&, const py::handle&)>;
-  auto num = [](double MosaickerOptions::*f) -> Setter { return [f](MosaickerOptions& o, const py::handle& v) { o.*f = v.cast<double>(); }; };
-  auto integer = [](int MosaickerOptions::*f) -> Setter { return [f](MosaickerOptions& o, const py::handle& v) { o.*f = v.cast<int>(); }; };
-  auto flag = [](bool MosaickerOptions::*f) -> Setter { return [f](MosaickerOptions& o, const py::handle& v) { o.*f = v.cast<bool>(); }; };
-  auto text = [](std::string MosaickerOptions::*f) -> Setter { return [f](MosaickerOptions& o, const py::handle& v) { o.*f = v.cast<std::string>(); }; };
-  static const std::map<std::string, Setter> setters = {
-      {"calibration", text(&MosaickerOptions::calibration)}, {"fov", num(&MosaickerOptions::fov_deg)},
-      {"mask", text(&MosaickerOptions::mask)}, {"bilateral", flag(&MosaickerOptions::bilateral)},
-      {"temporal", flag(&MosaickerOptions::temporal)}, {"clahe", flag(&MosaickerOptions::clahe)},
-      {"track_pixels", num(&MosaickerOptions::track_pixels)}, {"track_points", integer(&MosaickerOptions::track_points)},
-      {"keyframe_overlap", num(&MosaickerOptions::keyframe_overlap)},
-      {"keyframe_min_overlap", num(&MosaickerOptions::keyframe_min_overlap)},
-      {"describe_overlap", num(&MosaickerOptions::describe_overlap)},
-      {"features", text(&MosaickerOptions::features)}, {"max_features", integer(&MosaickerOptions::max_features)},
-      {"detect_scale", num(&MosaickerOptions::detect_scale)}, {"sift_upsample", flag(&MosaickerOptions::sift_upsample)},
-      {"ratio", num(&MosaickerOptions::ratio)}, {"cross_check", flag(&MosaickerOptions::cross_check)},
-      {"fundamental", flag(&MosaickerOptions::fundamental)},
-      {"epipolar_threshold", num(&MosaickerOptions::epipolar_threshold)},
-      {"homography_threshold", num(&MosaickerOptions::homography_threshold)},
-      {"min_inliers", integer(&MosaickerOptions::min_inliers)}, {"kalman", flag(&MosaickerOptions::kalman)},
-      {"recover", flag(&MosaickerOptions::recover)}, {"patch_fit", flag(&MosaickerOptions::patch_fit)},
-      {"adjust", flag(&MosaickerOptions::adjust_patches)}, {"patch_frames_mb", num(&MosaickerOptions::patch_frames_mb)},
-      {"ecc", flag(&MosaickerOptions::ecc)}, {"ecc_scale", num(&MosaickerOptions::ecc_scale)},
-      {"ecc_motion", text(&MosaickerOptions::ecc_motion)}, {"feather_sigma", num(&MosaickerOptions::feather_sigma)},
-      {"flat_field", flag(&MosaickerOptions::flat_field)}, {"exposure", flag(&MosaickerOptions::exposure)},
-      {"water_colour", flag(&MosaickerOptions::water_colour)},
-      {"patch_megapixels", num(&MosaickerOptions::patch_megapixels)},
-      {"max_lost_frames", integer(&MosaickerOptions::max_lost_frames)},
-      {"checkpoint_frames", integer(&MosaickerOptions::checkpoint_frames)},
-  };
-  auto it = setters.find(name);
-  if (it == setters.end()) throw py::value_error("unknown option '" + name + "' (see help(rolamos.Mosaicker))");
-  try {
-    it->second(o, v);
-  } catch (const py::cast_error&) {
-    throw py::value_error("option '" + name + "': wrong type (" + std::string(py::str(v.get_type())) + ")");
-  }
+// The engine's options by the CLI's names (mosaic --help), validated by MosaickerOptions::IsValid.
+const OptionTable<MosaickerOptions>& MosaickerTable() {
+  static const OptionTable<MosaickerOptions> t = [] {
+    using O = MosaickerOptions;
+    OptionTable<O> t;
+    t.Text("calibration", &O::calibration).Number("fov", &O::fov_deg).Text("mask", &O::mask)
+        .Flag("bilateral", &O::bilateral).Flag("temporal", &O::temporal).Flag("clahe", &O::clahe)
+        .Number("track_pixels", &O::track_pixels).Integer("track_points", &O::track_points)
+        .Number("keyframe_overlap", &O::keyframe_overlap).Number("keyframe_min_overlap", &O::keyframe_min_overlap)
+        .Number("describe_overlap", &O::describe_overlap).Text("features", &O::features)
+        .Integer("max_features", &O::max_features).Number("detect_scale", &O::detect_scale)
+        .Number("detect_pixels", &O::detect_pixels).Flag("sift_upsample", &O::sift_upsample)
+        .Number("ratio", &O::ratio).Flag("cross_check", &O::cross_check).Flag("fundamental", &O::fundamental)
+        .Number("epipolar_threshold", &O::epipolar_threshold).Number("homography_threshold", &O::homography_threshold)
+        .Integer("min_inliers", &O::min_inliers).Flag("kalman", &O::kalman).Flag("recover", &O::recover)
+        .Flag("patch_fit", &O::patch_fit).Flag("adjust", &O::adjust_patches)
+        .Number("patch_frames_mb", &O::patch_frames_mb).Flag("ecc", &O::ecc).Number("ecc_scale", &O::ecc_scale)
+        .Text("ecc_motion", &O::ecc_motion).Number("feather_sigma", &O::feather_sigma)
+        .Flag("flat_field", &O::flat_field).Flag("exposure", &O::exposure).Flag("water_colour", &O::water_colour)
+        .Number("patch_megapixels", &O::patch_megapixels).Number("patch_memory_mb", &O::patch_memory_mb)
+        .Integer("max_lost", &O::max_lost_frames).Integer("max_lost_frames", &O::max_lost_frames)
+        .Integer("checkpoint_frames", &O::checkpoint_frames);
+    AddTiffOptions(t, &O::tiff);
+    return t;
+  }();
+  return t;
 }
 
-MosaickerOptions ToOptions(const py::kwargs& kwargs) {
+}  // namespace
+
+MosaickerOptions MosaickerOptionsFrom(const py::kwargs& kwargs, bool pushed) {
   MosaickerOptions o;
-  o.mask = "";  // frames pushed one by one: no first frames to search an overlay in beforehand
-  for (const auto& [k, v] : kwargs) SetOption(o, k.cast<std::string>(), v);
+  // Frames pushed one by one leave no first frames to search an overlay in beforehand.
+  if (pushed) o.mask = "";
+  MosaickerTable().SetAll(o, kwargs, pushed ? "Mosaicker" : "mosaic");
   if (o.mask == "none") o.mask.clear();
-  if (o.mask == "auto")
+  if (pushed && o.mask == "auto")
     throw py::value_error("option 'mask': 'auto' searches the first frames of a folder or video (rolamos.mosaic); "
                           "frames pushed one by one need a mask file or 'none'");
   std::string error;
@@ -161,88 +200,7 @@ MosaickerOptions ToOptions(const py::kwargs& kwargs) {
   return o;
 }
 
-// A library progress callback for a long call made without the GIL: it takes the GIL, calls the
-// user's `progress(fraction, message)` (when given) and honours Ctrl-C (KeyboardInterrupt), by
-// throwing out of the library call (its writes are atomic: nothing half-written stays).
-ProgressFn PythonProgress(const py::object& progress, const std::string& message) {
-  return [progress, message](double fraction) {
-    py::gil_scoped_acquire acquire;
-    if (PyErr_CheckSignals() != 0) throw py::error_already_set();
-    if (!progress.is_none()) progress(fraction, message);
-  };
-}
-
-py::dict Compose(const std::string& store, long long max_pixels, int bands, bool exposure, bool restart,
-                 const py::object& progress) {
-  ComposeOptions o;
-  o.max_pixels = max_pixels;
-  o.bands = bands;
-  o.exposure = exposure;
-  o.restart = restart;
-  // The CLI's defaults (rolamos compose): WebP at quality 90 in 256-pixel tiles.
-  o.tiff.compression = Compression::kWebp;
-  o.tiff.quality = 90;
-  std::string error;
-  if (!o.IsValid(&error)) throw py::value_error(error);
-  ComposeResult r;
-  {
-    py::gil_scoped_release release;
-    r = ComposeMosaic(Store::Open(store), o, PythonProgress(progress, "compose"));
-  }
-  py::dict d;
-  d["width"] = r.width;
-  d["height"] = r.height;
-  d["scale"] = r.scale;
-  d["patches_used"] = r.patches_used;
-  py::list left;
-  for (const auto& [id, why] : r.left_out) left.append(py::make_tuple(id, why));
-  d["left_out"] = left;
-  return d;
-}
-
-py::dict Align(const std::string& store, const py::object& progress) {
-  AlignOptions o;
-  AlignSummary r;
-  {
-    py::gil_scoped_release release;
-    r = AlignStore(Store::Open(store), o, PythonProgress(progress, "align"));
-  }
-  py::dict d;
-  d["frames"] = r.frames;
-  d["components"] = r.components;
-  d["component_frames"] = r.component_frames;
-  d["edges_dropped"] = r.edges_dropped;
-  d["rms_before_px"] = r.rms_before_px;
-  d["rms_after_px"] = r.rms_after_px;
-  d["seconds"] = r.seconds;
-  return d;
-}
-
-py::dict Export(const std::string& image_path, const std::string& output, std::optional<std::vector<double>> region,
-                int level, double scale, const py::object& progress) {
-  ExportOptions o;
-  o.output = output;
-  o.level = level;
-  o.scale = scale;
-  if (region) {
-    if (region->size() != 4) throw py::value_error("region: expected (x, y, w, h)");
-    o.region = cv::Rect2d((*region)[0], (*region)[1], (*region)[2], (*region)[3]);
-  }
-  std::string error;
-  if (!o.IsValid(&error)) throw py::value_error(error);
-  ExportResult r;
-  {
-    py::gil_scoped_release release;
-    const TiledImage image = TiledImage::Open(image_path);
-    r = ExportRegion(image, o, PythonProgress(progress, "export"));
-  }
-  py::dict d;
-  d["width"] = r.width;
-  d["height"] = r.height;
-  d["level"] = r.level;
-  d["scale"] = r.scale;
-  return d;
-}
+namespace {
 
 py::dict ReportDict(const FrameReport& r) {
   py::dict d;
@@ -263,12 +221,13 @@ py::dict ReportDict(const FrameReport& r) {
 // Frames pushed one at a time (a camera SDK, a ROS bag), as `rolamos mosaic` does with a folder.
 class PyMosaicker {
  public:
-  PyMosaicker(const std::string& store, const py::kwargs& kwargs) {
-    const MosaickerOptions o = ToOptions(kwargs);
+  PyMosaicker(const py::object& path, const py::kwargs& kwargs) {
+    const MosaickerOptions o = MosaickerOptionsFrom(kwargs, /*pushed=*/true);
+    const std::string store = FsPath(path);
     Store s = Store::LooksLikeStore(store) ? Store::Open(store) : Store::Create(store, StoreOptions{});
     mosaicker_ = std::make_unique<Mosaicker>(s, o);
   }
-  py::dict Push(const py::array& frame, std::optional<std::string> name) {
+  py::dict Push(const py::handle& frame, std::optional<std::string> name) {
     if (!mosaicker_) Fail("Mosaicker", "closed: no more frames can be pushed");
     const cv::Mat bgr = FromArray(frame);
     const std::string source = name ? *name : "frame_" + std::to_string(pushed_);
@@ -288,15 +247,9 @@ class PyMosaicker {
       s = mosaicker_->Finish();
     }
     mosaicker_.reset();
-    py::dict d;
-    d["frames"] = s.frames;
-    d["stitched"] = s.stitched;
-    d["rejected"] = s.rejected;
-    d["patches"] = s.patches;
-    d["keyframes"] = s.keyframes;
-    d["seconds"] = s.seconds;
-    return d;
+    return SummaryDict(s);
   }
+  bool closed() const { return !mosaicker_; }
 
  private:
   std::unique_ptr<Mosaicker> mosaicker_;
@@ -304,10 +257,11 @@ class PyMosaicker {
 };
 
 }  // namespace
-}  // namespace rolamos
+}  // namespace rolamos::py_bind
 
 PYBIND11_MODULE(_rolamos, m) {
   using namespace rolamos;
+  using namespace rolamos::py_bind;
   m.doc() = "rolamos native bindings (use the rolamos package)";
   static py::exception<Error> error(m, "Error", PyExc_RuntimeError);
   py::register_exception_translator([](std::exception_ptr p) {
@@ -315,38 +269,40 @@ PYBIND11_MODULE(_rolamos, m) {
       if (p) std::rethrow_exception(p);
     } catch (const Error& e) {
       error(e.what());
+    } catch (const Interrupted&) {
+      PyErr_SetNone(PyExc_KeyboardInterrupt);
     }
   });
 
   py::class_<Image>(m, "Image", "A tiled image (mosaic, patch or any tiled TIFF) read through a bounded tile cache.")
-      .def(py::init<const std::string&, double>(), py::arg("path"), py::arg("cache_mb") = 256.0)
+      .def(py::init([](const py::object& path, double cache_mb) { return Image(FsPath(path), cache_mb); }),
+           py::arg("path"), py::arg("cache_mb") = 256.0)
       .def_property_readonly("width", &Image::width, "level-0 width in pixels")
       .def_property_readonly("height", &Image::height, "level-0 height in pixels")
       .def_property_readonly("levels", &Image::levels, "number of pyramid levels")
       .def_property_readonly("channels", &Image::channels, "1 (gray), 2 (gray+alpha), 3 (RGB) or 4 (RGBA)")
       .def_property_readonly("dtype", &Image::dtype, "'uint8' or 'uint16'")
-      .def_property_readonly("path", &Image::path)
+      .def_property_readonly("path", &Image::path, "the file read")
       .def_property_readonly("level_sizes", &Image::level_sizes, "(width, height) of every level")
       .def("read", &Image::Read, py::arg("x"), py::arg("y"), py::arg("w"), py::arg("h"), py::arg("level") = 0,
            py::arg("scale") = py::none(),
            "Pixels of a rectangle: at `level` in that level's coordinates, or with `scale` (0 < s <= 1) the "
-           "level-0 rectangle resampled. Returns an array (h, w, channels) in RGB(A) order.");
+           "level-0 rectangle resampled. Returns an array (h, w, channels) in RGB(A) order. A window that leaves "
+           "the level raises ValueError.");
 
-  py::class_<PyMosaicker>(m, "Mosaicker", "The online engine: push frames, then close().")
-      .def(py::init<const std::string&, const py::kwargs&>(), py::arg("store"))
+  py::class_<PyMosaicker>(m, "Mosaicker",
+                          "The online engine, fed frame by frame (a camera SDK, a ROS bag): push frames, then "
+                          "close(). Options by the CLI's names (rolamos mosaic --help), e.g. fov=60, "
+                          "patch_megapixels=5, keyframe_overlap=0.75, mask='overlay.png'.")
+      .def(py::init<const py::object&, const py::kwargs&>(), py::arg("store"))
       .def("push", &PyMosaicker::Push, py::arg("frame"), py::arg("name") = py::none(),
-           "Maps one frame (uint8 array (h, w, 3) RGB or (h, w) gray); returns the frame's report.")
-      .def("close", &PyMosaicker::Close, "Writes the last patch; returns the run's totals.");
+           "Maps one frame (uint8 or uint16 array (h, w, 3) RGB, (h, w, 4) RGBA or (h, w) gray); returns the "
+           "frame's report (status, reason, patch_id, keyframe, ...).")
+      .def("close", &PyMosaicker::Close, "Writes the last patch; returns the run's summary.")
+      .def_property_readonly("closed", &PyMosaicker::closed, "whether close() was called");
 
-  m.def("compose", &Compose, py::arg("store"), py::kw_only(), py::arg("max_pixels") = 0, py::arg("bands") = 0,
-        py::arg("exposure") = true, py::arg("restart") = false, py::arg("progress") = py::none(),
-        "Composes the store's patches into mosaic.tif (rolamos compose). `progress(fraction, message)` is "
-        "called as it goes; Ctrl-C interrupts it (a later compose resumes).");
-  m.def("align", &Align, py::arg("store"), py::kw_only(), py::arg("progress") = py::none(),
-        "The global map over every frame (rolamos align); compose draws it.");
-  m.def("export", &Export, py::arg("image"), py::arg("output"), py::kw_only(), py::arg("region") = py::none(),
-        py::arg("level") = -1, py::arg("scale") = 1.0, py::arg("progress") = py::none(),
-        "A region (x, y, w, h in level-0 pixels) of a tiled image to .tif (streamed), .png or .jpg.");
+  BindSteps(m);
+  BindObjects(m);
   m.def("describe_store", [](const std::string& dir) { return ToPython(DescribeStore(dir)); }, py::arg("path"),
         "What `rolamos info --json` prints for a store.");
   m.def("describe_image", [](const std::string& path) { return ToPython(DescribeImage(path)); }, py::arg("path"),

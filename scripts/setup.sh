@@ -13,7 +13,7 @@ PACKAGES=(
   slurm-wlm munge python3-numpy
   chromium
   gstreamer1.0-tools gstreamer1.0-plugins-base gstreamer1.0-plugins-good
-  pybind11-dev python3-dev python3-pytest python3-rasterio python3-matplotlib
+  pybind11-dev python3-dev python3-pytest python3-rasterio python3-matplotlib python3-pil
 )
 
 missing=()

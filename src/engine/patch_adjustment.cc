@@ -112,14 +112,9 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
     p.in_b = thin.in_b;
     plane_links.push_back(std::move(p));
   }
-  // Every frame must be tied to the others, or its pose is free.
-  std::vector<int> degree(indices.size(), 0);
-  for (const auto& l : plane_links) ++degree[size_t(l.a)], ++degree[size_t(l.b)];
-  for (size_t i = 0; i < indices.size(); ++i)
-    if (degree[i] == 0) {
-      out.note = "frame " + std::to_string(indices[i]) + " has no link";
-      return out;
-    }
+  // Every frame must be tied to the others, or its pose is free: a frame or group no link joins
+  // to the rest (the closing frame after a rejected one, a frame placed against the patch image)
+  // is held to the frame before it by its online placement.
   out.ties = TieUnlinked(online, frame, &plane_links);
   double f = focal;
   out.stats = AdjustPlanePoses(&poses, &f, frame, plane_links, 0, {}, {}, o.solver);

@@ -65,6 +65,25 @@ TEST(PatchAdjustment, AGroupNoLinkJoinsIsTiedByItsOnlinePlacement) {
   }
 }
 
+// The closing frame after a rejected one has no link at all: the patch is still adjusted (it
+// used to be skipped whole, its lanes left bent), the frame held where its placement put it.
+TEST(PatchAdjustment, AFrameWithNoLinkIsTiedAndThePatchStillAdjusted) {
+  std::vector<int> indices;
+  std::vector<cv::Matx33d> online;
+  std::vector<FrameLink> links;
+  for (int i = 0; i < 6; ++i) {
+    indices.push_back(i);
+    online.push_back(Truth(i));
+    if (i > 0 && i < 5) links.push_back(LinkOf(i, i - 1));
+  }
+  const double focal = 0.5 * kFrame.width / std::tan(35.0 * CV_PI / 180);
+  const PatchAdjustment adjusted = AdjustPatch(indices, online, links, focal, kFrame, PatchAdjustmentOptions());
+  ASSERT_TRUE(adjusted.used) << adjusted.note;
+  EXPECT_EQ(adjusted.ties, 1);
+  const cv::Matx33d first = adjusted.frame_to_patch[0];
+  EXPECT_LT(CornerError(first.inv() * adjusted.frame_to_patch[5], Truth(5)), 0.5);
+}
+
 TEST(PatchAdjustment, LinkedPatchesNeedNoTies) {
   std::vector<int> indices;
   std::vector<cv::Matx33d> online;

@@ -1,0 +1,243 @@
+"""Every step of the command from Python on data made here: synth, mosaic (a folder, with
+progress), compose into a local metric frame (pixel_to_map / map_to_pixel), typed frames, merge,
+convert and export; bad input of every kind; Ctrl-C (a real SIGINT) during a long call; memory
+while reading 1,000 random windows; object identification trained, evaluated and run over a store."""
+import json
+import os
+import resource
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+import rasterio
+
+import rolamos
+
+CLI = os.environ.get("ROLAMOS_CLI", "rolamos")
+
+
+@pytest.fixture(scope="module")
+def survey(tmp_path_factory):
+    d = tmp_path_factory.mktemp("steps")
+    seen = []
+    r = rolamos.synth(d / "survey", frames=24, width=480, height=360, focal=420, lanes=2, seed=3,
+                      progress=lambda f, what: seen.append(f))
+    assert r["frames"] == 24 and r["frame_size"] == (480, 360)
+    assert seen and seen[-1] == pytest.approx(1.0)
+    truth = json.load(open(d / "survey" / "ground_truth.json"))
+    assert len(truth["frames"]) == 24
+    return d
+
+
+@pytest.fixture(scope="module")
+def mapped(survey):
+    store = survey / "s.rolamos"
+    seen = []
+    summary = rolamos.mosaic(survey / "survey" / "frames", store, patch_megapixels=0.8,
+                             progress=lambda f, what: seen.append((f, what)))
+    assert summary["frames"] == 24 and summary["stitched"] >= 23, summary
+    assert summary["patches"] >= 2 and summary["keyframes"] >= 1 and "features" in summary["stage_seconds"]
+    assert seen[-1] == (pytest.approx(1.0), "mosaic")
+    return rolamos.Store(store)
+
+
+def test_compose_in_a_local_frame_places_pixels_on_the_map(mapped):
+    r = rolamos.compose(mapped.path, altitude=2.0, focal=420)
+    assert r["patches_used"] == len(mapped.patches)
+    store = rolamos.Store(mapped.path)
+    assert store.georeferenced and store.global_record.crs
+    # 2 m over a 420-pixel focal length: 4.76 mm a pixel.
+    e0, n0 = store.pixel_to_map(0, 0)
+    e1, n1 = store.pixel_to_map(100, 0)
+    assert np.hypot(e1 - e0, n1 - n0) == pytest.approx(100 * 2.0 / 420, rel=0.05)
+    cols, rows = np.array([10.0, 333.5, 1000.0]), np.array([20.0, 44.25, 700.0])
+    back = store.map_to_pixel(*store.pixel_to_map(cols, rows))
+    assert np.allclose(back[0], cols) and np.allclose(back[1], rows)
+    # The same georeference as GDAL reads from mosaic.tif.
+    with rasterio.open(store.mosaic_path) as src:
+        assert np.allclose(src.transform * (333.5, 44.25), store.pixel_to_map(333.5, 44.25), atol=1e-6)
+
+
+def test_frames_are_typed_and_placed_in_the_mosaic(mapped):
+    rolamos.compose(mapped.path)
+    store = rolamos.Store(mapped.path)
+    frames = store.frames()
+    assert len(frames) >= 23 and len({f.index for f in frames}) == len(frames)
+    f = frames[0]
+    assert isinstance(f, rolamos.Frame) and f.frame_to_patch.shape == (3, 3) and f.frame_to_mosaic is not None
+    image = rolamos.open_image(store, "mosaic")
+    for f in frames:
+        cx, cy = f.centre(frame_size=(480, 360))
+        assert 0 <= cx < image.width and 0 <= cy < image.height, (f.index, cx, cy)
+    assert [f.index for f in store.frames(patch=frames[-1].patch)] == sorted(
+        f.index for f in frames if f.patch == frames[-1].patch)
+
+
+def test_merge_convert_and_export(mapped, survey, tmp_path):
+    other = tmp_path / "other.rolamos"
+    rolamos.mosaic(survey / "survey" / "frames", other, patch_megapixels=0.8, mask="none")
+    merged = rolamos.merge([mapped.path, other], tmp_path / "merged.rolamos")
+    assert merged["stores"] == 2 and merged["patches"] == len(mapped.patches) + len(rolamos.Store(other).patches)
+    # A frame converted to a pyramidal tiled TIFF, then a region exported at full resolution.
+    frame = sorted((survey / "survey" / "frames").iterdir())[0]
+    c = rolamos.convert(frame, tmp_path / "frame.tif", compression="zstd", tile=256)
+    assert (c["width"], c["height"]) == (480, 360) and c["levels"] >= 2
+    e = rolamos.export(tmp_path / "frame.tif", tmp_path / "part.png", region=(100, 50, 64, 32))
+    assert (e["width"], e["height"]) == (64, 32)
+    with rasterio.open(tmp_path / "part.png") as src:
+        part = np.moveaxis(src.read(), 0, -1)
+    assert np.array_equal(part, rolamos.open_image(tmp_path / "frame.tif").read(100, 50, 64, 32))
+    with pytest.raises(ValueError, match="compression"):
+        rolamos.convert(frame, tmp_path / "bad.tif", compression="gif")
+
+
+def test_bad_input_raises_clear_errors_and_the_interpreter_lives(mapped, tmp_path):
+    with pytest.raises(rolamos.Error, match="no such store"):
+        rolamos.Store(tmp_path / "missing.rolamos")
+    with pytest.raises(rolamos.Error):
+        rolamos.compose(tmp_path / "missing.rolamos")
+    # A corrupt sidecar: named when frames are read; the other patches still list.
+    broken = tmp_path / "broken.rolamos"
+    subprocess.run(["cp", "-r", mapped.path, str(broken)], check=True)
+    victim = rolamos.Store(broken).patches[0]
+    with open(victim.sidecar, "w") as f:
+        f.write('{"id": 1, "frames": [')
+    store = rolamos.Store(broken)
+    assert any(p.problem for p in store.patches)
+    with pytest.raises(rolamos.Error, match=os.path.basename(victim.sidecar)):
+        store.frames()
+    # Windows outside the image, and bad levels and scales.
+    image = rolamos.open_image(mapped, mapped.patches[0].id)
+    with pytest.raises(ValueError, match="leaves level 0"):
+        image.read(image.width - 10, 0, 20, 20)
+    with pytest.raises(ValueError, match="leaves level"):
+        image.read(-1, 0, 5, 5)
+    with pytest.raises(ValueError, match="positive"):
+        image.read(0, 0, 0, 5)
+    with pytest.raises(ValueError, match="level 99"):
+        image.read(0, 0, 5, 5, level=99)
+    with pytest.raises(ValueError, match="scale"):
+        image.read(0, 0, 5, 5, scale=2.0)
+    # Frames of the wrong dtype or shape, and a closed engine.
+    m = rolamos.Mosaicker(tmp_path / "pushed.rolamos")
+    with pytest.raises(ValueError, match="dtype float32"):
+        m.push(np.zeros((360, 480, 3), np.float32))
+    with pytest.raises(ValueError, match="shape"):
+        m.push(np.zeros((360, 480, 2), np.uint8))
+    with pytest.raises(ValueError, match="NumPy array"):
+        m.push([[1, 2], [3, 4]])
+    with pytest.raises(ValueError, match="too small"):
+        m.push(np.zeros((4, 4, 3), np.uint8))
+    m.close()
+    assert m.closed
+    with pytest.raises(rolamos.Error, match="closed"):
+        m.push(np.zeros((360, 480, 3), np.uint8))
+    with pytest.raises(ValueError, match="patch_megapixels|budget"):
+        rolamos.mosaic(tmp_path / "x", tmp_path / "y.rolamos", patch_megapixels=-1)
+    with pytest.raises(ValueError, match="'mask'"):
+        rolamos.Mosaicker(tmp_path / "m.rolamos", mask="auto")
+    with pytest.raises(ValueError, match="unknown option 'frame'"):
+        rolamos.synth(tmp_path / "s", frame=3)
+
+
+def test_ctrl_c_stops_a_long_call(survey, tmp_path):
+    """A real SIGINT while mosaic runs in a child interpreter: KeyboardInterrupt, quickly."""
+    frames = survey / "survey" / "frames"
+    big = tmp_path / "big"
+    rolamos.synth(big, frames=200, width=640, height=480, focal=560, seed=5)
+    code = textwrap.dedent(f"""
+        import sys, time, rolamos
+        print("started", flush=True)
+        try:
+            rolamos.mosaic({str(big / 'frames')!r}, {str(tmp_path / 'c.rolamos')!r}, mask="none")
+            print("finished", flush=True)
+        except KeyboardInterrupt:
+            print("interrupted", flush=True)
+            sys.exit(3)
+    """)
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         env=dict(os.environ))
+    assert p.stdout.readline().strip() == "started"
+    time.sleep(1.5)
+    sent = time.monotonic()
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=120)
+    assert p.returncode == 3 and "interrupted" in out, (p.returncode, out, err)
+    assert time.monotonic() - sent < 10, "SIGINT took too long to be honoured"
+    # What was written before the stop is a store that opens.
+    assert rolamos.Store(tmp_path / "c.rolamos").info()["kind"] == "store"
+
+
+def vm_rss_mb():
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return 0.0
+
+
+def test_random_windows_stay_within_the_cache_limit(tmp_path):
+    """1,000 random 512 x 512 windows of an 8192 x 8192 image through a 32 MB cache: the resident
+    set grows by at most the cache plus a stated margin (decoders' buffers, the arrays read)."""
+    subprocess.run([CLI, "demo", "-o", str(tmp_path / "demo.rolamos"), "--size", "8192"], check=True,
+                   capture_output=True)
+    image = rolamos.open_image(tmp_path / "demo.rolamos", 1, cache_mb=32)
+    rng = np.random.default_rng(7)
+    image.read(0, 0, 512, 512)  # libraries and first buffers in
+    before = vm_rss_mb()
+    peak = before
+    for _ in range(1000):
+        x, y = rng.integers(0, image.width - 512), rng.integers(0, image.height - 512)
+        a = image.read(int(x), int(y), 512, 512)
+        assert a.shape[:2] == (512, 512)
+        peak = max(peak, vm_rss_mb())
+    margin_mb = 48
+    assert peak - before < 32 + margin_mb, f"resident set grew {peak - before:.0f} MB"
+
+
+def make_class_images(root, n=14, size=96, seed=0):
+    """Two classes a model must tell apart: bright discs and dark crosses on textured ground,
+    and bare ground as background."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:size, 0:size]
+    for cls in ("disc", "cross", "background"):
+        (root / cls).mkdir(parents=True)
+        for i in range(n):
+            ground = rng.normal(110, 18, (size, size)).clip(0, 255)
+            cx, cy = size / 2 + rng.uniform(-8, 8), size / 2 + rng.uniform(-8, 8)
+            r = rng.uniform(14, 22)
+            if cls == "disc":
+                ground[(xx - cx) ** 2 + (yy - cy) ** 2 < r * r] = 230
+            elif cls == "cross":
+                ground[(abs(xx - cx) < r) & (abs(yy - cy) < r / 4)] = 20
+                ground[(abs(yy - cy) < r) & (abs(xx - cx) < r / 4)] = 20
+            img = np.repeat(ground[..., None], 3, axis=2).astype(np.uint8)
+            img[..., 2] = (img[..., 2] * 0.8).astype(np.uint8)
+            from PIL import Image as PILImage  # python3-pil comes with matplotlib
+            PILImage.fromarray(img).save(root / cls / f"{cls}_{i:02d}.png")
+
+
+def test_objects_train_evaluate_classify_and_detect(mapped, tmp_path):
+    make_class_images(tmp_path / "train", seed=1)
+    make_class_images(tmp_path / "test", n=8, seed=2)
+    model = rolamos.objects.train(tmp_path / "train", tmp_path / "model.yml.gz", vocabulary=8, kmeans_samples=4000,
+                                  folds=2, image_size=96)
+    assert sorted(model.classes) == ["cross", "disc"] and os.path.exists(tmp_path / "model.yml.gz")
+    e = rolamos.objects.evaluate(tmp_path / "test", tmp_path / "model.yml.gz")
+    assert e["accuracy"] >= 0.8, e
+    from PIL import Image as PILImage
+    disc = np.asarray(PILImage.open(tmp_path / "test" / "disc" / "disc_00.png").convert("RGB"))
+    scores = model.classify(disc)
+    assert scores[0][0] == "disc", scores
+    rolamos.compose(mapped.path)
+    d = rolamos.objects.detect(mapped.path, model, window=128, stride=1.0)
+    assert d["windows"] > 0 and d["geojson"]["type"] == "FeatureCollection"
+    assert rolamos.Store(mapped.path).detections() == d["geojson"]
+    with pytest.raises(ValueError, match="unknown option 'windows'"):
+        rolamos.objects.detect(mapped.path, model, windows=3)
+    with pytest.raises(rolamos.Error):
+        rolamos.objects.ObjectModel.load(tmp_path / "nope.yml.gz")
