@@ -50,7 +50,8 @@ class TiledImage {
   // leaves the level or a tile cannot be decoded.
   cv::Mat ReadRegion(int level, const cv::Rect& region) const;
   // The same into `dst` (region-sized, cv_type(); may be a view into a larger Mat): no copy.
-  void ReadRegionInto(int level, const cv::Rect& region, cv::Mat& dst) const;
+  // `file_order`: the channels as the file stores them (RGB(A)), not swapped to OpenCV's BGR(A).
+  void ReadRegionInto(int level, const cv::Rect& region, cv::Mat& dst, bool file_order = false) const;
   // `region0` in level-0 coordinates, resampled by `scale` (0 < scale <= 1): reads the nearest
   // finer level and area-averages the rest of the way.
   cv::Mat ReadScaled(const cv::Rect& region0, double scale) const;

@@ -109,7 +109,7 @@ cv::Mat TiledImage::ReadRegion(int level, const cv::Rect& region) const {
   return out;
 }
 
-void TiledImage::ReadRegionInto(int level, const cv::Rect& region, cv::Mat& out) const {
+void TiledImage::ReadRegionInto(int level, const cv::Rect& region, cv::Mat& out, bool file_order) const {
   const auto& info = impl_->info;
   if (level < 0 || level >= num_levels())
     Fail(info.path, "level " + std::to_string(level) + " does not exist (levels 0.." +
@@ -133,6 +133,7 @@ void TiledImage::ReadRegionInto(int level, const cv::Rect& region, cv::Mat& out)
                         "," + std::to_string(region.y) + "," + std::to_string(region.width) +
                         "," + std::to_string(region.height) +
                         " cannot be decoded: " + OiioError(ic));
+  if (file_order) return;
   if (info.channels == 3) cv::cvtColor(out, out, cv::COLOR_RGB2BGR);
   if (info.channels == 4) cv::cvtColor(out, out, cv::COLOR_RGBA2BGRA);
 }
