@@ -121,6 +121,13 @@ struct StoreOptions {
   std::string crs;                  // the survey's CRS (WKT) when known
 };
 
+// A file exported into the store (a Cloud Optimized GeoTIFF `rolamos export --cog` wrote inside
+// it): `rolamos serve` hands out exactly these, by name, with range requests.
+struct ExportEntry {
+  std::string path;  // relative to the store
+  std::string kind;  // "cog"
+};
+
 struct PatchEntry {
   int id = 0;
   std::string image;    // relative to the store
@@ -166,6 +173,10 @@ class Store {
   void SetGlobal(const GlobalRecord& global);
   nlohmann::json camera() const;
   std::string crs() const;
+  // The files exported into the store (manifest field "exports"), oldest first.
+  std::vector<ExportEntry> exports() const;
+  // Records `entry` (replacing one of the same path); the file must be in place, inside the store.
+  void RecordExport(const ExportEntry& entry);
 
  private:
   struct State {

@@ -31,7 +31,37 @@ cv::Mat TilePyramid::Tile(int level, long long tx, long long ty) const {
   return image_->ReadResampled(tx * kTile / scale, ty * kTile / scale, scale, cv::Size(tw, th));
 }
 
-std::vector<uchar> TilePyramid::Encode(cv::Mat tile, const std::string& ext, int jpeg_quality) {
+bool TilePyramid::XyzTileTouchesImage(int z, long long x, long long y) const {
+  const int level = z + xyz_shift_;
+  if (z < 0 || level > max_level_ || x < 0 || y < 0) return false;
+  const cv::Size size = LevelSize(level);
+  return x * kTile < size.width && y * kTile < size.height;
+}
+
+cv::Mat TilePyramid::XyzTile(int z, long long x, long long y) const {
+  const int level = z + xyz_shift_;
+  if (z < 0 || z > 40 || level > max_level_ || x < 0 || y < 0 || x >= (1LL << z) || y >= (1LL << z)) return {};
+  cv::Mat out(kTile, kTile, CV_8UC4, cv::Scalar(0, 0, 0, 0));
+  const cv::Mat part = Tile(level, x, y);
+  if (part.empty()) return out;  // inside the grid, past the image: nothing there
+  cv::Mat bgra = part;
+  if (bgra.depth() == CV_16U) bgra.convertTo(bgra, CV_8U, 1.0 / 257.0);
+  if (bgra.channels() == 1) cv::cvtColor(bgra, bgra, cv::COLOR_GRAY2BGRA);
+  else if (bgra.channels() == 3) cv::cvtColor(bgra, bgra, cv::COLOR_BGR2BGRA);
+  else if (bgra.channels() == 2) {
+    cv::Mat gray, alpha, planes[4];
+    cv::extractChannel(bgra, gray, 0);
+    cv::extractChannel(bgra, alpha, 1);
+    planes[0] = planes[1] = planes[2] = gray;
+    planes[3] = alpha;
+    cv::merge(planes, 4, bgra);
+  }
+  bgra.copyTo(out(cv::Rect(0, 0, bgra.cols, bgra.rows)));
+  return out;
+}
+
+std::vector<uchar> TilePyramid::Encode(cv::Mat tile, const std::string& ext, int jpeg_quality,
+                                       const cv::Scalar& background) {
   if (tile.depth() == CV_16U) tile.convertTo(tile, CV_8U, 1.0 / 257.0);
   std::vector<uchar> bytes;
   if (ext == "png") {
@@ -41,7 +71,20 @@ std::vector<uchar> TilePyramid::Encode(cv::Mat tile, const std::string& ext, int
     if (tile.channels() == 1) cv::cvtColor(tile, tile, cv::COLOR_GRAY2BGR);
     cv::imencode(".webp", tile, bytes, {cv::IMWRITE_WEBP_QUALITY, jpeg_quality});
   } else {
-    if (tile.channels() == 4) cv::cvtColor(tile, tile, cv::COLOR_BGRA2BGR);
+    if (tile.channels() == 4) {
+      // Over the background where there is no data (and in proportion at the data's edges).
+      cv::Mat flat(tile.size(), CV_8UC3);
+      for (int y = 0; y < tile.rows; ++y) {
+        const cv::Vec4b* p = tile.ptr<cv::Vec4b>(y);
+        cv::Vec3b* q = flat.ptr<cv::Vec3b>(y);
+        for (int x = 0; x < tile.cols; ++x) {
+          const int a = p[x][3];
+          for (int k = 0; k < 3; ++k)
+            q[x][k] = static_cast<uchar>((p[x][k] * a + int(background[k]) * (255 - a) + 127) / 255);
+        }
+      }
+      tile = flat;
+    }
     if (tile.channels() == 2) cv::extractChannel(tile, tile, 0);
     cv::imencode(".jpg", tile, bytes, {cv::IMWRITE_JPEG_QUALITY, jpeg_quality});
   }

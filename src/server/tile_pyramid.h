@@ -30,10 +30,19 @@ class TilePyramid {
   int xyz_shift() const { return xyz_shift_; }
   int xyz_max_zoom() const { return max_level_ - xyz_shift_; }
   cv::Size LevelSize(int level) const;
-  // Tile (tx, ty) of a DZI level, BGR(A); empty when outside the level.
+  // Tile (tx, ty) of a DZI level, BGR(A); empty when outside the level. Edge tiles are cut to
+  // the image (Deep Zoom's convention).
   cv::Mat Tile(int level, long long tx, long long ty) const;
-  // "jpg", "png" or "webp" (at `jpeg_quality`, alpha kept); JPEG drops alpha.
-  static std::vector<uchar> Encode(cv::Mat tile, const std::string& ext, int jpeg_quality);
+  // XYZ tile (z, x, y): always 256 x 256 BGRA, alpha 0 where the image has no data or does not
+  // reach (every XYZ client expects whole tiles); empty when (x, y) is outside zoom z's 2^z grid
+  // or z is past full resolution.
+  cv::Mat XyzTile(int z, long long x, long long y) const;
+  // Whether XYZ tile (z, x, y) holds any of the image (the tiles `rolamos tiles` writes).
+  bool XyzTileTouchesImage(int z, long long x, long long y) const;
+  // "jpg", "png" or "webp" (at `jpeg_quality`, alpha kept); JPEG has no alpha: pixels without
+  // data take `background` (BGR), alpha-blended at the edges of the data.
+  static std::vector<uchar> Encode(cv::Mat tile, const std::string& ext, int jpeg_quality,
+                                   const cv::Scalar& background = cv::Scalar(0, 0, 0));
   // The Deep Zoom descriptor (NAME.dzi) of this image.
   std::string DziDescriptor(const std::string& ext) const;
 

@@ -246,6 +246,38 @@ std::string Store::crs() const {
   return state_->crs;
 }
 
+std::vector<ExportEntry> Store::exports() const {
+  std::lock_guard<std::mutex> lock(state_->mutex);
+  std::vector<ExportEntry> out;
+  const json& list = state_->extra.value("exports", json::array());
+  if (!list.is_array()) return out;
+  for (const json& e : list) {
+    if (!e.is_object() || !e.contains("path") || !e["path"].is_string()) continue;
+    ExportEntry x{e["path"].get<std::string>(), e.value("kind", "")};
+    try {
+      CheckRelative(x.path, ManifestPath() + ": exports");
+    } catch (const Error&) {
+      continue;  // a path leaving the store is never handed out
+    }
+    out.push_back(std::move(x));
+  }
+  return out;
+}
+
+void Store::RecordExport(const ExportEntry& entry) {
+  CheckRelative(entry.path, ManifestPath() + ": exports");
+  if (!fs::exists(fs::path(dir_) / entry.path)) Fail((fs::path(dir_) / entry.path).string(), "is not there to record");
+  std::lock_guard<std::mutex> lock(state_->mutex);
+  json list = state_->extra.value("exports", json::array());
+  if (!list.is_array()) list = json::array();
+  json kept = json::array();
+  for (const json& e : list)
+    if (!(e.is_object() && e.value("path", "") == entry.path)) kept.push_back(e);
+  kept.push_back({{"path", entry.path}, {"kind", entry.kind}});
+  state_->extra["exports"] = kept;
+  WriteManifestLocked();
+}
+
 std::string Store::ImagePath(int patch) const {
   if (patch == 0) {
     if (!HasMosaic()) Fail(dir_, "has no global mosaic yet: run `rolamos compose` first, or choose a patch");
