@@ -9,6 +9,7 @@
 #include <cstdlib>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 
 #include <map>
 
@@ -233,5 +234,33 @@ double Rms(const std::vector<double>& errors) {
   for (double e : errors) sse += e * e;
   return errors.empty() ? 0 : std::sqrt(sse / errors.size());
 }
+
+void WriteSurveyNavigation(const Survey& s, const std::string& path, double focal, bool latlon) {
+  std::ofstream out(path);
+  out << (latlon ? "frame,lat,lon,altitude,heading\n" : "frame,easting,northing,epsg,altitude,heading\n");
+  out.precision(12);
+  for (const auto& f : s.frames) {
+    const cv::Matx33d H = ToMatx(f.frame_to_world);
+    const double cx = (s.frame_size.width - 1) / 2.0, cy = (s.frame_size.height - 1) / 2.0;
+    auto world = [&](double x, double y) {
+      const cv::Vec3d w = H * cv::Vec3d(x, y, 1);
+      return cv::Point2d(500000 + 0.01 * w[0] / w[2], 5200000 - 0.01 * w[1] / w[2]);
+    };
+    const cv::Point2d c = world(cx, cy), up = world(cx, cy - 1), right = world(cx + 1, cy);
+    const double heading = std::atan2(up.x - c.x, up.y - c.y) * 180 / CV_PI;
+    const double gsd = cv::norm(right - c);
+    out << fs::path(f.file).filename().string() << ",";
+    if (latlon) {
+      // Inverse UTM is not at hand in the test: a survey near the central meridian of zone 55
+      // (147 E) at 43.5 S, with small offsets mapped by the local scale (metres per degree).
+      const double lat = -43.5 + (c.y - 5200000) / 111120.0, lon = 147.0 + (c.x - 500000) / (111320.0 * std::cos(43.5 * CV_PI / 180));
+      out << lat << "," << lon;
+    } else {
+      out << c.x << "," << c.y << ",32755";
+    }
+    out << "," << gsd * focal << "," << heading << "\n";
+  }
+}
+
 
 }  // namespace rolamos::test

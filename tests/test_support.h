@@ -62,6 +62,11 @@ Store MosaicAndCompose(const std::string& frames_dir, const std::string& store_d
 std::vector<double> ErrorsAgainstTruth(const Store& store, const Survey& truth, bool aligned = false);
 double Rms(const std::vector<double>& errors);
 
+// The survey's vehicle navigation as `compose --navigation` reads it (frame, position, altitude,
+// heading), from its ground truth: texture pixel (X, Y) is map (500000 + 0.01 X, 5200000 - 0.01 Y)
+// in EPSG:32755 (or, `latlon`, roughly the same place in degrees near 147 E, 43.5 S).
+void WriteSurveyNavigation(const Survey& s, const std::string& path, double focal, bool latlon = false);
+
 // Object identification data: 160 x 160 crops of generated seafloor with one object in the
 // middle (a purple "disc", a pale "star" of spines, a dark "bar"), rotated, scaled and shifted
 // at random; "background" crops hold none.

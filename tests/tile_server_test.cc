@@ -58,30 +58,48 @@ TEST_F(TileServerTest, TilesAreTheStoredPixelsAtEveryZoom) {
   const int max_zoom = j[0]["xyz_max_zoom"];
   EXPECT_EQ(max_zoom, 3);  // 1500 px: 188, 375, 750, 1500 -> zooms 0..3
   // Full resolution: exactly the stored pixels (PNG is lossless).
+  // XYZ tiles are whole 256 x 256 BGRA tiles: the stored colour, alpha 255 where the image is.
   cv::Mat t = Get("/tiles/patch-1/3/1/2.png");
-  ASSERT_FALSE(t.empty());
-  EXPECT_EQ(cv::norm(t, image_->ReadRegion(0, cv::Rect(256, 512, 256, 256)), cv::NORM_INF), 0.0);
-  // Edge tile: only what is there.
+  ASSERT_EQ(t.type(), CV_8UC4);
+  cv::Mat colour, alpha;
+  cv::cvtColor(t, colour, cv::COLOR_BGRA2BGR);
+  cv::extractChannel(t, alpha, 3);
+  cv::Mat stored = image_->ReadRegion(0, cv::Rect(256, 512, 256, 256));
+  if (stored.channels() == 4) cv::cvtColor(stored, stored, cv::COLOR_BGRA2BGR);
+  EXPECT_EQ(cv::norm(colour, stored, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::countNonZero(alpha == 255), 256 * 256);
+  // Edge tile: whole, transparent past the image (as GDAL, Leaflet and QGIS expect).
   cv::Mat edge = Get("/tiles/patch-1/3/5/5.png");
-  EXPECT_EQ(edge.size(), cv::Size(1500 - 5 * 256, 1500 - 5 * 256));
+  ASSERT_EQ(edge.size(), cv::Size(256, 256));
+  cv::extractChannel(edge, alpha, 3);
+  EXPECT_EQ(cv::countNonZero(alpha), (1500 - 5 * 256) * (1500 - 5 * 256));
+  // JPEG has no alpha: the part past the image takes the colour the request asks for.
+  cv::Mat white = Get("/tiles/patch-1/3/5/5.jpg?background=ffffff");
+  ASSERT_EQ(white.size(), cv::Size(256, 256));
+  EXPECT_GT(cv::mean(white(cv::Rect(230, 230, 26, 26)))[0], 250);
+  cv::Mat black = Get("/tiles/patch-1/3/5/5.jpg");
+  EXPECT_LT(cv::mean(black(cv::Rect(230, 230, 26, 26)))[0], 5);
+  // In the zoom's grid but off the image: a transparent tile, not an error.
+  cv::Mat empty = Get("/tiles/patch-1/3/7/7.png");
+  ASSERT_EQ(empty.size(), cv::Size(256, 256));
+  cv::extractChannel(empty, alpha, 3);
+  EXPECT_EQ(cv::countNonZero(alpha), 0);
   // Zoom 0: the whole image in one tile, the area average of it.
   // WebP tiles: the same pixels within lossy coding.
   cv::Mat w = Get("/tiles/patch-1/3/1/2.webp");
   ASSERT_FALSE(w.empty());
   if (w.channels() == 4) cv::cvtColor(w, w, cv::COLOR_BGRA2BGR);
-  cv::Mat t3 = t.channels() == 4 ? cv::Mat() : t;
-  if (t.channels() == 4) cv::cvtColor(t, t3, cv::COLOR_BGRA2BGR);
-  EXPECT_GE(test::Psnr(w, t3), 30.0);
+  EXPECT_GE(test::Psnr(w, colour), 30.0);
   cv::Mat whole = Get("/tiles/patch-1/0/0/0.jpg");
-  ASSERT_EQ(whole.size(), cv::Size(188, 188));
+  ASSERT_EQ(whole.size(), cv::Size(256, 256));
   cv::Mat expected = image_->ReadResampled(0, 0, 1.0 / 8, cv::Size(188, 188));
-  EXPECT_GE(test::Psnr(whole, expected), 30.0);
+  EXPECT_GE(test::Psnr(whole(cv::Rect(0, 0, 188, 188)), expected), 30.0);
   // Deep Zoom: descriptor and the same tiles under their levels.
   auto dzi = client_->Get("/dzi/patch-1.dzi");
   ASSERT_TRUE(dzi);
   EXPECT_NE(dzi->body.find("Width=\"1500\" Height=\"1500\""), std::string::npos) << dzi->body;
   cv::Mat same = Get("/dzi/patch-1_files/11/1_2.png");  // ceil(log2 1500) = 11: full resolution
-  EXPECT_EQ(cv::norm(same, t, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::norm(same, colour, cv::NORM_INF), 0.0);
   cv::Mat one_pixel = Get("/dzi/patch-1_files/0/0_0.png");
   EXPECT_EQ(one_pixel.size(), cv::Size(1, 1));
 }

@@ -20,33 +20,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// Texture pixel (X, Y) is map (500000 + 0.01 X, 5200000 - 0.01 Y) in EPSG:32755.
-void WriteNavigation(const Survey& s, const std::string& path, double focal, bool latlon) {
-  std::ofstream out(path);
-  out << (latlon ? "frame,lat,lon,altitude,heading\n" : "frame,easting,northing,epsg,altitude,heading\n");
-  out.precision(12);
-  for (const auto& f : s.frames) {
-    const cv::Matx33d H = ToMatx(f.frame_to_world);
-    const double cx = (s.frame_size.width - 1) / 2.0, cy = (s.frame_size.height - 1) / 2.0;
-    auto world = [&](double x, double y) {
-      const cv::Vec3d w = H * cv::Vec3d(x, y, 1);
-      return cv::Point2d(500000 + 0.01 * w[0] / w[2], 5200000 - 0.01 * w[1] / w[2]);
-    };
-    const cv::Point2d c = world(cx, cy), up = world(cx, cy - 1), right = world(cx + 1, cy);
-    const double heading = std::atan2(up.x - c.x, up.y - c.y) * 180 / CV_PI;
-    const double gsd = cv::norm(right - c);
-    out << fs::path(f.file).filename().string() << ",";
-    if (latlon) {
-      // Inverse UTM is not at hand in the test: a survey near the central meridian of zone 55
-      // (147 E) at 43.5 S, with small offsets mapped by the local scale (metres per degree).
-      const double lat = -43.5 + (c.y - 5200000) / 111120.0, lon = 147.0 + (c.x - 500000) / (111320.0 * std::cos(43.5 * CV_PI / 180));
-      out << lat << "," << lon;
-    } else {
-      out << c.x << "," << c.y << ",32755";
-    }
-    out << "," << gsd * focal << "," << heading << "\n";
-  }
-}
+using test::WriteSurveyNavigation;
 
 TEST(Navigation, VehicleNavigationPlacesTheMosaic) {
   test::ScratchDir dir;
@@ -56,14 +30,14 @@ TEST(Navigation, VehicleNavigationPlacesTheMosaic) {
   camera.focal_px = 420;
   camera.width = 480;
   camera.height = 360;
-  WriteNavigation(survey, dir / "nav.csv", 420, false);
+  WriteSurveyNavigation(survey, dir / "nav.csv", 420, false);
   const GeoreferenceResult g = GeoreferenceMosaic(store, ReadNavigationCsv(dir / "nav.csv", camera));
   EXPECT_EQ(g.frames_used, 16);
   EXPECT_LT(g.median_residual_m, 0.03);  // 3 texture pixels
   EXPECT_NEAR(std::hypot(g.georef.geotransform[1], g.georef.geotransform[4]), 0.01, 0.001);
   EXPECT_NE(g.georef.crs.find("32755"), std::string::npos);
 
-  WriteNavigation(survey, dir / "latlon.csv", 420, true);
+  WriteSurveyNavigation(survey, dir / "latlon.csv", 420, true);
   const GeoreferenceResult h = GeoreferenceMosaic(store, ReadNavigationCsv(dir / "latlon.csv", camera));
   EXPECT_LT(h.median_residual_m, 0.05);
   EXPECT_NE(h.georef.crs.find("32755"), std::string::npos);  // the UTM zone of 147 E, south

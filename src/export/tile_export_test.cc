@@ -6,6 +6,7 @@
 #include <fstream>
 
 #include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
 #include <opencv2/imgcodecs.hpp>
 
 #include "rolamos/error.hpp"
@@ -35,10 +36,23 @@ TEST(TileExport, XyzAndDeepZoomHoldEveryTileWithTheStoredPixels) {
   // 1500 px: zoom 0..3 = 188, 375, 750, 1500 px -> 1 + 4 + 9 + 36 tiles.
   EXPECT_EQ(r.tiles, 50);
   EXPECT_EQ(CountFiles(dir / "xyz", ".png"), 50);
+  // XYZ tiles are whole 256 x 256 tiles, colour as stored and alpha 255 where the image is.
   cv::Mat tile = cv::imread(dir / "xyz/patch-1/3/1/2.png", cv::IMREAD_UNCHANGED);
+  ASSERT_EQ(tile.type(), CV_8UC4);
   TiledImage image = TiledImage::Open(store.PatchImagePath(1));
-  EXPECT_EQ(cv::norm(tile, image.ReadRegion(0, cv::Rect(256, 512, 256, 256)), cv::NORM_INF), 0.0);
-  EXPECT_EQ(cv::imread(dir / "xyz/patch-1/0/0/0.png").size(), cv::Size(188, 188));
+  cv::Mat stored = image.ReadRegion(0, cv::Rect(256, 512, 256, 256)), colour, alpha;
+  cv::cvtColor(tile, colour, cv::COLOR_BGRA2BGR);
+  cv::extractChannel(tile, alpha, 3);
+  if (stored.channels() == 4) cv::cvtColor(stored, stored, cv::COLOR_BGRA2BGR);
+  EXPECT_EQ(cv::norm(colour, stored, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::countNonZero(alpha == 255), 256 * 256);
+  // The edge tile and zoom 0: whole, transparent past the image (1500 = 5 * 256 + 220; 188 at zoom 0).
+  const cv::Mat edge = cv::imread(dir / "xyz/patch-1/3/5/5.png", cv::IMREAD_UNCHANGED);
+  ASSERT_EQ(edge.size(), cv::Size(256, 256));
+  cv::extractChannel(edge, alpha, 3);
+  EXPECT_EQ(cv::countNonZero(alpha), 220 * 220);
+  EXPECT_EQ(cv::imread(dir / "xyz/patch-1/0/0/0.png").size(), cv::Size(256, 256));
+  EXPECT_TRUE(fs::exists(dir / "xyz/patch-1.xml"));  // GDAL WMS (TMS) description
 
   TileExportResult d = ExportTiles(store, dir / "dzi", TileExportOptions{});
   EXPECT_EQ(CountFiles(dir / "dzi", ".jpg"), d.tiles);
