@@ -119,7 +119,7 @@ void TileServer::Impl::GisRoutes() {
     res.set_content(WmtsCapabilities(layers, BaseUrl(req, port)), "application/xml");
   };
   http.Get("/wmts/1.0.0/WMTSCapabilities.xml", capabilities);
-  http.Get("/wmts", [this, capabilities, mercator_tile](const httplib::Request& req, httplib::Response& res) {
+  http.Get("/wmts", [capabilities, mercator_tile](const httplib::Request& req, httplib::Response& res) {
     const std::string service = Kvp(req, "SERVICE"), request = Kvp(req, "REQUEST");
     if (service != "WMTS") return OgcBad(res, "MissingParameterValue", "service", "SERVICE=WMTS is required");
     if (request == "GetCapabilities") return capabilities(req, res);
