@@ -16,6 +16,9 @@ PACKAGES=(
   pybind11-dev python3-dev python3-pytest python3-rasterio python3-matplotlib python3-pil
 )
 
+# QGIS's Python bindings for the QGIS client test, on request (a large install): ROLAMOS_WITH_QGIS=1.
+[ "${ROLAMOS_WITH_QGIS:-0}" = 1 ] && PACKAGES+=(python3-qgis)
+
 missing=()
 for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -32,7 +35,7 @@ fi
 
 # The viewer's front-end packages, pinned by viewer/package-lock.json (OpenSeadragon is built into
 # the binary; playwright-core drives Debian's Chromium in the browser tests).
-if [ ! -d viewer/node_modules/openseadragon ] || [ ! -d viewer/node_modules/playwright-core ] ||
+if [ ! -d viewer/node_modules/openseadragon ] || [ ! -d viewer/node_modules/leaflet ] || [ ! -d viewer/node_modules/playwright-core ] ||
    [ viewer/package-lock.json -nt viewer/node_modules/.package-lock.json ]; then
   (cd viewer && npm ci --no-audit --no-fund --loglevel=error >/dev/null)
 fi

@@ -130,7 +130,11 @@ void AddExportCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--jpeg-quality", s->jpeg_quality, "quality of .jpg output")
       ->capture_default_str();
   cmd->add_flag("-q,--quiet", s->quiet, "no progress bar");
-  cmd->callback([s, run] { *run = [s] { return RunExport(*s); }; });
+  cmd->callback([s, run] {
+    // -o is required unless the export is a catalogue entry (--stac DIR names where it goes).
+    if (s->output.empty() && s->stac.empty()) throw CLI::RequiredError("--output (or --stac DIR)");
+    *run = [s] { return RunExport(*s); };
+  });
 }
 
 }  // namespace rolamos::cli

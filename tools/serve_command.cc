@@ -21,7 +21,8 @@ static int RunServe(const ServeSwitches& s) {
   TileServer server(Store::Open(s.store), s.options);
   const int port = server.Start();
   std::printf("serving %s on http://%s:%d/  (open it in a browser: the viewer; images: /api/images; "
-              "XYZ: /tiles/NAME/{z}/{x}/{y}.jpg; Deep Zoom: /dzi/NAME.dzi). Ctrl-C stops.\n",
+              "XYZ: /tiles/NAME/{z}/{x}/{y}.jpg; Deep Zoom: /dzi/NAME.dzi; georeferenced: /map.html, "
+              "/wmts/1.0.0/WMTSCapabilities.xml, /tilejson/NAME.json; files: /files/mosaic.tif). Ctrl-C stops.\n",
               s.store.c_str(), s.options.bind.c_str(), port);
   std::fflush(stdout);
   int signal = 0;
@@ -43,6 +44,11 @@ void AddServeCommand(CLI::App& app, Runner* run) {
                   "georeferences the live view");
   cmd->add_option("--crs", s->options.navigation_crs, "with --navigation: CRS of eastings/northings without an epsg column");
   cmd->add_option("--focal", s->options.focal_px, "with --navigation: focal length in pixels (default: the store's camera)");
+  cmd->add_option("--basemap", s->options.basemap,
+                  "an XYZ tile URL ({z}/{x}/{y}) the map page (/map.html) shows under the georeferenced mosaic; none "
+                  "by default (nothing is fetched from elsewhere unless given)");
+  cmd->add_option("--basemap-attribution", s->options.basemap_attribution, "the base map's attribution text");
+  cmd->add_option("--basemap-max-zoom", s->options.basemap_max_zoom, "the base map's finest zoom")->capture_default_str();
   cmd->add_option("--threads", s->options.threads, "request threads (0: 4 per core, at least 16)")
       ->capture_default_str();
   cmd->callback([s, run] { *run = [s] { return RunServe(*s); }; });

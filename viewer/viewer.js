@@ -46,6 +46,11 @@
                                                              overlays: 'api/overlays/' + i.name }));
     }
     addOptions(state.images);
+    // The map page, when an image is on Earth (its Web Mercator tiles).
+    try {
+      const listed = statics ? await json('images.json') : await json('api/images');
+      $('map-link').hidden = !listed.some((i) => i.webmercator);
+    } catch (e) { /* no map page then */ }
     if (!state.images.length) { status('the store has no images yet'); return; }
     const wanted = new URLSearchParams(location.search).get('image');
     open(state.images.find((i) => i.name === wanted) || state.images[0]);

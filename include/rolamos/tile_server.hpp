@@ -27,6 +27,10 @@ struct TileServerOptions {
   // without an epsg column; `focal_px` 0: the store's camera.
   std::string navigation, navigation_crs;
   double focal_px = 0;
+  // The base map the map page (/map.html) shows under the georeferenced images: an XYZ URL
+  // template ({z}/{x}/{y}); "" = none (nothing is fetched from elsewhere unless asked).
+  std::string basemap, basemap_attribution;
+  int basemap_max_zoom = 19;
 
   bool IsValid(std::string* error) const;
 };

@@ -178,7 +178,9 @@ TileExportResult ExportTiles(Store store, const std::string& dir, const TileExpo
                                        {"tilejson", name + ".tilejson.json"},
                                        {"gdal_wms", name + ".webmercator.xml"},
                                        {"min_zoom", m.min_zoom()},
-                                       {"max_zoom", m.max_zoom()}};
+                                       {"max_zoom", m.max_zoom()},
+                                       {"bounds", {m.bounds_wgs84()[0], m.bounds_wgs84()[1], m.bounds_wgs84()[2],
+                                                   m.bounds_wgs84()[3]}}};
         layers.push_back({name, &m});
       }
       fs::create_directories(tmp / "overlays");
@@ -192,10 +194,11 @@ TileExportResult ExportTiles(Store store, const std::string& dir, const TileExpo
     // The viewer page, told that it is static (no server: no export, files instead of the API).
     for (const ViewerAsset& a : ViewerAssets()) {
       std::string text(reinterpret_cast<const char*>(a.data), a.size);
-      if (std::string(a.path) == "index.html") {
+      if (std::string(a.path) == "index.html" || std::string(a.path) == "map.html") {
         const size_t at = text.find("<script");
         text.insert(at, "<script>window.ROLAMOS_STATIC = true;</script>\n");
       }
+      fs::create_directories((tmp / a.path).parent_path());
       std::ofstream(tmp / a.path, std::ios::binary) << text;
     }
     result.images = static_cast<int>(images.size());

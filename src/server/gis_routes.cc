@@ -44,6 +44,15 @@ std::string Kvp(const httplib::Request& req, const std::string& name) {
 }  // namespace
 
 void TileServer::Impl::GisRoutes() {
+  // What the map page needs to know: the base map, when one was configured.
+  http.Get("/api/config", [this](const httplib::Request&, httplib::Response& res) {
+    nlohmann::json c = {{"basemap", options.basemap.empty() ? nlohmann::json(nullptr) : nlohmann::json(options.basemap)},
+                        {"basemap_attribution", options.basemap_attribution},
+                        {"basemap_max_zoom", options.basemap_max_zoom}};
+    res.set_header("Cache-Control", "no-store");
+    res.set_content(c.dump(), "application/json");
+  });
+
   // Web Mercator tiles: /tiles/NAME/webmercator/Z/X/Y.png|jpg|webp (?background=RRGGBB for JPEG).
   auto mercator_tile = [this](const httplib::Request& req, httplib::Response& res, const std::string& name,
                               long long z, long long x, long long y, const std::string& ext) {

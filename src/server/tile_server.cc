@@ -339,7 +339,9 @@ void TileServer::Impl::Routes() {
   for (const ViewerAsset& a : ViewerAssets()) {
     const std::string path = a.path;
     auto serve = [a](const httplib::Request&, httplib::Response& res) {
-      res.set_content(reinterpret_cast<const char*>(a.data), a.size, std::string(a.mime) + "; charset=utf-8");
+      const std::string mime = a.mime;
+      res.set_content(reinterpret_cast<const char*>(a.data), a.size,
+                      mime.rfind("text/", 0) == 0 ? mime + "; charset=utf-8" : mime);
       res.set_header("Cache-Control", "no-cache");
     };
     http.Get("/" + path, serve);
