@@ -36,6 +36,7 @@ const OptionTable<SurveyOptions>& SurveyTable() {
         .Number("attitude_jitter", &SurveyOptions::attitude_jitter_deg).Flag("turns", &SurveyOptions::lane_turns)
         .Integer("lanes", &SurveyOptions::lanes).Number("max_turn", &SurveyOptions::max_turn_deg)
         .Flag("overlay", &SurveyOptions::overlay).Number("altitude_jitter", &SurveyOptions::altitude_jitter)
+        .Text("repeat", &SurveyOptions::repeat)
         .Number("attenuation", &SurveyOptions::attenuation).Number("vignetting", &SurveyOptions::vignetting)
         .Number("backscatter", &SurveyOptions::backscatter).Number("light_cone", &SurveyOptions::light_cone)
         .Number("exposure_jitter", &SurveyOptions::exposure_jitter).Number("noise", &SurveyOptions::noise)

@@ -25,9 +25,33 @@ static int RunAlign(const AlignSwitches& s) {
     std::printf("%d frames had no stored features and were read and described again\n", r.frames_described);
   std::printf("edges: %d from the engine, %d of %d by appearance, %d of %d loop closures; %d found false and dropped\n",
               r.online_edges, r.retrieval_edges, r.retrieval_tried, r.loop_edges, r.loop_tried, r.edges_dropped);
+  if (r.edges_inconsistent > 0) {
+    std::printf("%d appearance edges disagreed with the rest of the map and were left out:\n", r.edges_inconsistent);
+    for (size_t k = 0; k < r.rejected_joins.size() && k < 10; ++k)
+      std::printf("  %d joining %s: %s\n", r.rejected_joins[k].edges, r.rejected_joins[k].joined.c_str(),
+                  r.rejected_joins[k].reason.c_str());
+    if (r.rejected_joins.size() > 10) std::printf("  ... and %zu more sets\n", r.rejected_joins.size() - 10);
+  }
   if (r.navigation_frames > 0)
     std::printf("navigation of %d frames: frame centres %.3f m from it before, %.3f m after (median)\n",
                 r.navigation_frames, r.navigation_before_m, r.navigation_after_m);
+  if (r.frames_replaced > 0)
+    std::printf("%d frames sat far off their own edges after the solve and were placed again from them\n",
+                r.frames_replaced);
+  if (r.doubtful_regions.empty()) {
+    std::printf("confidence: every frame within %.2f px (median uncertainty %.2f px)\n",
+                std::max(2.0, 5 * r.median_uncertainty_px), r.median_uncertainty_px);
+  } else {
+    std::printf("warning: the map is unsure in %zu region%s (median uncertainty %.2f px; sidecar field "
+                "uncertainty_px, the viewer's confidence layer, rolamos info):\n",
+                r.doubtful_regions.size(), r.doubtful_regions.size() == 1 ? "" : "s", r.median_uncertainty_px);
+    for (size_t k = 0; k < r.doubtful_regions.size() && k < 5; ++k) {
+      const auto& d = r.doubtful_regions[k];
+      std::printf("  patch %d, frames %d-%d (%d): uncertainty up to %.1f px%s\n", d.patch, d.first_frame, d.last_frame,
+                  d.frames, d.worst_uncertainty_px,
+                  d.doubtful_frames ? (", " + std::to_string(d.doubtful_frames) + " far off their own edges").c_str() : "");
+    }
+  }
   std::string parts;
   for (size_t c = 0; c < r.component_frames.size() && c < 8; ++c)
     parts += (c ? ", " : "") + std::to_string(r.component_frames[c]);

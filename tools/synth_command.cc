@@ -50,6 +50,9 @@ void AddSynthCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--max-turn", o.max_turn_deg, "random walk: sharpest turn per frame, degrees")
       ->capture_default_str();
   cmd->add_flag("--overlay", o.overlay, "burn a timestamp and two laser dots into every frame, as TV surveys do");
+  cmd->add_option("--repeat", o.repeat,
+                  "look-alike ground: the texture's bottom-right quarter repeats its top-left quarter turned 180 "
+                  "degrees (rotate) or mirrored (mirror)");
   cmd->add_option("--altitude-jitter", o.altitude_jitter, "relative altitude change")
       ->capture_default_str();
   cmd->add_option("--attenuation", o.attenuation, "colour loss with depth (0 = off)")

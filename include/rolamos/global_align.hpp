@@ -7,7 +7,11 @@
 // between frames that the first solution puts over the same ground. Every frame is a camera over
 // the seafloor plane (geometry/plane_camera.h), adjusted to all edges at once by Ceres with a
 // Cauchy loss on each edge, so one false loop cannot bend the map; navigation, when given, pulls
-// the camera centres as weighted priors. Parts that share no ground become separate components,
+// the camera centres as weighted priors. Before any placement rests on them, appearance edges are
+// checked against the engine's chain and against each other (align/edge_consistency.h): look-alike
+// ground that matches at the wrong place in a self-consistent set is dropped and reported. After
+// the solve each frame gets its residual and an uncertainty (align/frame_confidence.h), and the
+// regions the map is unsure of are named. Parts that share no ground become separate components,
 // placed side by side. Each frame records its placement (frame_to_global) and each patch its
 // component and the homography that best carries it there; `compose` then draws every frame
 // where it belongs. The store changes in one atomic step at the end: an interrupted align leaves
@@ -40,8 +44,34 @@ struct AlignOptions {
   std::map<std::string, FrameNavigation> navigation;
   double navigation_sigma_m = 0.5;  // how far a centre may stray from its navigation (1 sigma)
   int threads = 0;                  // 0 = one per core
+  // An appearance edge must agree with the engine's chain within this many frame diagonals, plus
+  // chain_drift of a diagonal for each frame of the chain between its two frames; and between
+  // parts the chain does not join, the edges of one set within this of each other.
+  double chain_tolerance = 0.25;
+  double chain_drift = 0.0005;
+  // After the solve: a frame whose edges' residual passes this (and five times the typical one) is
+  // placed again or flagged; regions whose uncertainty passes doubtful_px (and five times the
+  // typical one) are named.
+  double frame_residual_px = 3.0;
+  double doubtful_px = 2.0;
 
   bool IsValid(std::string* error) const;
+};
+
+// A set of appearance edges dropped because it disagreed with the rest of the map.
+struct RejectedJoin {
+  std::string reason;
+  int edges = 0;
+  std::string joined;  // "frames 120-135 (patch 4) with frames 610-630 (patch 19)"
+};
+
+// Frames of one patch the map is unsure of (high uncertainty, or placement doubtful).
+struct DoubtfulRegion {
+  int patch = 0;
+  int first_frame = 0, last_frame = 0;  // sequence numbers
+  int frames = 0;
+  int doubtful_frames = 0;              // far off their own edges even after being placed again
+  double worst_uncertainty_px = 0;
 };
 
 struct AlignSummary {
@@ -51,6 +81,12 @@ struct AlignSummary {
   int retrieval_tried = 0, retrieval_edges = 0;
   int loop_tried = 0, loop_edges = 0;
   int edges_dropped = 0;          // found false by the optimisation
+  int edges_inconsistent = 0;     // appearance edges that disagreed with the chain or each other
+  std::vector<RejectedJoin> rejected_joins;
+  int frames_replaced = 0;        // far off their edges after the solve, placed again from them
+  int frames_doubtful = 0;        // still far off, or without any edge: flagged
+  double median_uncertainty_px = 0;
+  std::vector<DoubtfulRegion> doubtful_regions;  // most uncertain first
   int components = 0;
   std::vector<int> component_frames;  // frames per component, largest first
   double rms_before_px = 0;       // transfer error of all edges, frame pixels

@@ -42,6 +42,13 @@ struct FrameRecord {
   std::optional<double> bilateral_error;       // mean bilateral epipolar error, pixels
   std::optional<double> ecc_shift_px;          // how far ECC moved the corners, pixels
   std::optional<Homography> frame_to_global;   // the aligned placement (rolamos align)
+  // What align says of that placement: the RMS transfer error of the frame's edges, how far it may
+  // be from where the map puts it (pixels, roughly 1 sigma), how many edges hold it, and whether it
+  // sits far off its own edges even after being placed again (then it is not to be trusted).
+  std::optional<double> residual_px;
+  std::optional<double> uncertainty_px;
+  std::optional<int> align_edges;
+  std::optional<bool> placement_doubtful;
   // How the engine placed it when not simply against the frame before: "keyframe" (an earlier
   // frame of the patch), "patch_mosaic" (the patch image around the predicted place) or
   // "second_chance" (after being rejected, against a later frame).

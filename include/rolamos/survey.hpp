@@ -33,6 +33,10 @@ struct SurveyOptions {
                                   // frames / N frames (the procedural seafloor grows to hold them)
   double max_turn_deg = 15.0;     // random walk: the sharpest turn from one frame to the next
   bool overlay = false;           // a burned-in timestamp and two laser dots, fixed in the image
+  // Look-alike ground: the texture's bottom-right quarter repeats its top-left quarter turned 180
+  // degrees ("rotate") or mirrored left-right ("mirror"); "" = none. Frames over the two quarters
+  // match each other by appearance, at the wrong place: what a map must not fold on.
+  std::string repeat;
   // Degradations, each 0 to switch it off.
   double attenuation = 1.0;   // red/green loss with altitude
   double vignetting = 0.35;   // darkening at the corners

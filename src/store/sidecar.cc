@@ -117,6 +117,10 @@ json SidecarToJson(const PatchSidecar& s) {
     if (f.bilateral_error) fj["bilateral_error"] = *f.bilateral_error;
     if (f.ecc_shift_px) fj["ecc_shift_px"] = *f.ecc_shift_px;
     if (f.frame_to_global) fj["frame_to_global"] = *f.frame_to_global;
+    if (f.residual_px) fj["residual_px"] = *f.residual_px;
+    if (f.uncertainty_px) fj["uncertainty_px"] = *f.uncertainty_px;
+    if (f.align_edges) fj["align_edges"] = *f.align_edges;
+    if (f.placement_doubtful) fj["placement_doubtful"] = *f.placement_doubtful;
     if (f.registered_by) fj["registered_by"] = *f.registered_by;
     if (f.doubtful) fj["doubtful"] = *f.doubtful;
     if (f.patch_frames) fj["patch_frames"] = *f.patch_frames;
@@ -197,6 +201,13 @@ PatchSidecar SidecarFromJson(const json& j, const std::string& where) {
       f.keyframe = fr.Get("keyframe").get<bool>();
     }
     if (fr.Has("placed_from")) f.placed_from = static_cast<int>(fr.Int("placed_from", 0, kMaxInt));
+    if (fr.Has("residual_px")) f.residual_px = fr.Number("residual_px");
+    if (fr.Has("uncertainty_px")) f.uncertainty_px = fr.Number("uncertainty_px");
+    if (fr.Has("align_edges")) f.align_edges = static_cast<int>(fr.Int("align_edges", 0, kMaxInt));
+    if (fr.Has("placement_doubtful")) {
+      if (!fr.Get("placement_doubtful").is_boolean()) Fail(fr.Where("placement_doubtful"), "must be true or false");
+      f.placement_doubtful = fr.Get("placement_doubtful").get<bool>();
+    }
     if (fr.Has("described")) {
       if (!fr.Get("described").is_boolean()) Fail(fr.Where("described"), "must be true or false");
       f.described = fr.Get("described").get<bool>();
@@ -204,7 +215,8 @@ PatchSidecar SidecarFromJson(const json& j, const std::string& where) {
     f.extra = Extra(frames[i], {"index", "source", "frame_to_patch", "egomotion", "matches",
                                 "inliers", "ecc", "status", "bilateral_error", "ecc_shift_px",
                                 "frame_to_global", "registered_by", "doubtful", "patch_frames",
-                                "keyframe", "placed_from", "described"});
+                                "keyframe", "placed_from", "described", "residual_px", "uncertainty_px",
+                                "align_edges", "placement_doubtful"});
     s.frames.push_back(std::move(f));
   }
   const json& rejected = r.Get("rejected");

@@ -44,6 +44,8 @@ bool SurveyOptions::IsValid(std::string* error) const {
   if (!(max_turn_deg > 0 && max_turn_deg <= 180))
     return bad("max turn " + std::to_string(max_turn_deg) + " degrees is outside (0, 180]");
   if (jpeg_quality < 0 || jpeg_quality > 100) return bad("JPEG quality must be 0 (PNG) or 1..100");
+  if (!repeat.empty() && repeat != "rotate" && repeat != "mirror")
+    return bad("repeat \"" + repeat + "\" is not rotate or mirror");
   if (!video.empty()) {
     const std::string ext = std::filesystem::path(video).extension().string();
     if (ext != ".mp4" && ext != ".avi") return bad("video \"" + video + "\" must end in .mp4 or .avi");
@@ -137,8 +139,28 @@ class TextureSource {
     }
   }
   cv::Size size() const { return size_; }
-  // Pixels of the texture in `r` (may reach outside: black there).
+  // Pixels of the texture in `r` (may reach outside: black there), the repeated quarter included.
   cv::Mat Window(const cv::Rect& r) const {
+    cv::Mat out = Original(r);
+    if (options_.repeat.empty()) return out;
+    // The bottom-right quarter shows the top-left one, turned 180 degrees or mirrored.
+    const cv::Rect copy(size_.width / 2, size_.height / 2, size_.width / 2, size_.height / 2);
+    const cv::Rect part = r & copy;
+    if (part.empty()) return out;
+    const bool rotate = options_.repeat == "rotate";
+    // Destination (x, y) in the copy shows source (Q - 1 - (x - x0), Q - 1 - (y - y0)) (rotate) or
+    // (Q - 1 - (x - x0), y - y0) (mirror) of the top-left quarter.
+    const int qx = copy.width, qy = copy.height;
+    const int sx0 = qx - 1 - (part.x + part.width - 1 - copy.x);
+    const int sy0 = rotate ? qy - 1 - (part.y + part.height - 1 - copy.y) : part.y - copy.y;
+    cv::Mat src = Original(cv::Rect(sx0, sy0, part.width, part.height));
+    cv::flip(src, src, rotate ? -1 : 1);
+    src.copyTo(out(part - r.tl()));
+    return out;
+  }
+
+ private:
+  cv::Mat Original(const cv::Rect& r) const {
     if (images_.empty()) return RenderSeafloor(r.x, r.y, r.width, r.height);
     cv::Mat out = cv::Mat::zeros(r.size(), CV_8UC3);
     const cv::Rect inside = r & cv::Rect(cv::Point(), size_);
@@ -155,7 +177,6 @@ class TextureSource {
     return out;
   }
 
- private:
   // The image and its row at texture row y: the images stacked, the stack repeated.
   std::pair<const cv::Mat*, int> RowAt(int y) const {
     int stack = 0;
@@ -330,6 +351,7 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
                      {"tilt_deg", o.tilt_deg}, {"altitude_jitter", o.altitude_jitter},
                      {"attitude_jitter_deg", o.attitude_jitter_deg}, {"lane_turns", o.lane_turns},
                      {"lanes", o.lanes}, {"max_turn_deg", o.max_turn_deg}, {"overlay", o.overlay},
+                     {"repeat", o.repeat},
                      {"focal_px", o.Focal()}}},
                    {"frames", frames}};
   WriteFileAtomic((fs::path(dir) / "ground_truth.json").string(), j.dump(1) + "\n");

@@ -1,0 +1,234 @@
+#include "align/frame_graph.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <filesystem>
+#include <numeric>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "align/retrieval.h"
+#include "align/stored_frames.h"
+#include "engine/patch_adjustment.h"
+#include "engine/registration.h"
+#include "geometry/plane_adjustment.h"
+#include "rolamos/error.hpp"
+#include "util/homography.h"
+
+namespace rolamos {
+
+UnionFind::UnionFind(size_t n) : parent(n) { std::iota(parent.begin(), parent.end(), 0); }
+
+int UnionFind::Find(int i) {
+  while (parent[size_t(i)] != i) i = parent[size_t(i)] = parent[size_t(parent[size_t(i)])];
+  return i;
+}
+
+bool UnionFind::Join(int a, int b) {
+  a = Find(a), b = Find(b);
+  if (a == b) return false;
+  parent[size_t(std::max(a, b))] = std::min(a, b);
+  return true;
+}
+
+GraphEdge ThinEdge(GraphEdge e, int n, cv::Size frame) {
+  FrameLink l{e.a, e.b, e.in_a, e.in_b};
+  l = Thin(std::move(l), n, frame);
+  e.in_a = std::move(l.in_a);
+  e.in_b = std::move(l.in_b);
+  return e;
+}
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+  return v[v.size() / 2];
+}
+
+namespace {
+
+Features AsFeatures(const GraphNode& n) {
+  Features f;
+  f.points = n.points;
+  n.descriptors.convertTo(f.descriptors, CV_32F);
+  f.norm = cv::NORM_L2;
+  return f;
+}
+
+// Stage 1: the keyframes of every patch with their stored features; followed frames aside.
+void LoadNodes(const Store& store, FrameGraph& g) {
+  for (const auto& e : store.patches()) g.sidecars[e.id] = store.ReadSidecar(e.id);
+  if (g.sidecars.empty()) Fail(store.dir(), "has no patches to align");
+  for (const auto& [id, s] : g.sidecars) {
+    if (s.frame_size) g.frame = cv::Size((*s.frame_size)[0], (*s.frame_size)[1]);
+    if (s.extra.contains("adjustment") && s.extra["adjustment"].contains("focal_px"))
+      g.focal = s.extra["adjustment"]["focal_px"].get<double>();
+    std::map<int, const StoredFeatures*> stored;
+    std::vector<StoredFeatures> features;
+    if (s.frame_features) {
+      features = ReadFrameFeatures((std::filesystem::path(store.dir()) / *s.frame_features).string());
+      for (const auto& f : features) stored[f.index] = &f;
+    }
+    for (size_t r = 0; r < s.frames.size(); ++r) {
+      if (!s.frames[r].is_keyframe()) {
+        g.followed.push_back({id, r, s.frames[r].placed_from.value_or(-1)});
+        continue;
+      }
+      GraphNode n;
+      n.patch = id;
+      n.record = r;
+      n.index = s.frames[r].index;
+      n.source = s.frames[r].source;
+      n.to_patch = ToMatx(s.frames[r].frame_to_patch);
+      auto it = stored.find(n.index);
+      if (it != stored.end()) {
+        n.points = it->second->points;
+        n.descriptors = it->second->descriptors.clone();
+      }
+      g.node_of[{id, n.index}] = g.size();
+      g.nodes.push_back(std::move(n));
+    }
+  }
+  if (g.nodes.empty()) Fail(store.dir(), "has no frames to align");
+  if (g.frame.area() == 0) Fail(store.dir(), "its sidecars give no frame size (written by an older rolamos?)");
+  if (!(g.focal > 0)) g.focal = 0.5 * g.frame.width / std::tan(35.0 * CV_PI / 180);  // the engine's default camera
+  g.K = CameraMatrix(g.focal, g.frame);
+}
+
+// Frames without stored features are read and described again, in parallel; not those the engine
+// chose not to describe (their ground is described by their neighbours).
+int DescribeMissing(FrameGraph& g, const AlignOptions& o, const ParallelForOptions& pfo) {
+  std::vector<int> missing;
+  for (int i = 0; i < g.size(); ++i) {
+    const GraphNode& n = g.nodes[size_t(i)];
+    if (n.points.empty() && g.sidecars[n.patch].frames[n.record].is_described()) missing.push_back(i);
+  }
+  const FeatureExtractor extractor(StoredFrameFeatureOptions());
+  std::atomic<int> described{0};
+  ParallelFor(static_cast<long long>(missing.size()), [&](long long k, int) {
+    GraphNode& n = g.nodes[size_t(missing[size_t(k)])];
+    const std::string path = StoredFramePath(n.source, o.frames_dir);
+    if (!std::filesystem::exists(path)) return;  // no features: the frame keeps its online links only
+    const Features f = DescribeStoredFrame(path, extractor);
+    n.points = f.points;
+    f.descriptors.convertTo(n.descriptors, CV_8U);
+    ++described;
+  }, pfo);
+  return described;
+}
+
+// Stage 2: the engine's stored links, or (older stores) the online placements of consecutive
+// frames of a patch.
+void AddOnlineEdges(const Store& store, const AlignOptions& o, FrameGraph& g) {
+  for (const auto& [id, s] : g.sidecars) {
+    if (s.frame_links) {
+      for (const auto& l : ReadFrameLinks((std::filesystem::path(store.dir()) / *s.frame_links).string())) {
+        auto a = g.node_of.find(l.a), b = g.node_of.find(l.b);
+        if (a == g.node_of.end() || b == g.node_of.end() || l.in_a.size() < 8) continue;
+        GraphEdge e;
+        e.a = a->second;
+        e.b = b->second;
+        e.in_a = l.in_a;
+        e.in_b = l.in_b;
+        g.edges.push_back(ThinEdge(std::move(e), o.pairs_per_edge, g.frame));
+        g.AddLinked(a->second, b->second);
+      }
+    } else {
+      for (size_t r = 1; r < s.frames.size(); ++r) {
+        const int a = g.node_of[{id, s.frames[r].index}], b = g.node_of[{id, s.frames[r - 1].index}];
+        const cv::Matx33d H = g.nodes[size_t(b)].to_patch.inv() * g.nodes[size_t(a)].to_patch;
+        GraphEdge e;
+        e.a = a;
+        e.b = b;
+        for (int gy = 0; gy < 4; ++gy)
+          for (int gx = 0; gx < 4; ++gx) {
+            const cv::Point2d p((gx + 0.5) * g.frame.width / 4, (gy + 0.5) * g.frame.height / 4);
+            e.in_a.emplace_back(p);
+            e.in_b.emplace_back(ApplyHomography(H, p));
+          }
+        g.edges.push_back(std::move(e));
+        g.AddLinked(a, b);
+      }
+    }
+    // A patch the engine linked to the one before by the pixel budget: its first frame's stored
+    // link with the previous patch is among the links already.
+  }
+}
+
+}  // namespace
+
+FrameGraph LoadFrameGraph(const Store& store, const AlignOptions& o, AlignSummary* summary, const ParallelForOptions& pfo) {
+  FrameGraph g;
+  LoadNodes(store, g);
+  summary->frames = g.size() + static_cast<int>(g.followed.size());
+  summary->frames_described = DescribeMissing(g, o, pfo);
+  AddOnlineEdges(store, o, g);
+  summary->online_edges = static_cast<int>(g.edges.size());
+  return g;
+}
+
+void AddRetrievalEdges(FrameGraph& g, const AlignOptions& o, AlignSummary* summary, const ParallelForOptions& pfo) {
+  if (o.retrieval_candidates <= 0) return;
+  std::vector<cv::Mat> descriptors;
+  for (const auto& n : g.nodes) descriptors.push_back(n.descriptors);
+  RetrievalOptions ro;
+  ro.words = o.vocabulary;
+  ro.candidates = o.retrieval_candidates;
+  const auto candidates = RetrieveSimilarFrames(descriptors, ro, [&](int i, int j) {
+    return !g.NearInSequence(i, j, o.min_index_gap) && !g.Linked(i, j);
+  });
+  summary->retrieval_tried = static_cast<int>(candidates.size());
+  std::vector<GraphEdge> found(candidates.size());
+  std::vector<char> ok(candidates.size(), 0);
+  ParallelFor(static_cast<long long>(candidates.size()), [&](long long k, int) {
+    const auto [i, j] = candidates[size_t(k)];
+    GraphEdge e;
+    if (!VerifyPair(g.nodes[size_t(i)], g.nodes[size_t(j)], nullptr, g.frame, o, &e)) return;
+    e.a = i;
+    e.b = j;
+    e.kind = kRetrieval;
+    found[size_t(k)] = ThinEdge(std::move(e), o.pairs_per_edge, g.frame);
+    ok[size_t(k)] = 1;
+  }, pfo);
+  for (size_t k = 0; k < found.size(); ++k)
+    if (ok[k]) {
+      g.AddLinked(found[k].a, found[k].b);
+      g.edges.push_back(std::move(found[k]));
+      ++summary->retrieval_edges;
+    }
+}
+
+bool VerifyPair(const GraphNode& a, const GraphNode& b, const cv::Matx33d* guess, cv::Size frame, const AlignOptions& o,
+                GraphEdge* out) {
+  if (a.points.size() < size_t(o.min_inliers) || b.points.size() < size_t(o.min_inliers)) return false;
+  const Features fa = AsFeatures(a), fb = AsFeatures(b);
+  FeatureOptions fo;
+  Matches m = guess ? MatchGuided(fa, fb, *guess, 60.0, 0.85) : MatchFeatures(fa, fb, fo);
+  if (guess && m.from.size() < size_t(o.min_inliers)) m = MatchFeatures(fa, fb, fo);
+  if (m.from.size() < size_t(o.min_inliers)) return false;
+  std::vector<uchar> inlier;
+  const cv::Mat H = cv::findHomography(m.from, m.to, cv::RANSAC, 3.0, inlier, 2000, 0.999);
+  if (H.empty()) return false;
+  SupportOptions plausible;
+  plausible.max_scale_change = 2.0;
+  plausible.max_anisotropy = 1.5;
+  plausible.max_perspective = 0.5;
+  if (!IsPlausibleMotion(cv::Matx33d(H), frame, plausible)) return false;
+  GraphEdge e;
+  for (size_t i = 0; i < inlier.size(); ++i)
+    if (inlier[i]) {
+      e.in_a.push_back(m.from[i]);
+      e.in_b.push_back(m.to[i]);
+    }
+  if (e.in_a.size() < size_t(o.min_inliers)) return false;
+  // The inliers must cover some of the frame, not one cluster.
+  std::vector<cv::Point2f> hull;
+  cv::convexHull(e.in_a, hull);
+  if (cv::contourArea(hull) < 0.02 * frame.area()) return false;
+  *out = std::move(e);
+  return true;
+}
+
+}  // namespace rolamos

@@ -1,0 +1,94 @@
+// The global map's graph (rolamos align, stages 1-3): one node per keyframe of the survey, with
+// its stored features; edges from the engine's links, appearance retrieval over every frame and,
+// later, loop closures, each verified by a RANSAC homography.
+#pragma once
+
+#include <map>
+#include <set>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "engine/features.h"
+#include "rolamos/global_align.hpp"
+#include "rolamos/store.hpp"
+#include "store/frame_data.h"
+#include "util/parallel_for.h"
+
+namespace rolamos {
+
+struct GraphNode {
+  int patch = 0;         // patch id
+  size_t record = 0;     // index in the patch's frames
+  int index = 0;         // sequence number
+  std::string source;
+  cv::Matx33d to_patch;  // the online placement
+  std::vector<cv::Point2f> points;
+  cv::Mat descriptors;   // CV_8U, n x 128
+};
+
+enum EdgeKind { kOnline = 0, kRetrieval = 1, kLoop = 2 };
+
+struct GraphEdge {
+  int a = 0, b = 0;
+  std::vector<cv::Point2f> in_a, in_b;
+  EdgeKind kind = kOnline;
+};
+
+// Union-find over frames.
+struct UnionFind {
+  std::vector<int> parent;
+  explicit UnionFind(size_t n);
+  int Find(int i);
+  bool Join(int a, int b);
+};
+
+// A frame the engine followed between keyframes: not in the graph, carried along afterwards by its
+// keyframe (patch id, record, keyframe index).
+struct FollowedFrame {
+  int patch = 0;
+  size_t record = 0;
+  int keyframe = -1;
+};
+
+struct FrameGraph {
+  std::map<int, PatchSidecar> sidecars;
+  std::vector<GraphNode> nodes;
+  std::map<FrameId, int> node_of;
+  std::vector<FollowedFrame> followed;
+  std::vector<GraphEdge> edges;
+  std::set<std::pair<int, int>> linked;  // node pairs with an edge, (low, high)
+  cv::Size frame;
+  double focal = 0;
+  cv::Matx33d K = cv::Matx33d::eye();
+
+  int size() const { return static_cast<int>(nodes.size()); }
+  void AddLinked(int a, int b) { linked.emplace(std::min(a, b), std::max(a, b)); }
+  bool Linked(int a, int b) const { return linked.count({std::min(a, b), std::max(a, b)}) > 0; }
+  // Frames of one patch closer in the sequence than `gap`: the chain links them already.
+  bool NearInSequence(int i, int j, int gap) const {
+    return nodes[size_t(i)].patch == nodes[size_t(j)].patch && std::abs(nodes[size_t(i)].index - nodes[size_t(j)].index) < gap;
+  }
+};
+
+// Stages 1 and 2: every keyframe of the store with its stored features (described again from its
+// file when a patch has none stored), and the edges the engine found (its stored links, or for
+// older stores the online placements of consecutive frames). Fills `summary`'s frame counts.
+FrameGraph LoadFrameGraph(const Store& store, const AlignOptions& o, AlignSummary* summary, const ParallelForOptions& pfo);
+
+// Stage 3: appearance retrieval over every frame, each candidate verified (kRetrieval edges).
+void AddRetrievalEdges(FrameGraph& g, const AlignOptions& o, AlignSummary* summary, const ParallelForOptions& pfo);
+
+// At most `n` pairs spread over frame a (Thin's grid), as the optimisation wants them.
+GraphEdge ThinEdge(GraphEdge e, int n, cv::Size frame);
+
+// Two frames that see the same ground, for real: matches one RANSAC homography explains, a motion
+// a camera over the seafloor can make, enough inliers covering some of the frame. `guess`
+// (a -> b), when given, guides the matching.
+bool VerifyPair(const GraphNode& a, const GraphNode& b, const cv::Matx33d* guess, cv::Size frame, const AlignOptions& o,
+                GraphEdge* out);
+
+double Median(std::vector<double> v);
+
+}  // namespace rolamos

@@ -1,0 +1,162 @@
+#include "align/graph_solve.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <unordered_map>
+
+#include "engine/registration.h"
+#include "util/homography.h"
+
+namespace rolamos {
+
+cv::Matx33d NodeToPlane(const FrameGraph& g, const GraphSolution& s, int i) { return FrameToPlane(s.poses[size_t(i)], g.K); }
+
+GraphSolution StartSolution(const FrameGraph& g, const std::vector<cv::Matx33d>& G, UnionFind& comp) {
+  GraphSolution s;
+  const int N = g.size();
+  for (int i = 0; i < N; ++i) s.members[comp.Find(i)].push_back(i);
+  std::vector<int> degree(static_cast<size_t>(N), 0);
+  for (const auto& e : g.edges) ++degree[size_t(e.a)], ++degree[size_t(e.b)];
+  for (const auto& [root, list] : s.members) {
+    int best = root;
+    for (int i : list)
+      if (degree[size_t(i)] > degree[size_t(best)]) best = i;
+    s.anchor[root] = best;
+  }
+  s.poses.resize(static_cast<size_t>(N));
+  for (int i = 0; i < N; ++i)
+    s.poses[size_t(i)] = comp.Find(i) == i ? ReferencePose(g.K) : LevelPoseFromHomography(G[size_t(i)], g.K, g.frame);
+  s.dropped.assign(g.edges.size(), 0);
+  return s;
+}
+
+int AdjustParts(const FrameGraph& g, GraphSolution& s, const std::vector<GroundPrior>& priors, const AlignOptions& o,
+                const ParallelForOptions& pfo) {
+  PlaneAdjustmentOptions po;
+  po.loss = "cauchy";
+  po.loss_px = o.loss_px;
+  po.per_link = true;
+  po.drop_link_px = 3 * o.loss_px;
+  po.max_iterations = 200;
+  s.dropped.resize(g.edges.size(), 0);
+  std::vector<std::pair<int, std::vector<int>>> parts(s.members.begin(), s.members.end());
+  std::atomic<int> dropped_count{0};
+  ParallelFor(static_cast<long long>(parts.size()), [&](long long c, int) {
+    const auto& [root, list] = parts[size_t(c)];
+    if (list.size() < 2) return;
+    std::map<int, int> local;
+    std::vector<PlanePose> part;
+    for (int i : list) {
+      local[i] = static_cast<int>(part.size());
+      part.push_back(s.poses[size_t(i)]);
+    }
+    std::vector<PlaneLink> links;
+    std::vector<size_t> which;
+    for (size_t k = 0; k < g.edges.size(); ++k) {
+      if (s.dropped[k] || !local.count(g.edges[k].a)) continue;
+      PlaneLink l;
+      l.a = local[g.edges[k].a];
+      l.b = local[g.edges[k].b];
+      l.in_a = g.edges[k].in_a;
+      l.in_b = g.edges[k].in_b;
+      links.push_back(std::move(l));
+      which.push_back(k);
+    }
+    std::vector<GroundPrior> mine;
+    for (const auto& p : priors)
+      if (local.count(p.frame)) {
+        GroundPrior q = p;
+        q.frame = local[p.frame];
+        mine.push_back(q);
+      }
+    PlaneAdjustmentOptions opt = po;
+    opt.threads = 1;
+    double f = g.focal;
+    const PlaneAdjustment r = AdjustPlanePoses(&part, &f, g.frame, links, local[s.anchor.at(root)], {},
+                                               mine.size() >= 2 ? mine : std::vector<GroundPrior>{}, opt);
+    if (!r.ok) return;  // the placement it had stays
+    for (size_t k = 0; k < which.size(); ++k)
+      if (r.dropped[k]) {
+        s.dropped[which[k]] = 1;
+        ++dropped_count;
+      }
+    for (int i : list) s.poses[size_t(i)] = part[size_t(local[i])];
+  }, pfo);
+  return dropped_count.load();
+}
+
+double KeptEdgesRms(const FrameGraph& g, const GraphSolution& s) {
+  std::vector<PlaneLink> all;
+  for (size_t k = 0; k < g.edges.size(); ++k) {
+    if (k < s.dropped.size() && s.dropped[k]) continue;
+    PlaneLink l;
+    l.a = g.edges[k].a;
+    l.b = g.edges[k].b;
+    l.in_a = g.edges[k].in_a;
+    l.in_b = g.edges[k].in_b;
+    all.push_back(std::move(l));
+  }
+  return PlaneTransferRms(s.poses, g.focal, g.frame, all);
+}
+
+int AddLoopClosures(FrameGraph& g, GraphSolution& s, UnionFind& comp, const AlignOptions& o, AlignSummary* summary,
+                    const ParallelForOptions& pfo) {
+  const int N = g.size();
+  const cv::Size frame = g.frame;
+  std::vector<cv::Matx33d> P(static_cast<size_t>(N));
+  std::vector<cv::Point2d> centre(static_cast<size_t>(N));
+  for (int i = 0; i < N; ++i) {
+    P[size_t(i)] = NodeToPlane(g, s, i);
+    centre[size_t(i)] = ApplyHomography(P[size_t(i)], {(frame.width - 1) / 2.0, (frame.height - 1) / 2.0});
+  }
+  // Frames a cell apart at most: a grid of one frame's diagonal.
+  const double cell = std::hypot(frame.width, frame.height);
+  auto key = [&](int cx, int cy) { return (int64_t(cx) << 32) ^ uint32_t(int32_t(cy)); };
+  std::unordered_map<int64_t, std::vector<int>> grid;
+  for (int i = 0; i < N; ++i)
+    grid[key(int(std::floor(centre[size_t(i)].x / cell)), int(std::floor(centre[size_t(i)].y / cell)))].push_back(i);
+  std::vector<std::pair<int, int>> candidates;
+  for (int i = 0; i < N; ++i) {
+    std::vector<std::pair<double, int>> near;
+    const int cx = int(std::floor(centre[size_t(i)].x / cell)), cy = int(std::floor(centre[size_t(i)].y / cell));
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dx = -1; dx <= 1; ++dx) {
+        auto it = grid.find(key(cx + dx, cy + dy));
+        if (it == grid.end()) continue;
+        for (int j : it->second) {
+          if (j <= i || comp.Find(i) != comp.Find(j) || g.NearInSequence(i, j, o.min_index_gap) || g.Linked(i, j)) continue;
+          const double overlap = FootprintOverlap(P[size_t(i)], P[size_t(j)], frame);
+          if (overlap >= o.loop_overlap) near.emplace_back(overlap, j);
+        }
+      }
+    std::sort(near.rbegin(), near.rend());
+    for (size_t k = 0; k < near.size() && k < size_t(o.loops_per_frame); ++k) candidates.emplace_back(i, near[k].second);
+  }
+  summary->loop_tried += static_cast<int>(candidates.size());
+  std::vector<GraphEdge> found(candidates.size());
+  std::vector<char> ok(candidates.size(), 0);
+  ParallelFor(static_cast<long long>(candidates.size()), [&](long long k, int) {
+    const auto [i, j] = candidates[size_t(k)];
+    const cv::Matx33d guess = P[size_t(j)].inv() * P[size_t(i)];
+    GraphEdge e;
+    if (!VerifyPair(g.nodes[size_t(i)], g.nodes[size_t(j)], &guess, frame, o, &e)) return;
+    e.a = i;
+    e.b = j;
+    e.kind = kLoop;
+    found[size_t(k)] = ThinEdge(std::move(e), o.pairs_per_edge, frame);
+    ok[size_t(k)] = 1;
+  }, pfo);
+  int added = 0;
+  for (size_t k = 0; k < found.size(); ++k)
+    if (ok[k]) {
+      g.AddLinked(found[k].a, found[k].b);
+      g.edges.push_back(std::move(found[k]));
+      s.dropped.push_back(0);
+      ++added;
+    }
+  summary->loop_edges += added;
+  return added;
+}
+
+}  // namespace rolamos
