@@ -30,6 +30,12 @@ KINDS = {
                         ["--frames", "1000", "--lanes", "16"] + CAMERA),
     "lawn-10000": ("lawnmower, 80 lanes joined without turns, 10,000 frames, procedural seafloor",
                    ["--frames", "10000", "--lanes", "80", "--no-turns"] + CAMERA),
+    # Look-alike ground: the bottom-right quarter of the world repeats the top-left one turned 180
+    # degrees; frames over the two match at the wrong place.
+    "repeat-1000": ("lawnmower, 24 lanes joined without turns, 984 frames, a quarter repeated turned 180 deg",
+                    ["--frames", "984", "--lanes", "24", "--no-turns", "--gsd", "0.9", "--repeat", "rotate"] + CAMERA),
+    "repeat-10000": ("lawnmower, 80 lanes joined without turns, 10,000 frames, a quarter repeated turned 180 deg",
+                     ["--frames", "10000", "--lanes", "80", "--no-turns", "--repeat", "rotate"] + CAMERA),
 }
 
 
@@ -110,6 +116,8 @@ def main():
     ap.add_argument("--kinds", default="random-300,lawn-1000,lawn-turns-1000")
     ap.add_argument("--peers", action="store_true", help="COLMAP and cv::Stitcher on the 300-frame survey")
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "out", "global"))
+    ap.add_argument("--align-before", default="", help="another rolamos whose align runs on a copy of the same "
+                    "mosaicked store, in the same run (a before/after of align alone)")
     a = ap.parse_args()
     os.makedirs(a.out, exist_ok=True)
     lines = ["| survey | frames in the map | global RMS px (p95, max) | mosaic s / MB | align s / MB | compose s / MB | end to end s | parts |",
@@ -131,7 +139,17 @@ def main():
                      f"{e['rms_px']:.2f} ({e['p95_px']:.2f}, {e['max_px']:.1f}) | {tm:.0f} / {mm:.0f} | {ta:.0f} / {ma:.0f} | "
                      f"{tc:.0f} / {mc:.0f} | {tm + ta + tc:.0f} | {parts} |")
         print(lines[-1], flush=True)
-        print("    " + r.stdout.strip().splitlines()[-2], flush=True)
+        print("    " + "\n    ".join(r.stdout.strip().splitlines()[-8:-1]), flush=True)
+        if a.align_before:
+            before = store + ".before"
+            shutil.rmtree(before, ignore_errors=True)
+            shutil.copytree(store, before)
+            rb, tb, mb = timed([a.align_before, "align", before, "-q"], check=True)
+            eb = json.loads(subprocess.run([PY, os.path.join(ROOT, "bench", "eval_global.py"), survey, before],
+                                           capture_output=True, text=True, check=True).stdout)
+            lines.append(f"| {kind}, align of {os.path.relpath(a.align_before, ROOT)} on the same store | | "
+                         f"{eb['rms_px']:.2f} ({eb['p95_px']:.2f}, {eb['max_px']:.1f}) | | {tb:.0f} / {mb:.0f} | | | |")
+            print(lines[-1], flush=True)
         if a.peers and kind == "random-300":
             c = colmap_peer(survey, os.path.join(a.out, "colmap"))
             if c:

@@ -249,6 +249,22 @@
     const pts = (list) => list.map((p) => p[0] + ',' + p[1]).join(' ');
     if ($('show-outlines').checked) for (const p of o.outlines) add('polygon', 'outline', { points: pts(p.points) });
     if ($('show-footprints').checked) for (const f of o.footprints) add('polygon', 'footprint', { points: pts(f.points) });
+    // The confidence layer: every frame's footprint filled by how sure the aligned map is of it
+    // (rolamos align's uncertainty_px): green up to 0.5 px, through yellow to red at 5 px and more,
+    // hatched red where the frame sits far off its own edges.
+    if ($('show-confidence').checked) {
+      for (const f of o.footprints) {
+        if (f.uncertainty_px === undefined) continue;
+        const t = Math.min(1, Math.max(0, Math.log10(Math.max(f.uncertainty_px, 0.5) / 0.5)));  // 0.5 px -> 0, 5 px -> 1
+        const hue = Math.round(120 * (1 - t));
+        const e = add('polygon', f.doubtful ? 'confidence doubtful' : 'confidence', { points: pts(f.points) });
+        e.style.fill = 'hsl(' + hue + ', 90%, 50%)';
+        const title = document.createElementNS(SVG, 'title');
+        title.textContent = 'frame ' + f.frame + ': uncertainty ' + f.uncertainty_px.toFixed(2) + ' px, residual ' +
+          (f.residual_px || 0).toFixed(2) + ' px' + (f.doubtful ? ' (far off its own edges)' : '');
+        e.appendChild(title);
+      }
+    }
     if ($('show-trajectory').checked && o.trajectory.length > 1)
       add('polyline', 'trajectory', { points: pts(o.trajectory.map((t) => t.point)) });
     if ($('show-detections').checked) {
@@ -262,7 +278,7 @@
     viewer.addOverlay({ element: svg, location: new OpenSeadragon.Rect(0, 0, 1, aspect) });
     state.svg = svg;
   }
-  for (const id of ['show-outlines', 'show-footprints', 'show-trajectory', 'show-detections'])
+  for (const id of ['show-outlines', 'show-footprints', 'show-confidence', 'show-trajectory', 'show-detections'])
     $(id).addEventListener('change', redraw);
   $('image').addEventListener('change', (e) => {
     if (e.target.value !== 'live') $('follow').checked = false;  // the user looks elsewhere

@@ -110,7 +110,9 @@ cv::Matx33d Implied(const GraphEdge& e, const std::vector<cv::Matx33d>& chain) {
   return T * (1.0 / T(2, 2));
 }
 
-// The consequence of a join: placed so, the parts overlap; there their frames must match.
+// The consequence of a join: placed so, the parts overlap; where they overlap heavily (pairs of
+// frames over the same ground by more than half), their frames must match. Side-by-side lanes
+// overlap little and are not judged so (no such pairs: -1); a false join stacks ground on ground.
 double VerifyOverlap(const FrameGraph& g, const AlignOptions& o, const std::vector<cv::Matx33d>& chain,
                      const std::vector<int>& in_a, const std::vector<int>& in_b, const JoinSet& set,
                      const ParallelForOptions& pfo) {
@@ -124,10 +126,10 @@ double VerifyOverlap(const FrameGraph& g, const AlignOptions& o, const std::vect
     for (int j : in_b) {
       if (used[size_t(j)] || g.Linked(i, j)) continue;
       const double overlap = FootprintOverlap(ia, chain[size_t(j)], g.frame);
-      if (overlap >= 0.4) pairs.push_back({overlap, {i, j}});
+      if (overlap >= 0.6) pairs.push_back({overlap, {i, j}});
     }
   }
-  if (pairs.size() < 4) return -1;  // nothing else to test
+  if (pairs.size() < 6) return -1;  // too little else to test
   std::sort(pairs.rbegin(), pairs.rend());
   // Spread over the overlap: every k-th of the best pairs, 16 at most.
   std::vector<std::pair<int, int>> tried;
@@ -223,12 +225,12 @@ void CheckBetweenParts(const FrameGraph& g, const AlignOptions& o, const std::ve
         set.verified = VerifyOverlap(g, o, chain, members[pa], members[pb], set, pfo);
       }
     }
-    // The winner: agreeing with the navigation (within a few frames), or whose overlap matched,
-    // then the most edges.
+    // The winner: with navigation for both parts, the set closest to it (the navigation is the
+    // arbiter); otherwise one whose overlap matched (or could not be tested), then the most edges.
+    const bool navigated = ma && mb;
     auto score = [&](const JoinSet& s) {
-      const double nav_ok = s.nav_px < 0 ? 0.5 : (s.nav_px <= 3 * diag ? 1.0 : 0.0);
       const double match = s.verified < 0 ? 0.5 : s.verified;
-      return std::make_tuple(nav_ok, match >= 0.25 ? 1 : 0, s.edges.size());
+      return std::make_tuple(navigated ? -s.nav_px : 0.0, match >= 0.25 ? 1 : 0, s.edges.size());
     };
     size_t winner = 0;
     for (size_t k = 1; k < sets.size(); ++k)
@@ -236,8 +238,9 @@ void CheckBetweenParts(const FrameGraph& g, const AlignOptions& o, const std::ve
     for (size_t k = 0; k < sets.size(); ++k) {
       const JoinSet& s = sets[k];
       std::string reason;
-      if (s.nav_px >= 0 && s.nav_px > 3 * diag) {
-        reason = "contradicts the navigation by " + std::to_string(int(s.nav_px)) + " px";
+      if (navigated && (k != winner || s.nav_px > 3 * diag)) {
+        reason = "the navigation places these parts otherwise (" + std::to_string(int(s.nav_px)) + " px from it" +
+                 (k != winner ? ", another set " + std::to_string(int(sets[winner].nav_px)) + " px)" : ")");
       } else if (s.verified >= 0 && s.verified < 0.25) {
         char b[160];
         std::snprintf(b, sizeof b, "placed so, the parts would overlap where their frames do not match (%.0f %% verified)",

@@ -234,3 +234,41 @@ TEST(AlignStore, ClearErrorsForBadOptionsAndEmptyStores) {
 
 }  // namespace
 }  // namespace rolamos
+
+namespace rolamos {
+namespace {
+
+// Look-alike ground: the world's bottom-right quarter repeats its top-left quarter turned 180
+// degrees, so frames over the two match by appearance at the wrong place, many of them agreeing
+// on the same wrong offset. The map must come out as on a world without repetition: one part,
+// within a pixel of the truth, the false set left out and reported; every frame's confidence
+// written, and `rolamos info` naming where the map is least sure.
+TEST(AlignStore, LookAlikeGroundDoesNotFoldTheMap) {
+  test::ScratchDir dir;
+  SurveyOptions so = test::SmallSurvey(240);
+  so.lanes = 8;
+  so.lane_turns = false;
+  so.repeat = "rotate";
+  const Survey survey = WriteSurvey(so, dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaicInput(dir / "survey/frames", store, Fast());
+  const AlignSummary r = AlignStore(store, AlignOptions{});
+  EXPECT_EQ(r.components, 1);
+  EXPECT_GT(r.edges_inconsistent, 10) << "the repeated quarter matches the original one";
+  ASSERT_FALSE(r.rejected_joins.empty());
+  EXPECT_NE(r.rejected_joins[0].joined.find("frames"), std::string::npos);
+  const double rms = GlobalRms(Store::Open(dir / "s.rolamos"), survey, true);
+  EXPECT_LT(rms, 1.0) << "the map folded on look-alike ground";
+  int with_confidence = 0, total = 0;
+  for (const auto& p : store.patches())
+    for (const auto& f : store.ReadSidecar(p.id).frames) {
+      ++total;
+      with_confidence += f.uncertainty_px.has_value() && f.residual_px.has_value() && f.align_edges.value_or(0) > 0;
+    }
+  EXPECT_EQ(with_confidence, total);
+  const auto info = test::RunCli("info " + (dir / "s.rolamos"));
+  EXPECT_NE(info.output.find("least sure"), std::string::npos) << info.output;
+}
+
+}  // namespace
+}  // namespace rolamos

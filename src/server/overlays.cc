@@ -59,8 +59,14 @@ nlohmann::json ImageOverlays(const Store& store, const std::string& name, const 
     for (const auto& f : s.frames) {
       const cv::Matx33d H = to_image * ToMatx(f.frame_to_patch);
       const std::string source = std::filesystem::path(f.source).filename().string();
-      if (fw > 0) out["footprints"].push_back({{"patch", s.id}, {"frame", f.index}, {"source", source},
-                                               {"points", Quad(H, fw, fh)}});
+      if (fw > 0) {
+        out["footprints"].push_back({{"patch", s.id}, {"frame", f.index}, {"source", source},
+                                     {"points", Quad(H, fw, fh)}});
+        // How sure the aligned map is of the frame (rolamos align): the viewer's confidence layer.
+        if (f.uncertainty_px) out["footprints"].back()["uncertainty_px"] = *f.uncertainty_px;
+        if (f.residual_px) out["footprints"].back()["residual_px"] = *f.residual_px;
+        if (f.placement_doubtful.value_or(false)) out["footprints"].back()["doubtful"] = true;
+      }
       const cv::Point2d c = ApplyHomography(H, {fw / 2, fh / 2});
       out["trajectory"].push_back({{"frame", f.index}, {"patch", s.id}, {"point", {c.x, c.y}}});
     }

@@ -1,5 +1,6 @@
 #include "rolamos/describe.hpp"
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <map>
@@ -64,6 +65,20 @@ json DescribeStore(const std::string& dir) {
       pj["rejected"] = s.rejected.size();
       pj["linked"] = s.patch_to_global.has_value();
       if (s.component) pj["component"] = *s.component;
+      // How sure the aligned map is of this patch's frames (rolamos align's uncertainty_px).
+      double worst = -1, sum = 0;
+      int first = 0, last = 0, counted = 0, doubtful = 0;
+      for (const auto& f : s.frames) {
+        if (!f.uncertainty_px) continue;
+        sum += *f.uncertainty_px;
+        ++counted;
+        doubtful += f.placement_doubtful.value_or(false);
+        if (*f.uncertainty_px > worst) worst = *f.uncertainty_px, first = last = f.index;
+        else if (*f.uncertainty_px == worst) last = std::max(last, f.index);
+      }
+      if (counted > 0)
+        pj["confidence"] = {{"mean_uncertainty_px", sum / counted}, {"worst_uncertainty_px", worst},
+                            {"worst_frame", first}, {"doubtful_frames", doubtful}};
       if (s.closed_by) pj["closed_by"] = *s.closed_by;
       json img = DescribeImage((std::filesystem::path(dir) / p.image).string());
       pj["levels"] = img["levels"].size();
@@ -155,6 +170,22 @@ std::string FormatDescription(const json& j) {
   }
   if (unaligned && !parts.empty()) out << "  " << unaligned << " patches not in the aligned map (added after `rolamos align`?)\n";
   if (rejected) out << "  " << rejected << " frames rejected by the engine, each with its reason in its patch's sidecar\n";
+  // Where the aligned map is least sure: the patches whose frames' uncertainty is highest.
+  std::vector<std::pair<double, const json*>> unsure;
+  for (const auto& p : j["patches"])
+    if (p.contains("confidence")) unsure.emplace_back(p["confidence"]["worst_uncertainty_px"].get<double>(), &p);
+  if (!unsure.empty()) {
+    std::sort(unsure.begin(), unsure.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
+    out << "  least sure (uncertainty_px after align):";
+    for (size_t k = 0; k < unsure.size() && k < 3; ++k) {
+      const json& c = (*unsure[k].second)["confidence"];
+      out << " patch " << (*unsure[k].second)["id"] << " up to " << Fmt("%.2f", unsure[k].first) << " px (frame "
+          << c["worst_frame"] << (c["doubtful_frames"].get<int>() ? ", " + std::to_string(c["doubtful_frames"].get<int>()) +
+                                                                        " doubtful" : "")
+          << ");";
+    }
+    out << "\n";
+  }
   for (const auto& p : j["patches"]) {
     out << "  patch " << p["id"] << ": ";
     if (p.contains("size"))
