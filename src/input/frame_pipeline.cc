@@ -306,6 +306,10 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
       const StaticMaskOptions mo;
       std::vector<cv::Mat> images;
       InputFrame f;
+      // Held frames are beyond the backlog bound by design: none may be skipped while the search
+      // gathers them (a burst of files on a loaded machine skipped some, and the search then waited
+      // for frames that never came).
+      source->CatchUp(mo.frames);
       while (static_cast<int>(feed.first.size()) < mo.frames && source->Next(&f)) {
         images.push_back(f.image);
         feed.first.emplace_back(std::move(f), source->arrival());
