@@ -39,6 +39,7 @@ fs.mkdirSync(scratch, { recursive: true });
 fs.mkdirSync(artefacts, { recursive: true });
 run('synth', '-q', '-o', 'survey', '--frames', '24', '--width', '480', '--height', '360', '--focal', '420');
 run('mosaic', '-q', 'survey/frames', '-o', 's.rolamos', '--patch-megapixels', '0.6');
+run('align', '-q', 's.rolamos');  // every frame's placement and confidence
 run('compose', '-q', 's.rolamos');
 
 const server = spawn(cli, ['serve', 's.rolamos', '--port', '0'], { cwd: scratch });
@@ -157,6 +158,13 @@ try {
   await loaded();
   const footprints = await page.evaluate(() => document.querySelectorAll('svg.overlay polygon.footprint').length);
   check(footprints > 3, 'patch-1 shows its frame footprints (' + footprints + ')');
+  // The confidence layer: every frame of the aligned map filled by how sure align is of it.
+  await page.check('#show-confidence');
+  const conf = await page.evaluate(() =>
+    [...document.querySelectorAll('svg.overlay polygon.confidence')].map((p) => getComputedStyle(p).fill));
+  check(conf.length === footprints && conf.every((f) => f.startsWith('rgb')),
+        'the confidence layer fills every frame by its uncertainty (' + conf.length + ' of ' + footprints + ', ' + conf[0] + ')');
+  await page.uncheck('#show-confidence');
   await page.screenshot({ path: path.join(artefacts, 'viewer-patch-1.png') });
 
   // The static site of `rolamos tiles`, from a plain file server.

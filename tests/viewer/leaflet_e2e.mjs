@@ -5,33 +5,16 @@
 // partial edge tile would be stretched to 256 pixels), and show the page's own background past
 // it (the tiles' transparent part). Exits 77 (ctest: skipped) without Chromium or playwright-core.
 //   node tests/viewer/leaflet_e2e.mjs ROLAMOS_CLI SCRATCH_DIR ARTEFACTS_DIR
-import { spawn, execFileSync } from 'node:child_process';
+import { execFileSync } from 'node:child_process';
 import fs from 'node:fs';
 import http from 'node:http';
 import path from 'node:path';
-import { createRequire } from 'node:module';
+
+import { check, chromiumOrSkip, finish, launch, requireViewer, serve } from './support.mjs';
 
 const [cli, scratch, artefacts] = process.argv.slice(2);
-const chromiumPath = process.env.CHROMIUM || '/usr/bin/chromium';
-const require = createRequire(new URL('../../viewer/package.json', import.meta.url));
-let chromium;
-try {
-  ({ chromium } = require('playwright-core'));
-} catch {
-  console.log('SKIP: playwright-core is not installed (scripts/setup.sh runs npm ci in viewer/)');
-  process.exit(77);
-}
-if (!fs.existsSync(chromiumPath)) {
-  console.log('SKIP: no Chromium at ' + chromiumPath);
-  process.exit(77);
-}
-const leafletDir = path.join(path.dirname(require.resolve('leaflet/package.json')), 'dist');
-
-let failures = 0;
-function check(ok, what) {
-  console.log((ok ? 'ok   ' : 'FAIL ') + what);
-  if (!ok) failures++;
-}
+const chromium = chromiumOrSkip();
+const leafletDir = path.join(path.dirname(requireViewer.resolve('leaflet/package.json')), 'dist');
 const run = (...args) => execFileSync(cli, args, { cwd: scratch, encoding: 'utf8' });
 
 fs.rmSync(scratch, { recursive: true, force: true });
@@ -41,16 +24,7 @@ run('synth', '-q', '-o', 'survey', '--frames', '24', '--width', '480', '--height
 run('mosaic', '-q', 'survey/frames', '-o', 's.rolamos');
 run('compose', '-q', 's.rolamos', '--compression', 'zstd');
 
-const server = spawn(cli, ['serve', 's.rolamos', '--port', '0'], { cwd: scratch });
-const base = await new Promise((resolve, reject) => {
-  let out = '';
-  server.stdout.on('data', (d) => {
-    out += d;
-    const m = out.match(/on (http:\/\/[^\s]+)/);
-    if (m) resolve(m[1].replace(/\/$/, ''));
-  });
-  server.on('exit', (code) => reject(new Error('rolamos serve exited with ' + code + ': ' + out)));
-});
+const { server, base } = await serve(cli, 's.rolamos', scratch);
 const getBytes = (url) => new Promise((resolve, reject) => {
   http.get(url, (res) => {
     const chunks = [];
@@ -91,10 +65,7 @@ const site = http.createServer((req, res) => {
 await new Promise((r) => site.on('listening', r));
 const siteUrl = `http://127.0.0.1:${site.address().port}/`;
 
-const browser = await chromium.launch({
-  executablePath: chromiumPath,
-  args: ['--no-sandbox', '--disable-gpu', '--disable-background-networking', '--disable-component-update']
-});
+const browser = await launch(chromium);
 try {
   const context = await browser.newContext({ viewport: { width: 1000, height: 700 } });
   const tab = await context.newPage();
@@ -154,5 +125,4 @@ try {
   server.kill();
   site.close();
 }
-console.log(failures ? `${failures} check(s) failed` : 'all checks passed');
-process.exit(failures ? 1 : 0);
+finish();

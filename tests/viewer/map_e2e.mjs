@@ -4,31 +4,15 @@
 // (a base map served here, standing in for OpenStreetMap or a chart server).
 // Exits 77 (ctest: skipped) without Chromium or playwright-core.
 //   node tests/viewer/map_e2e.mjs ROLAMOS_CLI SCRATCH_DIR ARTEFACTS_DIR
-import { spawn, execFileSync } from 'node:child_process';
+import { execFileSync } from 'node:child_process';
 import fs from 'node:fs';
 import http from 'node:http';
 import path from 'node:path';
-import { createRequire } from 'node:module';
+
+import { check, chromiumOrSkip, finish, launch, serve } from './support.mjs';
 
 const [cli, scratch, artefacts] = process.argv.slice(2);
-const chromiumPath = process.env.CHROMIUM || '/usr/bin/chromium';
-const require = createRequire(new URL('../../viewer/package.json', import.meta.url));
-let chromium;
-try {
-  ({ chromium } = require('playwright-core'));
-} catch {
-  console.log('SKIP: playwright-core is not installed (scripts/setup.sh runs npm ci in viewer/)');
-  process.exit(77);
-}
-if (!fs.existsSync(chromiumPath)) {
-  console.log('SKIP: no Chromium at ' + chromiumPath);
-  process.exit(77);
-}
-let failures = 0;
-function check(ok, what) {
-  console.log((ok ? 'ok   ' : 'FAIL ') + what);
-  if (!ok) failures++;
-}
+const chromium = chromiumOrSkip();
 const run = (...args) => execFileSync(cli, args, { cwd: scratch, encoding: 'utf8' });
 
 fs.rmSync(scratch, { recursive: true, force: true });
@@ -65,28 +49,12 @@ const site = http.createServer((req, res) => {
 await new Promise((r) => site.on('listening', r));
 const basemap = `http://127.0.0.1:${site.address().port}/base/{z}/{x}/{y}.png`;
 
-async function serve(extra) {
-  const server = spawn(cli, ['serve', 's.rolamos', '--port', '0', ...extra], { cwd: scratch });
-  const base = await new Promise((resolve, reject) => {
-    let out = '';
-    server.stdout.on('data', (d) => {
-      out += d;
-      const m = out.match(/on (http:\/\/[^\s]+)/);
-      if (m) resolve(m[1].replace(/\/$/, ''));
-    });
-    server.on('exit', (code) => reject(new Error('rolamos serve exited with ' + code + ': ' + out)));
-  });
-  return { server, base };
-}
-
-const browser = await chromium.launch({
-  executablePath: chromiumPath,
-  args: ['--no-sandbox', '--disable-gpu', '--disable-background-networking', '--disable-component-update']
-});
+const browser = await launch(chromium);
 try {
   for (const withBase of [false, true]) {
     const label = withBase ? 'with --basemap' : 'without a base map';
-    const { server, base } = await serve(withBase ? ['--basemap', basemap, '--basemap-attribution', 'test charts'] : []);
+    const { server, base } = await serve(cli, 's.rolamos', scratch,
+                                        withBase ? ['--basemap', basemap, '--basemap-attribution', 'test charts'] : []);
     const context = await browser.newContext({ viewport: { width: 900, height: 600 } });
     const tab = await context.newPage();
     const hosts = new Set(), mosaicTiles = [];
@@ -121,5 +89,4 @@ try {
   await browser.close();
   site.close();
 }
-console.log(failures ? `${failures} check(s) failed` : 'all checks passed');
-process.exit(failures ? 1 : 0);
+finish();
