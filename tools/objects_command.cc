@@ -1,29 +1,38 @@
+#include <cmath>
 #include <cstdio>
 #include <mutex>
 
 #include "command.h"
+#include "rolamos/box_detector.hpp"
 #include "rolamos/error.hpp"
 #include "rolamos/objects.hpp"
+#include "util/files.h"
 #include "util/progress.h"
+
+#include <opencv2/imgcodecs.hpp>
 
 namespace rolamos::cli {
 
 namespace {
 
 struct TrainSwitches {
-  std::string data, output;
+  std::string data, boxes, output;
   ObjectTrainOptions options;
+  BoxDetectorOptions box_options;
   bool quiet = false;
 };
 
 struct EvalSwitches {
-  std::string data, model;
+  std::string data, boxes, model;
+  int by_station = 0;  // > 0: station-wise cross-validation in that many folds, no model
+  BoxDetectorOptions box_options;
   bool quiet = false, json = false;
 };
 
 struct DetectSwitches {
-  std::string store, model;
+  std::string store, model, frames;
   DetectOptions options;
+  BoxSearchOptions box_options;
   bool quiet = false;
 };
 
@@ -35,7 +44,94 @@ ProgressFn BarFor(Progress* bar, std::mutex* mutex) {
   };
 }
 
+// The box detector's training settings, shared by train and eval --by-station.
+void AddBoxOptions(CLI::App* app, BoxDetectorOptions* o) {
+  app->add_option("--label", o->label, "the class a box detector reports")->capture_default_str();
+  app->add_option("--features", o->features, "box detector: cells (ours) or hog (OpenCV's HOG, the peer)")->capture_default_str();
+  app->add_option("--min-box", o->min_box, "box detector: smallest box side searched, pixels")->capture_default_str();
+  app->add_option("--max-box", o->max_box, "box detector: largest box side searched, pixels")->capture_default_str();
+  app->add_option("--c", o->c, "box detector: SVM cost")->capture_default_str();
+  app->add_option("--hard-negative-rounds", o->hard_negative_rounds, "box detector: rounds of mining mistaken background")
+      ->capture_default_str();
+  app->add_option("--nms-iou", o->nms_iou, "overlap above which the weaker detection goes")->capture_default_str();
+}
+
+int RunTrainBoxes(const TrainSwitches& s) {
+  std::string error;
+  if (!s.box_options.IsValid(&error)) Fail("objects train", error);
+  const std::vector<BoxedImage> images = ReadBoxedFolder(s.boxes);
+  Progress bar("train", s.quiet);
+  std::mutex mutex;
+  const BoxDetector model = BoxDetector::Train(images, s.box_options, BarFor(&bar, &mutex));
+  model.Save(s.output);
+  bar.Done();
+  const auto d = model.Describe();
+  std::printf("%s: box detector of %s (%s features), %lld boxes in %zu frames, threshold %.3f, F1 on its training frames %.3f, trained in %.1f s\n",
+              s.output.c_str(), s.box_options.label.c_str(), s.box_options.features.c_str(),
+              d["training"]["boxes"].get<long long>(), images.size(), model.threshold(),
+              d["training"]["training_f1"].get<double>(), bar.ElapsedSeconds());
+  return 0;
+}
+
+void PrintBoxEvaluation(const char* what, const BoxEvaluation& e) {
+  std::printf("%s: AP50 %.3f, precision %.3f, recall %.3f, F1 %.3f (%lld of %lld boxes found, %lld detections, %d frames)\n",
+              what, e.ap50, e.precision, e.recall, e.f1, e.true_positives, e.true_boxes, e.detections, e.images);
+}
+
+int RunEvalBoxes(const EvalSwitches& s) {
+  const std::vector<BoxedImage> images = ReadBoxedFolder(s.boxes);
+  Progress bar("eval", s.quiet);
+  std::mutex mutex;
+  if (s.by_station > 0) {
+    std::string error;
+    if (!s.box_options.IsValid(&error)) Fail("objects eval", error);
+    const BoxValidation v = CrossValidateBoxes(images, s.box_options, s.by_station, BarFor(&bar, &mutex));
+    bar.Done();
+    nlohmann::json j = ToJson(v.pooled);
+    j["validation"] = "by station";
+    j["folds"] = nlohmann::json::array();
+    for (size_t f = 0; f < v.folds.size(); ++f) {
+      j["folds"].push_back(ToJson(v.folds[f]));
+      j["folds"].back()["stations"] = v.fold_stations[f];
+    }
+    j["seconds_train"] = v.seconds_train;
+    j["seconds_detect"] = v.seconds_detect;
+    j["megapixels_per_second"] = v.seconds_detect > 0 ? v.megapixels / v.seconds_detect : 0;
+    if (s.json) {
+      std::printf("%s\n", j.dump(1).c_str());
+      return 0;
+    }
+    PrintBoxEvaluation("by station, pooled", v.pooled);
+    for (size_t f = 0; f < v.folds.size(); ++f) {
+      std::string stations;
+      for (const auto& st : v.fold_stations[f]) stations += (stations.empty() ? "" : ", ") + st;
+      PrintBoxEvaluation(("  fold " + std::to_string(f + 1) + " (" + std::to_string(v.fold_stations[f].size()) +
+                          " stations: " + stations + ")").c_str(), v.folds[f]);
+    }
+    std::printf("training %.1f s, detection %.2f Mpx/s\n", v.seconds_train, j["megapixels_per_second"].get<double>());
+    return 0;
+  }
+  const BoxDetector model = BoxDetector::Load(s.model);
+  std::vector<std::vector<BoxDetection>> found(images.size());
+  std::vector<std::vector<cv::Rect2d>> truth(images.size());
+  for (size_t i = 0; i < images.size(); ++i) {
+    const cv::Mat image = cv::imread(images[i].path, cv::IMREAD_GRAYSCALE | cv::IMREAD_ANYDEPTH);
+    if (image.empty()) Fail(images[i].path, "cannot be decoded as an image");
+    found[i] = model.Detect(image, kBoxCurveScore);
+    truth[i] = images[i].boxes;
+    bar.Update(double(i + 1) / double(images.size()));
+  }
+  bar.Done();
+  const BoxEvaluation e = EvaluateBoxes(found, truth, model.threshold());
+  if (s.json)
+    std::printf("%s\n", ToJson(e).dump(1).c_str());
+  else
+    PrintBoxEvaluation(s.boxes.c_str(), e);
+  return 0;
+}
+
 int RunTrain(const TrainSwitches& s) {
+  if (!s.boxes.empty()) return RunTrainBoxes(s);
   std::string error;
   if (!s.options.IsValid(&error)) Fail("objects train", error);
   Progress bar("train", s.quiet);
@@ -53,6 +149,7 @@ int RunTrain(const TrainSwitches& s) {
 }
 
 int RunEval(const EvalSwitches& s) {
+  if (!s.boxes.empty()) return RunEvalBoxes(s);
   const ObjectModel model = ObjectModel::Load(s.model);
   Progress bar("eval", s.quiet);
   std::mutex mutex;
@@ -69,7 +166,48 @@ int RunEval(const EvalSwitches& s) {
   return 0;
 }
 
+int RunDetectFrames(const DetectSwitches& s) {
+  const BoxDetector model = BoxDetector::Load(s.model);
+  const std::vector<BoxedImage> images = ReadBoxedFolder(s.frames);
+  Progress bar("detect", s.quiet);
+  nlohmann::json out = nlohmann::json::array();
+  long long boxes = 0;
+  for (size_t i = 0; i < images.size(); ++i) {
+    const cv::Mat image = cv::imread(images[i].path, cv::IMREAD_UNCHANGED);
+    if (image.empty()) Fail(images[i].path, "cannot be decoded as an image");
+    nlohmann::json list = nlohmann::json::array();
+    for (const auto& d : model.Detect(image, std::isnan(s.box_options.min_score) ? model.threshold() : s.box_options.min_score))
+      list.push_back({{"class", model.options().label}, {"score", d.score}, {"bbox", {d.box.x, d.box.y, d.box.width, d.box.height}}});
+    boxes += static_cast<long long>(list.size());
+    out.push_back({{"image", images[i].path}, {"width", image.cols}, {"height", image.rows}, {"detections", list}});
+    bar.Update(double(i + 1) / double(images.size()));
+  }
+  bar.Done();
+  const std::string output = s.box_options.output.empty() ? "detections.json" : s.box_options.output;
+  WriteFileAtomic(output, out.dump(1) + "\n");
+  std::printf("%s: %lld detections in %zu frames, %.1f s\n", output.c_str(), boxes, images.size(), bar.ElapsedSeconds());
+  return 0;
+}
+
+int RunDetectBoxes(const DetectSwitches& s) {
+  std::string error;
+  if (!s.box_options.IsValid(&error)) Fail("objects detect", error);
+  const BoxDetector model = BoxDetector::Load(s.model);
+  Progress bar("detect", s.quiet);
+  std::mutex mutex;
+  const BoxSearchSummary r = DetectBoxesInStore(Store::Open(s.store), model, s.box_options, BarFor(&bar, &mutex));
+  bar.Done();
+  std::printf("%s: %d detections of %s over %.1f Mpx of map, %.1f s (%.2f Mpx/s, peak %.0f MB); density in %d cells over %.1f %s: %s\n",
+              r.output.c_str(), r.detections, model.options().label.c_str(), r.megapixels, r.seconds,
+              r.seconds > 0 ? r.megapixels / r.seconds : 0.0, r.peak_rss_mb, r.density_cells, r.total_area,
+              r.georeferenced ? "m2 (or px when not in metres)" : "px", r.density_output.c_str());
+  return 0;
+}
+
 int RunDetect(const DetectSwitches& s) {
+  if (!s.frames.empty()) return RunDetectFrames(s);
+  if (s.store.empty()) Fail("objects detect", "needs a store (or --frames DIR)");
+  if (IsBoxDetectorFile(s.model)) return RunDetectBoxes(s);
   std::string error;
   if (!s.options.IsValid(&error)) Fail("objects detect", error);
   const ObjectModel model = ObjectModel::Load(s.model);
@@ -92,7 +230,9 @@ void AddObjectsCommand(CLI::App& app, Runner* run) {
 
   auto t = std::make_shared<TrainSwitches>();
   auto* train = cmd->add_subcommand("train", "Train a model from a folder per class");
-  train->add_option("--data", t->data, "folder with a folder of images per class ('background' = negatives only)")->required();
+  auto* data_opt = train->add_option("--data", t->data, "folder with a folder of images per class ('background' = negatives only)");
+  train->add_option("--boxes", t->boxes, "folder with images/ and labels_gt/ (YOLO boxes): train a box detector")->excludes(data_opt);
+  AddBoxOptions(train, &t->box_options);
   train->add_option("-o,--output", t->output, "model file (.yml.gz)")->required();
   train->add_option("--vocabulary", t->options.vocabulary, "visual words (k-means)")->capture_default_str();
   train->add_option("--descriptor", t->options.features.descriptor, "sift (gray) or opponent-sift (colour)")
@@ -125,6 +265,7 @@ void AddObjectsCommand(CLI::App& app, Runner* run) {
   train->add_option("--seed", t->options.seed, "random seed (sampling, k-means)")->capture_default_str();
   train->add_flag("-q,--quiet", t->quiet, "no progress bar");
   train->callback([t, run, train] {
+    if (t->data.empty() && t->boxes.empty()) throw CLI::RequiredError("--data or --boxes");
     // The Fisher-only additions are on by default: with another encoding, they are off unless asked for.
     if (t->options.features.encoding != "fisher") {
       if (train->count("--colour-statistics") + train->count("--no-colour-statistics") == 0) t->options.features.colour_statistics = false;
@@ -135,15 +276,27 @@ void AddObjectsCommand(CLI::App& app, Runner* run) {
 
   auto e = std::make_shared<EvalSwitches>();
   auto* eval = cmd->add_subcommand("eval", "Accuracy, per-class precision/recall and confusion on a held-out split");
-  eval->add_option("--data", e->data, "folder with a folder of images per class")->required();
-  eval->add_option("--model", e->model, "model file from `objects train`")->required();
+  auto* edata = eval->add_option("--data", e->data, "folder with a folder of images per class");
+  eval->add_option("--boxes", e->boxes, "folder with images/ and labels_gt/ (YOLO boxes)")->excludes(edata);
+  eval->add_option("--model", e->model, "model file from `objects train`");
+  eval->add_option("--by-station", e->by_station,
+                   "with --boxes and no model: train and validate in this many folds of whole stations (frames grouped by capture time)");
+  AddBoxOptions(eval, &e->box_options);
   eval->add_flag("--json", e->json, "print the figures as JSON");
   eval->add_flag("-q,--quiet", e->quiet, "no progress bar");
-  eval->callback([e, run] { *run = [e] { return RunEval(*e); }; });
+  eval->callback([e, run] {
+    if (e->data.empty() && e->boxes.empty()) throw CLI::RequiredError("--data or --boxes");
+    if (e->model.empty() && e->by_station == 0) throw CLI::RequiredError("--model (or --boxes with --by-station)");
+    *run = [e] { return RunEval(*e); };
+  });
 
   auto d = std::make_shared<DetectSwitches>();
   auto* detect = cmd->add_subcommand("detect", "Sliding windows over the mosaic (or a patch): detections as GeoJSON in the store");
-  detect->add_option("store", d->store, "the store")->required();
+  detect->add_option("store", d->store, "the store");
+  detect->add_option("--frames", d->frames, "box detector: run over the frames of DIR/images instead, detections as JSON (-o)");
+  detect->add_option("--block", d->box_options.block, "box detector: pixels read at a time")->capture_default_str();
+  detect->add_option("--density-cell", d->box_options.density_cell,
+                     "side of a density cell: metres when georeferenced, pixels otherwise (0 = 512 px)")->capture_default_str();
   detect->add_option("--model", d->model, "model file from `objects train`")->required();
   detect->add_option("--patch", d->options.patch, "patch id (0 = the global mosaic)")->capture_default_str();
   detect->add_option("--level", d->options.level, "pyramid level the windows are cut from")->capture_default_str();
@@ -154,7 +307,14 @@ void AddObjectsCommand(CLI::App& app, Runner* run) {
   detect->add_option("--cache-mb", d->options.cache_mb, "tile cache bound, MB")->capture_default_str();
   detect->add_option("-o,--output", d->options.output, "GeoJSON file (default: STORE/objects/detections.geojson)");
   detect->add_flag("-q,--quiet", d->quiet, "no progress bar");
-  detect->callback([d, run] { *run = [d] { return RunDetect(*d); }; });
+  detect->callback([d, run, detect] {
+    // The switches both searches take.
+    d->box_options.patch = d->options.patch;
+    d->box_options.cache_mb = d->options.cache_mb;
+    d->box_options.output = d->options.output;
+    if (detect->count("--min-score")) d->box_options.min_score = d->options.min_score;
+    *run = [d] { return RunDetect(*d); };
+  });
 }
 
 }  // namespace rolamos::cli

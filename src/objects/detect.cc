@@ -5,7 +5,9 @@
 #include <opencv2/core.hpp>
 
 #include "objects/bow_features.h"
+#include "objects/detection_layers.h"
 #include "objects/object_crop.h"
+#include "objects/window_search.h"
 #include "rolamos/error.hpp"
 #include "rolamos/georef_io.hpp"
 #include "rolamos/objects.hpp"
@@ -62,11 +64,6 @@ struct Detection {
   std::vector<ClassScore> scores;
 };
 
-double Iou(const cv::Rect2d& a, const cv::Rect2d& b) {
-  const double inter = (a & b).area();
-  return inter > 0 ? inter / (a.area() + b.area() - inter) : 0;
-}
-
 // Greedy per class: the best window wins, windows overlapping it by more than `iou` go.
 std::vector<Detection> Suppress(std::vector<Detection> d, double iou) {
   std::sort(d.begin(), d.end(), [](const Detection& a, const Detection& b) { return a.score > b.score; });
@@ -74,7 +71,7 @@ std::vector<Detection> Suppress(std::vector<Detection> d, double iou) {
   for (auto& c : d) {
     bool overlapped = false;
     for (const auto& k : kept)
-      if (k.cls == c.cls && Iou(k.box0, c.box0) > iou) {
+      if (k.cls == c.cls && BoxIou(k.box0, c.box0) > iou) {
         overlapped = true;
         break;
       }
@@ -165,52 +162,26 @@ DetectSummary DetectObjects(const Store& store, const ObjectModel& model, const 
 
   const std::optional<Georef> georef = ReadGeoref(path);
   summary.georeferenced = georef.has_value();
-  nlohmann::json features = nlohmann::json::array();
-  for (size_t i = 0; i < kept.size(); ++i) {
-    const Detection& d = kept[i];
-    const cv::Rect2d& b = d.box0;
-    nlohmann::json ring = nlohmann::json::array();
-    for (const cv::Point2d p : {b.tl(), cv::Point2d(b.x + b.width, b.y), b.br(), cv::Point2d(b.x, b.y + b.height), b.tl()}) {
-      if (georef) {
-        const auto m = georef->PixelToMap(p.x, p.y);
-        ring.push_back({m[0], m[1]});
-      } else {
-        ring.push_back({p.x, p.y});
-      }
-    }
-    nlohmann::json all = nlohmann::json::object();
-    for (const auto& s : d.scores) all[s.label] = s.score;
-    features.push_back({{"type", "Feature"},
-                        {"id", static_cast<int>(i + 1)},
-                        {"geometry", {{"type", "Polygon"}, {"coordinates", {ring}}}},
-                        {"properties",
-                         {{"class", d.label},
-                          {"score", d.score},
-                          {"image", image_name},
-                          {"pixel_bbox", {b.x, b.y, b.width, b.height}},
-                          {"window_bbox", {d.window0.x, d.window0.y, d.window0.width, d.window0.height}},
-                          {"scores", all}}}});
+  std::vector<MapDetection> layer;
+  for (const Detection& d : kept) {
+    MapDetection m{d.label, d.score, d.box0, d.window0};
+    for (const auto& s : d.scores) m.scores[s.label] = s.score;
+    layer.push_back(std::move(m));
   }
-  nlohmann::json doc = {{"type", "FeatureCollection"},
-                        {"name", "rolamos_detections"},
-                        {"rolamos",
-                         {{"image", std::filesystem::relative(path, store.dir()).string()},
-                          {"level", options.level},
-                          {"window", options.window},
-                          {"stride", options.stride},
-                          {"min_score", options.min_score},
-                          {"classes", model.classes()},
-                          {"coordinates", georef ? "map" : "pixel"},
-                          {"crs_wkt", georef ? georef->crs : ""}}},
-                        {"features", features}};
-  if (georef) {
-    const std::string authority = CrsAuthorityCode(georef->crs);
-    if (!authority.empty())
-      doc["crs"] = {{"type", "name"}, {"properties", {{"name", "urn:ogc:def:crs:" + authority}}}};
-  }
+  const std::string relative = std::filesystem::relative(path, store.dir()).string();
+  const nlohmann::json doc = DetectionsGeoJson(layer, georef, image_name,
+                                               {{"image", relative},
+                                                {"level", options.level},
+                                                {"window", options.window},
+                                                {"stride", options.stride},
+                                                {"min_score", options.min_score},
+                                                {"classes", model.classes()}});
   summary.output = options.output.empty() ? store.dir() + "/objects/detections.geojson" : options.output;
   std::filesystem::create_directories(std::filesystem::path(summary.output).parent_path());
   WriteFileAtomic(summary.output, doc.dump(1) + "\n");
+  // The density layer beside it, four windows to a cell.
+  const DensityLayer density = DensityGeoJson(layer, image, georef, 2.0 * options.window * std::max(to0x, 1.0), relative);
+  WriteFileAtomic(std::filesystem::path(summary.output).parent_path().string() + "/density.geojson", density.geojson.dump(1) + "\n");
   summary.detections = static_cast<int>(kept.size());
   summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return summary;
