@@ -24,7 +24,14 @@ struct TrainSwitches {
 
 struct EvalSwitches {
   std::string data, boxes, model;
-  int by_station = 0;  // > 0: station-wise cross-validation in that many folds, no model
+  bool quiet = false, json = false;
+};
+
+struct ValidateSwitches {
+  std::vector<std::string> data;
+  std::string boxes;
+  int folds = 5, repeats = 1;
+  ObjectTrainOptions options;
   BoxDetectorOptions box_options;
   bool quiet = false, json = false;
 };
@@ -42,6 +49,46 @@ ProgressFn BarFor(Progress* bar, std::mutex* mutex) {
     std::lock_guard<std::mutex> lock(*mutex);
     bar->Update(fraction);
   };
+}
+
+// The class model's training settings, shared by train and validate.
+void AddClassModelOptions(CLI::App* app, ObjectTrainOptions* o) {
+  app->add_option("--vocabulary", o->vocabulary, "visual words (k-means)")->capture_default_str();
+  app->add_option("--descriptor", o->features.descriptor, "sift (gray) or opponent-sift (colour)")
+      ->capture_default_str();
+  app->add_option("--encoding", o->features.encoding, "bow (word histograms), vlad (residuals to the words) or fisher (Fisher vectors: a Gaussian mixture of --vocabulary components)")
+      ->capture_default_str();
+  app->add_option("--kernel", o->kernel, "SVM kernel: chi2, rbf or linear")->capture_default_str();
+  app->add_option("--folds", o->folds, "cross-validation folds for the SVM parameters")->capture_default_str();
+  app->add_option("--image-size", o->features.image_size, "samples are resized to this square")->capture_default_str();
+  app->add_option("--grid-step", o->features.grid_step, "dense SIFT grid step, pixels")->capture_default_str();
+  app->add_option("--patch-sizes", o->features.patch_sizes, "SIFT support diameters, pixels")
+      ->capture_default_str()->delimiter(',');
+  app->add_option("--pyramid-levels", o->features.pyramid_levels, "spatial pyramid levels (1..3)")->capture_default_str();
+  app->add_flag("!--no-centre-cell", o->features.centre_cell, "no separate words for the central half");
+  app->add_option("--hue-bins", o->features.hue_bins, "colour histogram hue bins (0 = no colour)")->capture_default_str();
+  app->add_option("--saturation-bins", o->features.saturation_bins, "colour histogram saturation bins")->capture_default_str();
+  app->add_option("--colour-weight", o->features.colour_weight, "weight of colour against words")->capture_default_str();
+  app->add_flag("--object-view,!--no-object-view", o->features.object_view,
+                  "also describe the square around the object found near the centre (on by default)");
+  app->add_option("--pca-dims", o->features.pca_dims, "descriptor dimensions kept by PCA (fisher)")->capture_default_str();
+  app->add_flag("--colour-statistics,!--no-colour-statistics", o->features.colour_statistics,
+                  "also describe each patch by the mean and spread of its colours (fisher; on by default)");
+  app->add_option("--colour-pca-dims", o->features.colour_pca_dims, "colour statistics dimensions kept by PCA")
+      ->capture_default_str();
+  app->add_flag("--spatial-coordinates,!--no-spatial-coordinates", o->features.spatial_coordinates,
+                  "each descriptor's place joins it in the Gaussian mixture (fisher; on by default)");
+  app->add_option("--orientations", o->features.orientations,
+                    "describe the image in 1, 2 (mirrored), 4 (turned) or 8 orientations, averaged")->capture_default_str();
+  app->add_option("--kmeans-samples", o->kmeans_samples, "descriptors sampled for k-means")->capture_default_str();
+  app->add_option("--seed", o->seed, "random seed (sampling, k-means)")->capture_default_str();
+}
+
+// The Fisher-only additions are on by default: with another encoding, they are off unless asked for.
+void FisherOnlyDefaults(CLI::App* app, ObjectTrainOptions* o) {
+  if (o->features.encoding == "fisher") return;
+  if (app->count("--colour-statistics") + app->count("--no-colour-statistics") == 0) o->features.colour_statistics = false;
+  if (app->count("--spatial-coordinates") + app->count("--no-spatial-coordinates") == 0) o->features.spatial_coordinates = false;
 }
 
 // The box detector's training settings, shared by train and eval --by-station.
@@ -82,35 +129,6 @@ int RunEvalBoxes(const EvalSwitches& s) {
   const std::vector<BoxedImage> images = ReadBoxedFolder(s.boxes);
   Progress bar("eval", s.quiet);
   std::mutex mutex;
-  if (s.by_station > 0) {
-    std::string error;
-    if (!s.box_options.IsValid(&error)) Fail("objects eval", error);
-    const BoxValidation v = CrossValidateBoxes(images, s.box_options, s.by_station, BarFor(&bar, &mutex));
-    bar.Done();
-    nlohmann::json j = ToJson(v.pooled);
-    j["validation"] = "by station";
-    j["folds"] = nlohmann::json::array();
-    for (size_t f = 0; f < v.folds.size(); ++f) {
-      j["folds"].push_back(ToJson(v.folds[f]));
-      j["folds"].back()["stations"] = v.fold_stations[f];
-    }
-    j["seconds_train"] = v.seconds_train;
-    j["seconds_detect"] = v.seconds_detect;
-    j["megapixels_per_second"] = v.seconds_detect > 0 ? v.megapixels / v.seconds_detect : 0;
-    if (s.json) {
-      std::printf("%s\n", j.dump(1).c_str());
-      return 0;
-    }
-    PrintBoxEvaluation("by station, pooled", v.pooled);
-    for (size_t f = 0; f < v.folds.size(); ++f) {
-      std::string stations;
-      for (const auto& st : v.fold_stations[f]) stations += (stations.empty() ? "" : ", ") + st;
-      PrintBoxEvaluation(("  fold " + std::to_string(f + 1) + " (" + std::to_string(v.fold_stations[f].size()) +
-                          " stations: " + stations + ")").c_str(), v.folds[f]);
-    }
-    std::printf("training %.1f s, detection %.2f Mpx/s\n", v.seconds_train, j["megapixels_per_second"].get<double>());
-    return 0;
-  }
   const BoxDetector model = BoxDetector::Load(s.model);
   std::vector<std::vector<BoxDetection>> found(images.size());
   std::vector<std::vector<cv::Rect2d>> truth(images.size());
@@ -127,6 +145,61 @@ int RunEvalBoxes(const EvalSwitches& s) {
     std::printf("%s\n", ToJson(e).dump(1).c_str());
   else
     PrintBoxEvaluation(s.boxes.c_str(), e);
+  return 0;
+}
+
+int RunValidateBoxes(const ValidateSwitches& s) {
+  const std::vector<BoxedImage> images = ReadBoxedFolder(s.boxes);
+  Progress bar("validate", s.quiet);
+  std::mutex mutex;
+  std::string error;
+  if (!s.box_options.IsValid(&error)) Fail("objects validate", error);
+  const BoxValidation v = CrossValidateBoxes(images, s.box_options, s.folds, BarFor(&bar, &mutex));
+  bar.Done();
+  nlohmann::json j = ToJson(v.pooled);
+  j["validation"] = "by station";
+  j["folds"] = nlohmann::json::array();
+  for (size_t f = 0; f < v.folds.size(); ++f) {
+    j["folds"].push_back(ToJson(v.folds[f]));
+    j["folds"].back()["stations"] = v.fold_stations[f];
+  }
+  j["seconds_train"] = v.seconds_train;
+  j["seconds_detect"] = v.seconds_detect;
+  j["megapixels_per_second"] = v.seconds_detect > 0 ? v.megapixels / v.seconds_detect : 0;
+  if (s.json) {
+    std::printf("%s\n", j.dump(1).c_str());
+    return 0;
+  }
+  PrintBoxEvaluation("by station, pooled", v.pooled);
+  for (size_t f = 0; f < v.folds.size(); ++f) {
+    std::string stations;
+    for (const auto& st : v.fold_stations[f]) stations += (stations.empty() ? "" : ", ") + st;
+    PrintBoxEvaluation(("  fold " + std::to_string(f + 1) + " (" + std::to_string(v.fold_stations[f].size()) +
+                        " stations: " + stations + ")").c_str(), v.folds[f]);
+  }
+  std::printf("training %.1f s, detection %.2f Mpx/s\n", v.seconds_train, j["megapixels_per_second"].get<double>());
+  return 0;
+}
+
+int RunValidate(const ValidateSwitches& s) {
+  if (!s.boxes.empty()) return RunValidateBoxes(s);
+  std::string error;
+  if (!s.options.IsValid(&error)) Fail("objects validate", error);
+  const LabelledImages data = ReadLabelledFolders(s.data);
+  Progress bar("validate", s.quiet);
+  std::mutex mutex;
+  const ObjectValidation v = CrossValidateObjects(data, s.options, s.folds, s.repeats, BarFor(&bar, &mutex));
+  bar.Done();
+  if (s.json) {
+    nlohmann::json j = {{"mean", v.mean}, {"spread", v.spread}, {"fold_accuracy", v.fold_accuracy},
+                        {"classes", v.classes}, {"recall", v.recall}, {"confusion", v.confusion},
+                        {"images", v.images}, {"folds", v.folds}, {"repeats", v.repeats}, {"seconds", v.seconds}};
+    std::printf("%s\n", j.dump(1).c_str());
+    return 0;
+  }
+  std::printf("cross-validated accuracy %.1f %% +- %.1f (%d folds x %d repeats, stratified, %d images, %.0f s)\n",
+              100 * v.mean, 100 * v.spread, v.folds, v.repeats, v.images, v.seconds);
+  for (size_t c = 0; c < v.classes.size(); ++c) std::printf("  %-20s recall %5.1f %%\n", v.classes[c].c_str(), 100 * v.recall[c]);
   return 0;
 }
 
@@ -234,43 +307,11 @@ void AddObjectsCommand(CLI::App& app, Runner* run) {
   train->add_option("--boxes", t->boxes, "folder with images/ and labels_gt/ (YOLO boxes): train a box detector")->excludes(data_opt);
   AddBoxOptions(train, &t->box_options);
   train->add_option("-o,--output", t->output, "model file (.yml.gz)")->required();
-  train->add_option("--vocabulary", t->options.vocabulary, "visual words (k-means)")->capture_default_str();
-  train->add_option("--descriptor", t->options.features.descriptor, "sift (gray) or opponent-sift (colour)")
-      ->capture_default_str();
-  train->add_option("--encoding", t->options.features.encoding, "bow (word histograms), vlad (residuals to the words) or fisher (Fisher vectors: a Gaussian mixture of --vocabulary components)")
-      ->capture_default_str();
-  train->add_option("--kernel", t->options.kernel, "SVM kernel: chi2, rbf or linear")->capture_default_str();
-  train->add_option("--folds", t->options.folds, "cross-validation folds for the SVM parameters")->capture_default_str();
-  train->add_option("--image-size", t->options.features.image_size, "samples are resized to this square")->capture_default_str();
-  train->add_option("--grid-step", t->options.features.grid_step, "dense SIFT grid step, pixels")->capture_default_str();
-  train->add_option("--patch-sizes", t->options.features.patch_sizes, "SIFT support diameters, pixels")
-      ->capture_default_str()->delimiter(',');
-  train->add_option("--pyramid-levels", t->options.features.pyramid_levels, "spatial pyramid levels (1..3)")->capture_default_str();
-  train->add_flag("!--no-centre-cell", t->options.features.centre_cell, "no separate words for the central half");
-  train->add_option("--hue-bins", t->options.features.hue_bins, "colour histogram hue bins (0 = no colour)")->capture_default_str();
-  train->add_option("--saturation-bins", t->options.features.saturation_bins, "colour histogram saturation bins")->capture_default_str();
-  train->add_option("--colour-weight", t->options.features.colour_weight, "weight of colour against words")->capture_default_str();
-  train->add_flag("--object-view,!--no-object-view", t->options.features.object_view,
-                  "also describe the square around the object found near the centre (on by default)");
-  train->add_option("--pca-dims", t->options.features.pca_dims, "descriptor dimensions kept by PCA (fisher)")->capture_default_str();
-  train->add_flag("--colour-statistics,!--no-colour-statistics", t->options.features.colour_statistics,
-                  "also describe each patch by the mean and spread of its colours (fisher; on by default)");
-  train->add_option("--colour-pca-dims", t->options.features.colour_pca_dims, "colour statistics dimensions kept by PCA")
-      ->capture_default_str();
-  train->add_flag("--spatial-coordinates,!--no-spatial-coordinates", t->options.features.spatial_coordinates,
-                  "each descriptor's place joins it in the Gaussian mixture (fisher; on by default)");
-  train->add_option("--orientations", t->options.features.orientations,
-                    "describe the image in 1, 2 (mirrored), 4 (turned) or 8 orientations, averaged")->capture_default_str();
-  train->add_option("--kmeans-samples", t->options.kmeans_samples, "descriptors sampled for k-means")->capture_default_str();
-  train->add_option("--seed", t->options.seed, "random seed (sampling, k-means)")->capture_default_str();
+  AddClassModelOptions(train, &t->options);
   train->add_flag("-q,--quiet", t->quiet, "no progress bar");
   train->callback([t, run, train] {
     if (t->data.empty() && t->boxes.empty()) throw CLI::RequiredError("--data or --boxes");
-    // The Fisher-only additions are on by default: with another encoding, they are off unless asked for.
-    if (t->options.features.encoding != "fisher") {
-      if (train->count("--colour-statistics") + train->count("--no-colour-statistics") == 0) t->options.features.colour_statistics = false;
-      if (train->count("--spatial-coordinates") + train->count("--no-spatial-coordinates") == 0) t->options.features.spatial_coordinates = false;
-    }
+    FisherOnlyDefaults(train, &t->options);
     *run = [t] { return RunTrain(*t); };
   });
 
@@ -279,15 +320,29 @@ void AddObjectsCommand(CLI::App& app, Runner* run) {
   auto* edata = eval->add_option("--data", e->data, "folder with a folder of images per class");
   eval->add_option("--boxes", e->boxes, "folder with images/ and labels_gt/ (YOLO boxes)")->excludes(edata);
   eval->add_option("--model", e->model, "model file from `objects train`");
-  eval->add_option("--by-station", e->by_station,
-                   "with --boxes and no model: train and validate in this many folds of whole stations (frames grouped by capture time)");
-  AddBoxOptions(eval, &e->box_options);
+
   eval->add_flag("--json", e->json, "print the figures as JSON");
   eval->add_flag("-q,--quiet", e->quiet, "no progress bar");
   eval->callback([e, run] {
     if (e->data.empty() && e->boxes.empty()) throw CLI::RequiredError("--data or --boxes");
-    if (e->model.empty() && e->by_station == 0) throw CLI::RequiredError("--model (or --boxes with --by-station)");
+    if (e->model.empty()) throw CLI::RequiredError("--model");
     *run = [e] { return RunEval(*e); };
+  });
+
+  auto v = std::make_shared<ValidateSwitches>();
+  auto* validate = cmd->add_subcommand("validate", "Cross-validate settings: repeated stratified folds of a folder per class (several folders join), or folds of whole stations of boxed frames");
+  auto* vdata = validate->add_option("--data", v->data, "folder with a folder of images per class (repeat to join train and validation)");
+  validate->add_option("--boxes", v->boxes, "folder with images/ and labels_gt/ (YOLO boxes): folds of whole stations")->excludes(vdata);
+  validate->add_option("--validation-folds", v->folds, "folds (of images per class, or of stations)")->capture_default_str();
+  validate->add_option("--repeats", v->repeats, "class model: repeats with another random split")->capture_default_str();
+  AddClassModelOptions(validate, &v->options);
+  AddBoxOptions(validate, &v->box_options);
+  validate->add_flag("--json", v->json, "print the figures as JSON");
+  validate->add_flag("-q,--quiet", v->quiet, "no progress bar");
+  validate->callback([v, run, validate] {
+    if (v->data.empty() && v->boxes.empty()) throw CLI::RequiredError("--data or --boxes");
+    FisherOnlyDefaults(validate, &v->options);
+    *run = [v] { return RunValidate(*v); };
   });
 
   auto d = std::make_shared<DetectSwitches>();

@@ -221,9 +221,27 @@
       state.overlays = null;
       status(image.name + ': no overlays (' + e.message + ')');
     }
+    objectControls(state.overlays);
     drawOverlays();
     state.ready = true;
   });
+  // The class list and score range of this image's detections; the density switch when it has a layer.
+  function objectControls(o) {
+    const detections = (o && o.detections) || [];
+    $('object-filters').hidden = detections.length === 0;
+    $('density-label').hidden = !(o && o.density);
+    const select = $('object-class'), chosen = select.value;
+    const classes = [...new Set(detections.map((d) => d.class))].sort();
+    select.innerHTML = '<option value="">all classes</option>' + classes.map((c) => '<option>' + c + '</option>').join('');
+    if (classes.includes(chosen)) select.value = chosen;
+    if (detections.length) {
+      const range = $('object-score');
+      range.min = Math.floor(Math.min(...detections.map((d) => d.score)) * 10) / 10;
+      range.max = Math.ceil(Math.max(...detections.map((d) => d.score)) * 10) / 10;
+      if (parseFloat(range.value) < parseFloat(range.min)) range.value = range.min;
+      $('object-score-value').textContent = parseFloat(range.value).toFixed(2);
+    }
+  }
   function redraw() { if (state.current && state.current.live && state.liveView && state.liveView.view) drawLive(state.liveView.view); else drawOverlays(); }
   viewer.addHandler('tile-loaded', () => { state.tilesLoaded = (state.tilesLoaded || 0) + 1; });
   viewer.addHandler('open-failed', (e) => status('cannot open ' + state.current.name + ': ' + e.message));
@@ -267,8 +285,23 @@
     }
     if ($('show-trajectory').checked && o.trajectory.length > 1)
       add('polyline', 'trajectory', { points: pts(o.trajectory.map((t) => t.point)) });
+    // The density layer: each cell filled by its objects per unit area, transparent at none,
+    // through orange to red at the map's highest.
+    if ($('show-density').checked && o.density) {
+      const top = Math.max(1e-9, ...o.density.cells.map((c) => c.density));
+      for (const c of o.density.cells) {
+        const e = add('rect', 'density', { x: c.bbox[0], y: c.bbox[1], width: c.bbox[2], height: c.bbox[3] });
+        const t = c.density / top;
+        e.style.fill = 'hsla(' + Math.round(40 * (1 - t)) + ', 95%, 50%, ' + (0.15 + 0.5 * t).toFixed(2) + ')';
+        const title = document.createElementNS(SVG, 'title');
+        title.textContent = c.count + ' objects, ' + c.density.toPrecision(3) + ' ' + o.density.unit;
+        e.appendChild(title);
+      }
+    }
     if ($('show-detections').checked) {
+      const cls = $('object-class').value, min = parseFloat($('object-score').value);
       for (const d of o.detections) {
+        if ((cls && d.class !== cls) || d.score < min) continue;
         add('rect', 'detection', { x: d.bbox[0], y: d.bbox[1], width: d.bbox[2], height: d.bbox[3] });
         const t = add('text', 'detection-label', { x: d.bbox[0], y: d.bbox[1] - 4 });
         t.textContent = d.class + ' ' + d.score.toFixed(2);
@@ -278,8 +311,13 @@
     viewer.addOverlay({ element: svg, location: new OpenSeadragon.Rect(0, 0, 1, aspect) });
     state.svg = svg;
   }
-  for (const id of ['show-outlines', 'show-footprints', 'show-confidence', 'show-trajectory', 'show-detections'])
+  for (const id of ['show-outlines', 'show-footprints', 'show-confidence', 'show-trajectory', 'show-detections',
+                    'show-density', 'object-class'])
     $(id).addEventListener('change', redraw);
+  $('object-score').addEventListener('input', () => {
+    $('object-score-value').textContent = parseFloat($('object-score').value).toFixed(2);
+    redraw();
+  });
   $('image').addEventListener('change', (e) => {
     if (e.target.value !== 'live') $('follow').checked = false;  // the user looks elsewhere
     open(state.images.find((i) => i.name === e.target.value));

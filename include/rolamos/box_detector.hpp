@@ -56,7 +56,7 @@ struct BoxDetectorOptions {
   int scales_per_octave = 4;         // pyramid levels per halving
   double c = 0.01;                   // SVM regularisation
   int negatives_per_image = 80;      // random background windows per frame
-  int hard_negative_rounds = 1;      // rounds of mining the background windows it mistakes
+  int hard_negative_rounds = 2;      // rounds of mining the background windows it mistakes (a third adds nothing)
   int hard_negatives_per_image = 150;
   double nms_iou = 0.35;             // overlapping detections above this keep the best
   int threads = 0;                   // 0: one per core

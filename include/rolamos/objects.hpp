@@ -85,12 +85,33 @@ struct LabelledImages {
 };
 // Throws Error for a missing folder, no class folders, or an empty class folder.
 LabelledImages ReadLabelledFolder(const std::string& dir);
+// Several folders as one set (train and validation together), classes joined by name.
+LabelledImages ReadLabelledFolders(const std::vector<std::string>& dirs);
+// The images at `rows` of a set.
+LabelledImages Subset(const LabelledImages& data, const std::vector<int>& rows);
+
+// Repeated stratified k-fold cross-validation: each repeat splits every class into `folds`
+// parts at random (its own seed); each part is classified by a model trained on the others.
+struct ObjectValidation {
+  std::vector<std::string> classes;
+  std::vector<double> fold_accuracy;     // one per fold and repeat
+  double mean = 0, spread = 0;           // of fold_accuracy (spread: sample standard deviation)
+  std::vector<double> recall;            // per class, pooled over every fold and repeat
+  std::vector<std::vector<int>> confusion;  // pooled, [true][predicted]
+  int images = 0, folds = 0, repeats = 0;
+  double seconds = 0;
+};
+ObjectValidation CrossValidateObjects(const LabelledImages& data, const ObjectTrainOptions& options, int folds,
+                                      int repeats, const ProgressFn& progress = {});
 
 class ObjectModel {
  public:
   // Trains on `data_dir` (a folder per class). Unreadable images stop training with their name.
   static ObjectModel Train(const std::string& data_dir, const ObjectTrainOptions& options,
                            const ProgressFn& progress = {});
+  // The same from images already listed (`where` names them in errors).
+  static ObjectModel Train(const LabelledImages& data, const ObjectTrainOptions& options,
+                           const ProgressFn& progress = {}, const std::string& where = "the training images");
   // Throws Error for a missing, truncated or foreign file, or another format version.
   static ObjectModel Load(const std::string& path);
   void Save(const std::string& path) const;  // .yml.gz (compressed) or .yml
@@ -124,6 +145,8 @@ struct ObjectEvaluation {
 // are an error) and compares with the folder labels.
 ObjectEvaluation EvaluateObjects(const ObjectModel& model, const std::string& data_dir,
                                  const ProgressFn& progress = {});
+ObjectEvaluation EvaluateObjects(const ObjectModel& model, const LabelledImages& data, const ProgressFn& progress = {},
+                                 const std::string& where = "the images");
 // "accuracy: NN.N %", then per-class precision/recall and the confusion matrix.
 std::string FormatEvaluation(const ObjectEvaluation& e);
 

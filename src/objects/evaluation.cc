@@ -11,8 +11,12 @@ namespace rolamos {
 
 ObjectEvaluation EvaluateObjects(const ObjectModel& model, const std::string& data_dir,
                                  const ProgressFn& progress) {
+  return EvaluateObjects(model, ReadLabelledFolder(data_dir), progress, data_dir);
+}
+
+ObjectEvaluation EvaluateObjects(const ObjectModel& model, const LabelledImages& data, const ProgressFn& progress,
+                                 const std::string& data_dir) {
   const auto start = std::chrono::steady_clock::now();
-  const LabelledImages data = ReadLabelledFolder(data_dir);
   ObjectEvaluation e;
   e.classes = model.classes();
   std::map<std::string, int> index;

@@ -1,5 +1,6 @@
 #include <algorithm>
 #include <filesystem>
+#include <set>
 
 #include "rolamos/error.hpp"
 #include "rolamos/objects.hpp"
@@ -40,6 +41,35 @@ LabelledImages ReadLabelledFolder(const std::string& dir) {
       out.files.push_back(std::move(f));
       out.labels.push_back(static_cast<int>(c));
     }
+  }
+  return out;
+}
+
+LabelledImages ReadLabelledFolders(const std::vector<std::string>& dirs) {
+  if (dirs.empty()) Fail("labelled images", "no folder given");
+  std::vector<LabelledImages> parts;
+  std::set<std::string> names;
+  for (const auto& d : dirs) {
+    parts.push_back(ReadLabelledFolder(d));
+    names.insert(parts.back().classes.begin(), parts.back().classes.end());
+  }
+  LabelledImages out;
+  out.classes.assign(names.begin(), names.end());
+  for (const auto& p : parts)
+    for (size_t i = 0; i < p.files.size(); ++i) {
+      out.files.push_back(p.files[i]);
+      const std::string& c = p.classes[static_cast<size_t>(p.labels[i])];
+      out.labels.push_back(static_cast<int>(std::find(out.classes.begin(), out.classes.end(), c) - out.classes.begin()));
+    }
+  return out;
+}
+
+LabelledImages Subset(const LabelledImages& data, const std::vector<int>& rows) {
+  LabelledImages out;
+  out.classes = data.classes;
+  for (int r : rows) {
+    out.files.push_back(data.files[static_cast<size_t>(r)]);
+    out.labels.push_back(data.labels[static_cast<size_t>(r)]);
   }
   return out;
 }

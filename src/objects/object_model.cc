@@ -131,10 +131,14 @@ nlohmann::json ReadJson(const cv::FileNode& n) {
 
 ObjectModel ObjectModel::Train(const std::string& data_dir, const ObjectTrainOptions& options,
                                const ProgressFn& progress) {
+  return Train(ReadLabelledFolder(data_dir), options, progress, data_dir);
+}
+
+ObjectModel ObjectModel::Train(const LabelledImages& data, const ObjectTrainOptions& options,
+                               const ProgressFn& progress, const std::string& data_dir) {
   std::string error;
   if (!options.IsValid(&error)) Fail("object training options", error);
   const auto start = std::chrono::steady_clock::now();
-  const LabelledImages data = ReadLabelledFolder(data_dir);
   auto impl = std::make_shared<Impl>();
   impl->all_classes = data.classes;
   impl->features = options.features;

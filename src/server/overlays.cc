@@ -87,6 +87,25 @@ nlohmann::json ImageOverlays(const Store& store, const std::string& name, const 
       out["problems"].push_back(detections + ": " + e.what());
     }
   }
+  // The density layer over the same image (rolamos objects detect).
+  const std::string density = store.dir() + "/objects/density.geojson";
+  if (std::filesystem::exists(density)) {
+    try {
+      std::ifstream in(density);
+      const nlohmann::json doc = nlohmann::json::parse(in);
+      if (std::filesystem::path(store.dir()) / doc.at("rolamos").at("image").get<std::string>() == std::filesystem::path(path)) {
+        nlohmann::json cells = nlohmann::json::array();
+        for (const auto& f : doc.at("features"))
+          cells.push_back({{"bbox", f.at("properties").at("pixel_bbox")},
+                           {"count", f.at("properties").at("count")},
+                           {"density", f.at("properties").at("density")}});
+        const bool metres = doc.at("rolamos").at("density_unit") == "per_m2";
+        out["density"] = {{"unit", metres ? "per m²" : "per megapixel"}, {"cells", cells}};
+      }
+    } catch (const std::exception& e) {
+      out["problems"].push_back(density + ": " + e.what());
+    }
+  }
   try {
     if (const auto g = ReadGeoref(path)) {
       const std::string code = CrsAuthorityCode(g->crs);

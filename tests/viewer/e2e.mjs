@@ -41,6 +41,27 @@ run('synth', '-q', '-o', 'survey', '--frames', '24', '--width', '480', '--height
 run('mosaic', '-q', 'survey/frames', '-o', 's.rolamos', '--patch-megapixels', '0.6');
 run('align', '-q', 's.rolamos');  // every frame's placement and confidence
 run('compose', '-q', 's.rolamos');
+// Detections and their density layer as `rolamos objects detect` writes them (docs/store-format.md):
+// two classes, scores from -0.5 to 1.75, and a 2 x 2 grid of density cells.
+{
+  const objects = path.join(scratch, 's.rolamos', 'objects');
+  fs.mkdirSync(objects, { recursive: true });
+  const features = [];
+  for (let i = 0; i < 10; i++) {
+    const b = [40 + 50 * i, 60 + 20 * i, 30, 30];
+    features.push({ type: 'Feature', id: i + 1, geometry: { type: 'Polygon', coordinates: [[[b[0], b[1]], [b[0] + 30, b[1]], [b[0] + 30, b[1] + 30], [b[0], b[1] + 30], [b[0], b[1]]]] },
+      properties: { class: i % 2 ? 'crab' : 'burrow', score: -0.5 + 0.25 * i, image: 'mosaic', pixel_bbox: b, window_bbox: b, scores: {} } });
+  }
+  fs.writeFileSync(path.join(objects, 'detections.geojson'), JSON.stringify({ type: 'FeatureCollection', name: 'rolamos_detections',
+    rolamos: { image: 'mosaic.tif', coordinates: 'pixel' }, features }));
+  const cells = [];
+  for (let k = 0; k < 4; k++) {
+    const b = [(k % 2) * 256, Math.floor(k / 2) * 256, 256, 256];
+    cells.push({ type: 'Feature', id: k, geometry: null, properties: { count: k, counts: {}, density: k / 0.065536, densities: {}, area: 65536, coverage: 1, pixel_bbox: b } });
+  }
+  fs.writeFileSync(path.join(objects, 'density.geojson'), JSON.stringify({ type: 'FeatureCollection', name: 'rolamos_density',
+    rolamos: { image: 'mosaic.tif', cell_px: 256, density_unit: 'per_megapixel', area_unit: 'px' }, features: cells }));
+}
 
 const server = spawn(cli, ['serve', 's.rolamos', '--port', '0'], { cwd: scratch });
 const base = await new Promise((resolve, reject) => {
@@ -151,6 +172,24 @@ try {
   await rect.saveAs(rectFile);
   const rdims = pngSize(rectFile);
   check(Math.abs(rdims[0] - 120) <= 2 && Math.abs(rdims[1] - 80) <= 2, 'a drawn 120 x 80 rectangle downloads at 1:1 (' + rdims.join(' x ') + ')');
+
+  // Objects: every detection, then filtered by class and by score; the density layer.
+  const shown = () => page.evaluate(() => document.querySelectorAll('svg.overlay rect.detection').length);
+  check(await shown() === 10, 'the mosaic shows its 10 detections (' + await shown() + ')');
+  const classes = await page.evaluate(() => [...document.querySelectorAll('#object-class option')].map((o) => o.value));
+  check(classes.join(',') === ',burrow,crab', 'the class filter lists the classes found (' + classes.join(',') + ')');
+  await page.selectOption('#object-class', 'crab');
+  check(await shown() === 5, 'filtered by class: 5 crabs (' + await shown() + ')');
+  await page.selectOption('#object-class', '');
+  await page.evaluate(() => { const r = document.getElementById('object-score'); r.value = '0.5'; r.dispatchEvent(new Event('input')); });
+  check(await shown() === 6, 'filtered by score >= 0.5: 6 (' + await shown() + ')');
+  await page.check('#show-density');
+  const density = await page.evaluate(() =>
+    [...document.querySelectorAll('svg.overlay rect.density')].map((r) => [getComputedStyle(r).fill, r.querySelector('title').textContent]));
+  check(density.length === 4 && density[3][1].startsWith('3 objects') && density[0][0] !== density[3][0],
+        'the density layer fills its 4 cells by density (' + density.map((d) => d[1]).join('; ') + ')');
+  await page.screenshot({ path: path.join(artefacts, 'viewer-objects-density.png') });
+  await page.uncheck('#show-density');
 
   // Switching to a patch shows its frame footprints.
   await page.check('#show-footprints');
