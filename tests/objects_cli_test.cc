@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 #include "test_support.h"
 
@@ -49,6 +50,60 @@ TEST(CliObjects, TrainEvalDetect) {
   EXPECT_NE(r.output.find("detections from"), std::string::npos) << r.output;
   std::ifstream in(store + "/objects/detections.geojson");
   EXPECT_EQ(nlohmann::json::parse(in)["type"], "FeatureCollection");
+}
+
+// A box detector as a surveyor runs one: train on boxed frames, evaluate (the JSON the issue
+// names), validate by station, detect over frames and over a store's mosaic with its density layer.
+TEST(CliObjects, BoxDetectorTrainEvalValidateDetect) {
+  test::ScratchDir dir;
+  test::WriteBurrowFrames(dir / "train", 0, 8, 4);
+  test::WriteBurrowFrames(dir / "test", 50, 3);
+  const std::string model = dir / "burrows.yml.gz";
+  auto r = RunCli("objects train -q --boxes " + (dir / "train") + " -o " + model + " --label burrow --max-box 100");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("box detector of burrow"), std::string::npos) << r.output;
+  r = RunCli("objects eval -q --json --boxes " + (dir / "test") + " --model " + model);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto e = nlohmann::json::parse(r.output);
+  EXPECT_GT(e["ap50"].get<double>(), 0.7) << r.output;
+  EXPECT_GT(e["precision"].get<double>(), 0.6) << r.output;
+  EXPECT_GT(e["recall"].get<double>(), 0.6) << r.output;
+  r = RunCli("objects validate -q --json --boxes " + (dir / "train") + " --validation-folds 2 --max-box 100 --hard-negative-rounds 1");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto v = nlohmann::json::parse(r.output);
+  EXPECT_EQ(v["validation"], "by station");
+  ASSERT_EQ(v["folds"].size(), 2u);
+  EXPECT_EQ(v["folds"][0]["stations"].size(), 1u);
+  EXPECT_EQ(v["images"], 8);
+
+  r = RunCli("objects detect -q --frames " + (dir / "test") + " --model " + model + " -o " + (dir / "found.json"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  std::ifstream found(dir / "found.json");
+  const auto frames = nlohmann::json::parse(found);
+  ASSERT_EQ(frames.size(), 3u);
+  EXPECT_GT(frames[0]["detections"].size(), 3u);
+  EXPECT_EQ(frames[0]["detections"][0]["class"], "burrow");
+
+  // Over a store's mosaic: detections and the density layer beside them.
+  const std::string store = dir / "d.rolamos";
+  ASSERT_EQ(RunCli("demo -q --size 1200 -o " + store).exit_code, 0);
+  r = RunCli("objects detect -q " + store + " --model " + model + " --patch 1 --density-cell 300");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("Mpx/s"), std::string::npos) << r.output;
+  std::ifstream density(store + "/objects/density.geojson");
+  const auto d = nlohmann::json::parse(density);
+  EXPECT_EQ(d["name"], "rolamos_density");
+  EXPECT_GT(d["features"].size(), 0u);
+
+  // Bad input: a label line that is not YOLO, and a class model where a box detector belongs.
+  std::ofstream(dir / "train/labels_gt/extra.txt") << "0 0.5\n";
+  cv::imwrite(dir / "train/images/extra.jpg", cv::Mat(64, 64, CV_8UC3, cv::Scalar(90, 90, 90)));
+  r = RunCli("objects train -q --boxes " + (dir / "train") + " -o " + (dir / "x.yml.gz"));
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("extra.txt:1"), std::string::npos) << r.output;
+  r = RunCli("objects eval -q --boxes " + (dir / "test") + " --model " + (dir / "missing.yml.gz"));
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("missing.yml.gz"), std::string::npos) << r.output;
 }
 
 TEST(CliObjects, BadInputIsAClearError) {

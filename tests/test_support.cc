@@ -10,6 +10,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <random>
 
 #include <map>
 
@@ -262,5 +263,77 @@ void WriteSurveyNavigation(const Survey& s, const std::string& path, double foca
   }
 }
 
+
+// A burrow as the survey frames show one: a dark opening with a paler rim of spoil, on seafloor
+// texture; returns its box.
+static cv::Rect2d PlantBurrow(cv::Mat* bgr, cv::Point2d centre, double radius, std::mt19937* rng) {
+  const double aspect = std::uniform_real_distribution<double>(0.8, 1.25)(*rng);
+  const double rx = radius * aspect, ry = radius / aspect;
+  for (int y = std::max(0, int(centre.y - ry * 1.5)); y < std::min(bgr->rows, int(centre.y + ry * 1.5)); ++y)
+    for (int x = std::max(0, int(centre.x - rx * 1.5)); x < std::min(bgr->cols, int(centre.x + rx * 1.5)); ++x) {
+      const double d = std::hypot((x - centre.x) / rx, (y - centre.y) / ry);
+      // Dark inside (0.45 of the ground), a pale rim at the edge, fading out beyond it.
+      double f = 1.0;
+      if (d < 0.6) f = 0.45 + 0.2 * d;
+      else if (d < 1.0) f = 0.57 + 0.9 * (d - 0.6) * 1.6;
+      else if (d < 1.3) f = 1.15 - 0.5 * (d - 1.0);
+      cv::Vec3b& p = bgr->at<cv::Vec3b>(y, x);
+      for (int k = 0; k < 3; ++k) p[k] = cv::saturate_cast<uchar>(p[k] * f);
+    }
+  return {centre.x - rx, centre.y - ry, 2 * rx, 2 * ry};
+}
+
+// A survey frame: seafloor, burrows of 24..80 pixels, vignetting and a light cone, two laser
+// dots and a burned-in timestamp (which are not burrows).
+cv::Mat BurrowFrame(int index, std::vector<cv::Rect2d>* boxes, int width, int height) {
+  std::mt19937 rng(1000 + index);
+  cv::Mat bgr = RenderSeafloor(9000 + index * 1500, 5000, width, height);
+  cv::Mat gray;
+  cv::cvtColor(bgr, gray, cv::COLOR_BGR2GRAY);
+  cv::cvtColor(gray, bgr, cv::COLOR_GRAY2BGR);  // the survey frames are nearly colourless
+  boxes->clear();
+  for (int k = 0, tries = 0; k < 10 && tries < 200; ++tries) {
+    const double r = std::uniform_real_distribution<double>(12, 40)(rng);
+    const cv::Point2d c(std::uniform_real_distribution<double>(r, width - r)(rng),
+                        std::uniform_real_distribution<double>(r + 20, height - r)(rng));
+    bool apart = true;
+    for (const auto& b : *boxes)
+      if (std::hypot(b.x + b.width / 2 - c.x, b.y + b.height / 2 - c.y) < r + b.width / 2 + 12) apart = false;
+    if (!apart) continue;
+    boxes->push_back(PlantBurrow(&bgr, c, r, &rng));
+    ++k;
+  }
+  // Vignetting and a light cone off centre.
+  for (int y = 0; y < height; ++y)
+    for (int x = 0; x < width; ++x) {
+      const double d = std::hypot(x - width * 0.6, y - height * 0.45) / std::hypot(width, height);
+      const double f = 1.3 - 1.6 * d * d;
+      cv::Vec3b& p = bgr.at<cv::Vec3b>(y, x);
+      for (int q = 0; q < 3; ++q) p[q] = cv::saturate_cast<uchar>(p[q] * f);
+    }
+  cv::circle(bgr, {width / 4, height / 2}, 5, cv::Scalar(80, 80, 255), cv::FILLED);
+  cv::circle(bgr, {3 * width / 4, height / 2}, 5, cv::Scalar(80, 80, 255), cv::FILLED);
+  cv::putText(bgr, "T:2023-Jun-03 16:30:33", {4, 14}, cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar(255, 200, 255), 1);
+  return bgr;
+}
+
+// DIR/images and DIR/labels_gt with frames [first, first + count), named with capture times
+// `station_gap` minutes apart every `per_station` frames.
+void WriteBurrowFrames(const std::string& dir, int first, int count, int per_station) {
+  std::filesystem::create_directories(dir + "/images");
+  std::filesystem::create_directories(dir + "/labels_gt");
+  for (int i = first; i < first + count; ++i) {
+    std::vector<cv::Rect2d> boxes;
+    const cv::Mat frame = BurrowFrame(i, &boxes);
+    char name[96];
+    const int station = (i - first) / per_station;
+    std::snprintf(name, sizeof name, "image_D2023-06-%02dT10-%02d-%02d-000000Z_%d", 3 + station, (i % 30), (i * 7) % 60, i);
+    cv::imwrite(dir + "/images/" + name + ".jpg", frame, {cv::IMWRITE_JPEG_QUALITY, 92});
+    std::ofstream out(dir + "/labels_gt/" + name + ".txt");
+    for (const auto& b : boxes)
+      out << "0 " << (b.x + b.width / 2) / frame.cols << " " << (b.y + b.height / 2) / frame.rows << " "
+          << b.width / frame.cols << " " << b.height / frame.rows << "\n";
+  }
+}
 
 }  // namespace rolamos::test

@@ -75,4 +75,11 @@ cv::Mat ShapeSample(const std::string& cls, uint32_t seed);
 // DIR/<class>/NNN.png for each class (and background when asked), `per_class` each.
 void WriteShapesDataset(const std::string& dir, int per_class, uint32_t seed, bool background = false);
 
+// A survey frame of burrows (dark openings with a pale rim, 24..80 px) on seafloor texture,
+// with vignetting, a light cone, two laser dots and a burned-in timestamp; `boxes` gets theirs.
+cv::Mat BurrowFrame(int index, std::vector<cv::Rect2d>* boxes, int width = 640, int height = 480);
+// DIR/images and DIR/labels_gt (YOLO) of frames [first, first + count), named with capture times
+// that put every `per_station` frames in a station of their own.
+void WriteBurrowFrames(const std::string& dir, int first, int count, int per_station = 100);
+
 }  // namespace rolamos::test

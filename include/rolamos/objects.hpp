@@ -101,6 +101,9 @@ struct ObjectValidation {
   int images = 0, folds = 0, repeats = 0;
   double seconds = 0;
 };
+// The fold of every image: each class dealt evenly round `folds` folds in a random order.
+std::vector<int> StratifiedFolds(const LabelledImages& data, int folds, unsigned seed);
+// Repeat r uses the folds of StratifiedFolds(data, folds, options.seed + 1000 r).
 ObjectValidation CrossValidateObjects(const LabelledImages& data, const ObjectTrainOptions& options, int folds,
                                       int repeats, const ProgressFn& progress = {});
 

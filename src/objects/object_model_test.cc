@@ -132,5 +132,40 @@ TEST(ObjectModel, BadDataAndBadModelFilesAreClearErrors) {
   EXPECT_NE(test::ErrorOf([&] { EvaluateObjects(model, dir / "eval"); }).find("does not know"), std::string::npos);
 }
 
+// Two folders joined by class name, dealt into stratified folds, each judged by a model that
+// never saw it; the figures add up.
+TEST(ObjectValidation, StratifiedFoldsOverJoinedFolders) {
+  test::ScratchDir dir;
+  test::WriteShapesDataset(dir / "a", 10, 3);
+  test::WriteShapesDataset(dir / "b", 5, 4);
+  const LabelledImages data = ReadLabelledFolders({dir / "a", dir / "b"});
+  ASSERT_EQ(data.files.size(), 45u);
+  ASSERT_EQ(data.classes.size(), 3u);
+  const std::vector<int> folds = StratifiedFolds(data, 4, 9);
+  for (int c = 0; c < 3; ++c) {
+    std::vector<int> per_fold(4, 0);
+    for (size_t i = 0; i < folds.size(); ++i)
+      if (data.labels[i] == c) ++per_fold[static_cast<size_t>(folds[i])];
+    EXPECT_LE(*std::max_element(per_fold.begin(), per_fold.end()) - *std::min_element(per_fold.begin(), per_fold.end()), 1);
+  }
+  EXPECT_NE(StratifiedFolds(data, 4, 10), folds);  // another repeat, another split
+
+  ObjectTrainOptions o = SmallOptions();
+  o.features.encoding = "vlad";
+  o.features.object_view = o.features.colour_statistics = o.features.spatial_coordinates = false;
+  o.features.orientations = 1;
+  o.features.hue_bins = 12, o.features.saturation_bins = 4;
+  const ObjectValidation v = CrossValidateObjects(data, o, 3, 1);
+  ASSERT_EQ(v.fold_accuracy.size(), 3u);
+  EXPECT_GT(v.mean, 0.8);
+  EXPECT_GE(v.spread, 0.0);
+  int total = 0;
+  for (const auto& row : v.confusion)
+    for (int n : row) total += n;
+  EXPECT_EQ(total, 45);
+  EXPECT_EQ(v.recall.size(), 3u);
+  EXPECT_THROW(CrossValidateObjects(data, o, 1, 1), Error);
+}
+
 }  // namespace
 }  // namespace rolamos

@@ -11,6 +11,22 @@
 
 namespace rolamos {
 
+std::vector<int> StratifiedFolds(const LabelledImages& data, int folds, unsigned seed) {
+  // Each class's images shuffled and dealt round the folds, from a random fold so that the
+  // remainders of small classes do not all land in the first ones.
+  std::vector<int> fold(data.files.size(), 0);
+  std::mt19937 rng(seed);
+  for (size_t c = 0; c < data.classes.size(); ++c) {
+    std::vector<int> rows;
+    for (size_t i = 0; i < data.labels.size(); ++i)
+      if (data.labels[i] == static_cast<int>(c)) rows.push_back(static_cast<int>(i));
+    std::shuffle(rows.begin(), rows.end(), rng);
+    const int offset = std::uniform_int_distribution<int>(0, folds - 1)(rng);
+    for (size_t j = 0; j < rows.size(); ++j) fold[static_cast<size_t>(rows[j])] = static_cast<int>((j + offset) % folds);
+  }
+  return fold;
+}
+
 ObjectValidation CrossValidateObjects(const LabelledImages& data, const ObjectTrainOptions& options, int folds,
                                       int repeats, const ProgressFn& progress) {
   if (folds < 2 || repeats < 1) Fail("cross-validation", "needs 2 folds or more and 1 repeat or more");
@@ -23,17 +39,7 @@ ObjectValidation CrossValidateObjects(const LabelledImages& data, const ObjectTr
   std::vector<std::vector<int>> confusion(k, std::vector<int>(k, 0));
   const int runs = folds * repeats;
   for (int rep = 0; rep < repeats; ++rep) {
-    // Stratified: each class's images shuffled and dealt round the folds.
-    std::vector<int> fold(data.files.size());
-    std::mt19937 rng(options.seed + 1000u * static_cast<unsigned>(rep));
-    for (size_t c = 0; c < k; ++c) {
-      std::vector<int> rows;
-      for (size_t i = 0; i < data.labels.size(); ++i)
-        if (data.labels[i] == static_cast<int>(c)) rows.push_back(static_cast<int>(i));
-      std::shuffle(rows.begin(), rows.end(), rng);
-      const int offset = std::uniform_int_distribution<int>(0, folds - 1)(rng);  // small classes do not all start at fold 0
-      for (size_t j = 0; j < rows.size(); ++j) fold[static_cast<size_t>(rows[j])] = static_cast<int>((j + offset) % folds);
-    }
+    const std::vector<int> fold = StratifiedFolds(data, folds, options.seed + 1000u * static_cast<unsigned>(rep));
     for (int f = 0; f < folds; ++f) {
       std::vector<int> train, held;
       for (size_t i = 0; i < fold.size(); ++i) (fold[i] == f ? held : train).push_back(static_cast<int>(i));
