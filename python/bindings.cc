@@ -317,6 +317,7 @@ PYBIND11_MODULE(_rolamos, m) {
 
   BindSteps(m);
   BindObjects(m);
+  BindBoxes(m);
   m.def("describe_store", [](const std::string& dir) { return ToPython(DescribeStore(dir)); }, py::arg("path"),
         "What `rolamos info --json` prints for a store.");
   m.def("describe_image", [](const std::string& path) { return ToPython(DescribeImage(path)); }, py::arg("path"),

@@ -116,6 +116,38 @@ py::dict Evaluate(const py::object& data, const py::object& model, const py::obj
   return d;
 }
 
+py::dict Validate(const std::vector<py::object>& data, int folds, int repeats, const py::object& progress,
+                  const py::kwargs& kwargs) {
+  ObjectTrainOptions o;
+  TrainTable().SetAll(o, kwargs, "objects.validate");
+  if (o.features.encoding != "fisher") {
+    if (!kwargs.contains("colour_statistics")) o.features.colour_statistics = false;
+    if (!kwargs.contains("spatial_coordinates")) o.features.spatial_coordinates = false;
+  }
+  std::string error;
+  if (!o.IsValid(&error)) throw py::value_error(error);
+  if (folds < 2 || repeats < 1) throw py::value_error("folds must be 2 or more and repeats 1 or more");
+  std::vector<std::string> dirs;
+  for (const auto& d : data) dirs.push_back(FsPath(d));
+  const ProgressFn report = PythonProgress(progress, "objects.validate");
+  InterruptScope interrupt;
+  ObjectValidation v;
+  {
+    py::gil_scoped_release release;
+    v = CrossValidateObjects(ReadLabelledFolders(dirs), o, folds, repeats, report);
+  }
+  py::dict d;
+  d["mean"] = v.mean;
+  d["spread"] = v.spread;
+  d["fold_accuracy"] = v.fold_accuracy;
+  d["classes"] = v.classes;
+  d["recall"] = v.recall;
+  d["confusion"] = v.confusion;
+  d["images"] = v.images;
+  d["seconds"] = v.seconds;
+  return d;
+}
+
 py::dict Detect(const py::object& store, const py::object& model, const py::object& progress, const py::kwargs& kwargs) {
   DetectOptions o;
   static const OptionTable<DetectOptions> table = [] {
@@ -168,6 +200,10 @@ void BindObjects(py::module_& m) {
   m.def("objects_evaluate", &Evaluate, py::arg("data"), py::arg("model"), py::kw_only(),
         py::arg("progress") = py::none(),
         "Accuracy, per-class precision and recall and the confusion matrix on a folder per class.");
+  m.def("objects_validate", &Validate, py::arg("data"), py::arg("folds") = 5, py::arg("repeats") = 1, py::kw_only(),
+        py::arg("progress") = py::none(),
+        "Repeated stratified cross-validation of the training options over the folders joined (a folder per "
+        "class each): accuracy mean and spread over folds, pooled per-class recall and confusion.");
   m.def("objects_detect", &Detect, py::arg("store"), py::arg("model"), py::kw_only(), py::arg("progress") = py::none(),
         "Sliding windows over the mosaic (or patch=N) through the tile cache; detections as GeoJSON in the "
         "store (objects/detections.geojson, or output=PATH). Options: patch, level, window, stride, min_score, "

@@ -125,5 +125,6 @@ py::dict SummaryDict(const MosaicSummary& s);
 // Registration of the module's parts (python/*.cc).
 void BindSteps(py::module_& m);    // synth, mosaic, compose, align, merge, export, convert
 void BindObjects(py::module_& m);  // objects: train, evaluate, detect
+void BindBoxes(py::module_& m);    // objects with boxes: train, evaluate, validate, detect
 
 }  // namespace rolamos::py_bind

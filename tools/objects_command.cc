@@ -130,17 +130,9 @@ int RunEvalBoxes(const EvalSwitches& s) {
   Progress bar("eval", s.quiet);
   std::mutex mutex;
   const BoxDetector model = BoxDetector::Load(s.model);
-  std::vector<std::vector<BoxDetection>> found(images.size());
-  std::vector<std::vector<cv::Rect2d>> truth(images.size());
-  for (size_t i = 0; i < images.size(); ++i) {
-    const cv::Mat image = cv::imread(images[i].path, cv::IMREAD_GRAYSCALE | cv::IMREAD_ANYDEPTH);
-    if (image.empty()) Fail(images[i].path, "cannot be decoded as an image");
-    found[i] = model.Detect(image, kBoxCurveScore);
-    truth[i] = images[i].boxes;
-    bar.Update(double(i + 1) / double(images.size()));
-  }
+  const BoxEvaluation e = EvaluateBoxDetector(model, images, BarFor(&bar, &mutex));
   bar.Done();
-  const BoxEvaluation e = EvaluateBoxes(found, truth, model.threshold());
+
   if (s.json)
     std::printf("%s\n", ToJson(e).dump(1).c_str());
   else

@@ -108,6 +108,11 @@ struct BoxEvaluation {
 BoxEvaluation EvaluateBoxes(const std::vector<std::vector<BoxDetection>>& detections,
                             const std::vector<std::vector<cv::Rect2d>>& truth, double threshold);
 
+// A detector on boxed frames (every core): AP50 over every detection down to kBoxCurveScore,
+// precision, recall and F1 at its threshold.
+BoxEvaluation EvaluateBoxDetector(const BoxDetector& detector, const std::vector<BoxedImage>& images,
+                                  const ProgressFn& progress = {});
+
 struct BoxValidation {
   BoxEvaluation pooled;               // every frame, each scored by the model not trained on its station
   std::vector<BoxEvaluation> folds;   // per fold

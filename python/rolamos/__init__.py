@@ -217,6 +217,18 @@ class Store:
         except (OSError, ValueError) as e:
             raise Error(f"{path}: {e}") from None
 
+    def density(self) -> Optional[Dict[str, Any]]:
+        """The density layer ``rolamos objects detect`` wrote (GeoJSON cells with ``count``,
+        ``density`` per m² or per megapixel, ``area``), or None when there is none."""
+        path = os.path.join(self.path, "objects", "density.geojson")
+        if not os.path.exists(path):
+            return None
+        try:
+            with open(path) as f:
+                return json.load(f)
+        except (OSError, ValueError) as e:
+            raise Error(f"{path}: {e}") from None
+
     def __repr__(self) -> str:
         return f"rolamos.Store({self.path!r}: {len(self._info['patches'])} patches)"
 

@@ -241,3 +241,65 @@ def test_objects_train_evaluate_classify_and_detect(mapped, tmp_path):
         rolamos.objects.detect(mapped.path, model, windows=3)
     with pytest.raises(rolamos.Error):
         rolamos.objects.ObjectModel.load(tmp_path / "nope.yml.gz")
+
+
+def burrow_frame(rng, w=480, h=360):
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    ground = 120 + 18 * rng.standard_normal((h // 4, w // 4)).astype(np.float32)
+    ground = np.kron(ground, np.ones((4, 4), np.float32)) + 6 * rng.standard_normal((h, w)).astype(np.float32)
+    boxes = []
+    for _ in range(40):
+        if len(boxes) == 8:
+            break
+        r = rng.uniform(12, 30)
+        cx, cy = rng.uniform(r + 2, w - r - 2), rng.uniform(r + 2, h - r - 2)
+        if any(np.hypot(cx - (bx + bw / 2), cy - (by + bh / 2)) < r + bw / 2 + 10 for bx, by, bw, bh in boxes):
+            continue
+        dist = np.hypot(xx - cx, yy - cy) / r
+        f = np.where(dist < 0.6, 0.45 + 0.2 * dist, np.where(dist < 1.0, 0.57 + 1.44 * (dist - 0.6),
+                                                             np.where(dist < 1.3, 1.15 - 0.5 * (dist - 1.0), 1.0)))
+        ground = ground * f
+        boxes.append((cx - r, cy - r, 2 * r, 2 * r))
+    vignette = 1.3 - 1.6 * ((xx - 0.6 * w) ** 2 + (yy - 0.45 * h) ** 2) / (w * w + h * h)
+    gray = np.clip(ground * vignette, 0, 255).astype(np.uint8)
+    return np.dstack([gray] * 3), boxes
+
+
+def write_boxed(d, first, count, per_station):
+    from PIL import Image as PILImage
+    (d / "images").mkdir(parents=True, exist_ok=True)
+    (d / "labels_gt").mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(first)
+    for i in range(first, first + count):
+        img, boxes = burrow_frame(rng)
+        name = f"image_D2023-06-{3 + (i - first) // per_station:02d}T10-{i % 30:02d}-00-000000Z_{i}"
+        PILImage.fromarray(img).save(d / "images" / (name + ".png"))
+        h, w = img.shape[:2]
+        with open(d / "labels_gt" / (name + ".txt"), "w") as f:
+            for x, y, bw, bh in boxes:
+                f.write(f"0 {(x + bw / 2) / w} {(y + bh / 2) / h} {bw / w} {bh / h}\n")
+
+
+def test_box_detector_train_evaluate_validate_detect(mapped, tmp_path):
+    write_boxed(tmp_path / "train", 0, 8, 4)
+    write_boxed(tmp_path / "test", 100, 3, 10)
+    det = rolamos.objects.train_boxes(tmp_path / "train", tmp_path / "b.yml.gz", label="burrow", max_box=80)
+    assert det.label == "burrow" and rolamos._rolamos.is_box_detector(str(tmp_path / "b.yml.gz"))
+    e = rolamos.objects.evaluate_boxes(tmp_path / "test", tmp_path / "b.yml.gz")
+    assert e["ap50"] > 0.6 and e["precision"] > 0.5 and e["recall"] > 0.5, e
+    from PIL import Image as PILImage
+    frame = np.asarray(PILImage.open(sorted((tmp_path / "test" / "images").iterdir())[0]).convert("RGB"))
+    found = det.detect(frame)
+    assert found and found[0]["class"] == "burrow" and len(found[0]["bbox"]) == 4
+    assert all(f["score"] >= det.threshold for f in found)
+    v = rolamos.objects.validate_boxes(tmp_path / "train", 2, max_box=80, hard_negative_rounds=1)
+    assert len(v["folds"]) == 2 and all(len(f["stations"]) == 1 for f in v["folds"]) and v["images"] == 8
+    rolamos.compose(mapped.path)
+    d = rolamos.objects.detect(mapped.path, det, density_cell=256)
+    assert d["geojson"]["type"] == "FeatureCollection" and d["megapixels"] > 0
+    density = rolamos.Store(mapped.path).density()
+    assert density["name"] == "rolamos_density" and sum(f["properties"]["count"] for f in density["features"]) == d["detections"]
+    with pytest.raises(ValueError, match="features must be cells or hog"):
+        rolamos.objects.train_boxes(tmp_path / "train", features="sift")
+    with pytest.raises(rolamos.Error, match="labels_gt"):
+        rolamos.objects.train_boxes(tmp_path / "nothing")

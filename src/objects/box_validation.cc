@@ -11,6 +11,23 @@
 
 namespace rolamos {
 
+BoxEvaluation EvaluateBoxDetector(const BoxDetector& detector, const std::vector<BoxedImage>& images,
+                                  const ProgressFn& progress) {
+  std::vector<std::vector<BoxDetection>> found(images.size());
+  std::vector<std::vector<cv::Rect2d>> truth(images.size());
+  ParallelForOptions po;
+  po.threads = detector.options().threads;
+  if (progress) po.on_progress = [&](long long done) { progress(double(done) / double(images.size())); };
+  ParallelFor(static_cast<long long>(images.size()), [&](long long i, int) {
+    const BoxedImage& b = images[static_cast<size_t>(i)];
+    const cv::Mat image = cv::imread(b.path, cv::IMREAD_GRAYSCALE | cv::IMREAD_ANYDEPTH);
+    if (image.empty()) Fail(b.path, "cannot be decoded as an image");
+    found[static_cast<size_t>(i)] = detector.Detect(image, kBoxCurveScore);
+    truth[static_cast<size_t>(i)] = b.boxes;
+  }, po);
+  return EvaluateBoxes(found, truth, detector.threshold());
+}
+
 BoxValidation CrossValidateBoxes(const std::vector<BoxedImage>& images, const BoxDetectorOptions& options,
                                  int folds, const ProgressFn& progress) {
   const std::vector<int> fold = StationFolds(images, folds);

@@ -115,7 +115,8 @@ DensityLayer DensityGeoJson(const std::vector<MapDetection>& detections, const T
   for (int r = 0; r < rows; ++r)
     for (int c = 0; c < cols; ++c) {
       const size_t i = static_cast<size_t>(r) * cols + c;
-      if (share[i] < 0.25) continue;
+      // Cells mostly outside the map are left out, unless they hold detections: every one is counted.
+      if (share[i] < 0.25 && (counts[i].empty() || share[i] <= 0)) continue;
       const double area = share[i] * cell_px * cell_px * pixel_area;
       const double unit = layer.per_square_metre ? area : area / 1e6;  // m^2 or megapixels
       int total = 0;

@@ -30,7 +30,8 @@ nlohmann::json DetectionsGeoJson(const std::vector<MapDetection>& detections, co
 // Square cells of `cell_px` level-0 pixels over the image: in each, the detections whose centre
 // falls in it (per class and all), the area with data (from the image's alpha, read through its
 // tile cache at a coarse level) and their density: per square metre when the georeference is in
-// metres, per megapixel otherwise. Cells with less than a quarter of data are left out.
+// metres, per megapixel otherwise. Cells with less than a quarter of data are left out unless
+// they hold detections.
 struct DensityLayer {
   nlohmann::json geojson;
   int cells = 0;
