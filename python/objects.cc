@@ -16,7 +16,7 @@ const OptionTable<ObjectTrainOptions>& TrainTable() {
     using O = ObjectTrainOptions;
     OptionTable<O> t;
     t.Integer("vocabulary", &O::vocabulary).Text("kernel", &O::kernel).Integer("folds", &O::folds)
-        .Integer("kmeans_samples", &O::kmeans_samples)
+        .Integer("kmeans_samples", &O::kmeans_samples).Text("select_by", &O::select_by)
         .Custom("seed", [](O& o, const py::handle& v) { o.seed = v.cast<unsigned>(); })
         .Custom("descriptor", [](O& o, const py::handle& v) { o.features.descriptor = v.cast<std::string>(); })
         .Custom("encoding", [](O& o, const py::handle& v) { o.features.encoding = v.cast<std::string>(); })

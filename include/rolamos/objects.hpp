@@ -67,6 +67,9 @@ struct ObjectTrainOptions {
   int kmeans_samples = 120000;   // descriptors sampled for k-means
   std::string kernel = "linear"; // chi2 (bow only), rbf or linear
   int folds = 5;                 // cross-validation folds for C (and gamma)
+  // What those folds choose by: accuracy, or balanced (the mean of the classes' recalls, which
+  // gives rare classes their weight).
+  std::string select_by = "accuracy";
   unsigned seed = 1;
 
   bool IsValid(std::string* error) const;

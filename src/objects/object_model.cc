@@ -35,6 +35,10 @@ bool ObjectTrainOptions::IsValid(std::string* error) const {
     *error = "the chi-square kernel needs histograms (encoding \"bow\"); VLAD and Fisher vectors take rbf or linear";
     return false;
   }
+  if (select_by != "accuracy" && select_by != "balanced") {
+    *error = "select_by must be accuracy or balanced, not \"" + select_by + "\"";
+    return false;
+  }
   if (folds < 2 || folds > 20) {
     *error = "cross-validation folds must be in 2..20";
     return false;
@@ -220,6 +224,7 @@ ObjectModel ObjectModel::Train(const LabelledImages& data, const ObjectTrainOpti
   OneVsAllOptions svm_options;
   svm_options.kernel = options.kernel;
   svm_options.folds = options.folds;
+  svm_options.select_by = options.select_by;
   svm_options.seed = options.seed;
   impl->svms.Train(x, data.labels, static_cast<int>(data.classes.size()), negatives_only, svm_options,
                    [&](int step, int total) {
@@ -234,6 +239,7 @@ ObjectModel ObjectModel::Train(const LabelledImages& data, const ObjectTrainOpti
                     {"kmeans_samples", kmeans_samples},
                     {"kernel", options.kernel},
                     {"folds", options.folds},
+                    {"select_by", options.select_by},
                     {"seed", static_cast<int>(options.seed)},
                     {"seconds", std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count()}};
   ObjectModel model;

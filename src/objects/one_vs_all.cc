@@ -174,6 +174,7 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
       // The one-vs-all decision on each held-out fold: the class whose SVM scores highest
       // (background when none is positive and the data has a background class).
       int correct = 0;
+      std::map<int, std::pair<int, int>> per_class;  // truth -> (right, seen)
       for (int k = 0; k < o.folds; ++k) {
         std::vector<int> train_rows, test_rows;
         for (int i = 0; i < n; ++i) (fold[static_cast<size_t>(i)] == k ? test_rows : train_rows).push_back(i);
@@ -194,9 +195,16 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
           if (with_background && top < 0) winner = -2;  // background
           const int truth = negatives_only[static_cast<size_t>(labels[static_cast<size_t>(t)])] ? -2 : labels[static_cast<size_t>(t)];
           correct += winner == truth;
+          per_class[truth].first += winner == truth;
+          ++per_class[truth].second;
         }
       }
-      const double accuracy = double(correct) / n;
+      double accuracy = double(correct) / n;
+      if (o.select_by == "balanced") {
+        double recall = 0;
+        for (const auto& [truth, rs] : per_class) recall += double(rs.first) / rs.second;
+        accuracy = recall / double(per_class.size());
+      }
       if (accuracy > best + 1e-12) {  // ties keep the smaller C, the earlier gamma
         best = accuracy;
         c_ = c;

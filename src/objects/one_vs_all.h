@@ -21,6 +21,9 @@ struct OneVsAllOptions {
   std::vector<double> c_grid = {0.125, 0.5, 2, 8, 32, 128};
   std::vector<double> gamma_factors = {0.5, 1, 2};  // times 1 / mean pairwise distance
   unsigned seed = 1;
+  // What the folds choose C (and gamma) by: "accuracy" (share of samples right) or "balanced"
+  // (the mean of the classes' recalls, so a class of 20 images weighs as much as one of 300).
+  std::string select_by = "accuracy";
 };
 
 class OneVsAll {
