@@ -18,7 +18,7 @@ const OptionTable<BoxDetectorOptions>& BoxTable() {
     t.Text("label", &O::label).Text("features", &O::features).Number("min_box", &O::min_box)
         .Number("max_box", &O::max_box).Integer("scales_per_octave", &O::scales_per_octave).Number("c", &O::c)
         .Integer("negatives_per_image", &O::negatives_per_image).Integer("hard_negative_rounds", &O::hard_negative_rounds)
-        .Integer("hard_negatives_per_image", &O::hard_negatives_per_image).Number("nms_iou", &O::nms_iou)
+        .Integer("hard_negatives_per_image", &O::hard_negatives_per_image).Number("nms_iou", &O::nms_iou).Number("nms_containment", &O::nms_containment)
         .Integer("threads", &O::threads)
         .Custom("seed", [](O& o, const py::handle& v) { o.seed = v.cast<unsigned>(); });
     return t;

@@ -103,6 +103,8 @@ void AddBoxOptions(CLI::App* app, BoxDetectorOptions* o) {
   app->add_option("--hard-negative-rounds", o->hard_negative_rounds, "box detector: rounds of mining mistaken background")
       ->capture_default_str();
   app->add_option("--nms-iou", o->nms_iou, "overlap above which the weaker detection goes")->capture_default_str();
+  app->add_option("--nms-containment", o->nms_containment, "box detector: share of a box inside a better one above which it goes")
+      ->capture_default_str();
 }
 
 int RunTrainBoxes(const TrainSwitches& s) {

@@ -44,6 +44,10 @@ bool BoxDetectorOptions::IsValid(std::string* error) const {
     *error = "negatives per image must be >= 1, hard negatives >= 0, rounds in 0..5";
     return false;
   }
+  if (!(nms_containment > 0 && nms_containment <= 1)) {
+    *error = "suppression containment must be in (0, 1]";
+    return false;
+  }
   if (!(nms_iou > 0 && nms_iou <= 1)) {
     *error = "non-maximum suppression overlap must be in (0, 1]";
     return false;
@@ -259,7 +263,7 @@ std::vector<BoxDetection> BoxDetector::Detect(const cv::Mat& image, double min_s
           if (box.area() > 0) candidates.push_back({box, s.at<float>(r, c)});
         }
   }
-  return SuppressBoxes(std::move(candidates), impl_->options.nms_iou);
+  return SuppressBoxes(std::move(candidates), impl_->options.nms_iou, impl_->options.nms_containment);
 }
 
 double BoxDetector::threshold() const { return impl_->threshold; }
@@ -277,6 +281,7 @@ nlohmann::json BoxDetector::Describe() const {
           {"scales_per_octave", o.scales_per_octave},
           {"c", o.c},
           {"nms_iou", o.nms_iou},
+          {"nms_containment", o.nms_containment},
           {"threshold", impl_->threshold},
           {"training", impl_->training}};
 }
@@ -290,7 +295,8 @@ void BoxDetector::Save(const std::string& path) const {
     const auto& o = impl_->options;
     fs << "format" << kBoxDetectorFormat << "version" << kBoxDetectorVersion;
     fs << "label" << o.label << "features" << o.features << "min_box" << o.min_box << "max_box" << o.max_box
-       << "scales_per_octave" << o.scales_per_octave << "c" << o.c << "nms_iou" << o.nms_iou;
+       << "scales_per_octave" << o.scales_per_octave << "c" << o.c << "nms_iou" << o.nms_iou
+       << "nms_containment" << o.nms_containment;
     fs << "threshold" << impl_->threshold << "bias" << impl_->bias;
     fs << "weights" << cv::Mat(impl_->weights, true).reshape(1, 1);
     fs << "training" << impl_->training.dump();
@@ -329,6 +335,7 @@ BoxDetector BoxDetector::Load(const std::string& path) {
     o.scales_per_octave = static_cast<int>(fs["scales_per_octave"]);
     o.c = static_cast<double>(fs["c"]);
     o.nms_iou = static_cast<double>(fs["nms_iou"]);
+    if (!fs["nms_containment"].empty()) o.nms_containment = static_cast<double>(fs["nms_containment"]);
     impl->threshold = static_cast<double>(fs["threshold"]);
     impl->bias = static_cast<double>(fs["bias"]);
     cv::Mat w;

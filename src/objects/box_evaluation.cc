@@ -58,7 +58,7 @@ long long CountBoxes(const std::vector<std::vector<cv::Rect2d>>& truth) {
 
 }  // namespace
 
-std::vector<BoxDetection> SuppressBoxes(std::vector<BoxDetection> d, double iou) {
+std::vector<BoxDetection> SuppressBoxes(std::vector<BoxDetection> d, double iou, double containment) {
   std::stable_sort(d.begin(), d.end(), [](const BoxDetection& a, const BoxDetection& b) { return a.score > b.score; });
   // Kept boxes are filed in a grid of buckets, so a candidate is compared with its neighbours only.
   double side = 16;
@@ -79,11 +79,14 @@ std::vector<BoxDetection> SuppressBoxes(std::vector<BoxDetection> d, double iou)
       for (long long x = x0; x <= x1 && !overlapped; ++x) {
         const auto it = buckets.find({x, y});
         if (it == buckets.end()) continue;
-        for (size_t k : it->second)
-          if (BoxIou(kept[k].box, c.box) > iou) {
+        for (size_t k : it->second) {
+          const double inter = (kept[k].box & c.box).area();
+          const double smaller = std::min(kept[k].box.area(), c.box.area());
+          if (BoxIou(kept[k].box, c.box) > iou || (smaller > 0 && inter / smaller > containment)) {
             overlapped = true;
             break;
           }
+        }
       }
     if (overlapped) continue;
     for (long long y = y0; y <= y1; ++y)

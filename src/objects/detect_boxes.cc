@@ -125,7 +125,7 @@ BoxSearchSummary DetectBoxesInStore(const Store& store, const BoxDetector& model
   for (const auto& f : found)
     for (const auto& d : f) all.push_back({d.box, d.score});
   // Blocks' parts do not overlap, but a box near a border can be found by both neighbours.
-  for (const BoxDetection& d : SuppressBoxes(all, model.options().nms_iou))
+  for (const BoxDetection& d : SuppressBoxes(all, model.options().nms_iou, model.options().nms_containment))
     layer.push_back({model.options().label, d.score, d.box,
                      {d.box.x - d.box.width / 4, d.box.y - d.box.height / 4, d.box.width * 1.5, d.box.height * 1.5},
                      {{model.options().label, d.score}}});
