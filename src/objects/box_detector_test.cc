@@ -115,6 +115,10 @@ TEST(BoxEvaluation, SuppressionKeepsTheBestOfOverlappingBoxes) {
   ASSERT_EQ(kept.size(), 2u);
   EXPECT_DOUBLE_EQ(kept[0].score, 0.9);
   EXPECT_DOUBLE_EQ(kept[1].score, 0.1);
+  // A dark opening found inside the burrow found around it (IoU 0.16, wholly inside): one object.
+  const std::vector<BoxDetection> nested = {{{0, 0, 50, 50}, 0.9}, {{10, 10, 20, 20}, 0.5}};
+  EXPECT_EQ(SuppressBoxes(nested, 0.35).size(), 2u);
+  EXPECT_EQ(SuppressBoxes(nested, 0.35, 0.7).size(), 1u);
 }
 
 TEST(BoxedFolder, ReadsYoloBoxesAndGroupsStations) {
