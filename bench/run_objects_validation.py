@@ -45,6 +45,8 @@ def classification(a, lines):
 
 
 def detection(a, lines):
+    if a.model:
+        return search(a, lines, a.model)
     lines += ["", "Detection of burrows, station-wise cross-validation (frames of a station never in both training and validation):", "",
               "| features | pooled AP50 | precision | recall | F1 | per fold AP50 (P, R) [stations, frames] | train s | detect Mpx/s |",
               "|---|---|---|---|---|---|---|---|"]
@@ -56,21 +58,28 @@ def detection(a, lines):
         lines.append(f"| {features} | {v['ap50']:.3f} | {v['precision']:.3f} | {v['recall']:.3f} | {v['f1']:.3f} | {folds} | "
                      f"{v['seconds_train']:.0f} | {v['megapixels_per_second']:.2f} |")
         print(lines[-1], flush=True)
-    model = os.path.join(a.out, "burrows.yml.gz")
-    r, secs, mb = timed([CLI, "objects", "train", "-q", "--boxes", BURROWS, "-o", model, "--label", "burrow"], check=True)
-    lines += ["", f"The model on all 230 frames: trained in {secs:.0f} s, peak {mb:.0f} MB. " + r.stdout.strip(), ""]
+    model = a.model or os.path.join(a.out, "burrows.yml.gz")
+    if not a.model:
+        r, secs, mb = timed([CLI, "objects", "train", "-q", "--boxes", BURROWS, "-o", model, "--label", "burrow"], check=True)
+        lines += ["", f"The model on all 230 frames: trained in {secs:.0f} s, peak {mb:.0f} MB. " + r.stdout.strip(), ""]
+    search(a, lines, model)
+
+
+def search(a, lines, model):
     if a.stores:
         lines += ["| mosaic | Mpx of map | detections | s (median of 3) | Mpx/s | peak RSS MB |", "|---|---|---|---|---|---|"]
-        for store in a.stores.split(","):
+        for spec in a.stores.split(","):
+            store, _, patch = spec.partition(":")  # STORE or STORE:PATCH
             runs = []
             for _ in range(3):
                 out = os.path.join(a.out, os.path.basename(store.rstrip("/")) + ".geojson")
-                r, secs, mb = timed([CLI, "objects", "detect", store, "--model", model, "-q", "-o", out], check=True)
+                r, secs, mb = timed([CLI, "objects", "detect", store, "--model", model, "-q", "-o", out,
+                                     "--patch", patch or "0"], check=True)
                 mpx = float(r.stdout.split(" over ")[1].split(" Mpx")[0])
                 runs.append((secs, mb, mpx, int(r.stdout.split(": ")[1].split(" detections")[0])))
             runs.sort()
             secs, mb, mpx, n = runs[1]
-            lines.append(f"| {os.path.basename(store.rstrip('/'))} | {mpx:.0f} | {n} | {secs:.1f} | {mpx / secs:.2f} | {max(r[1] for r in runs):.0f} |")
+            lines.append(f"| {os.path.basename(store.rstrip('/'))}{' patch ' + patch if patch else ''} | {mpx:.0f} | {n} | {secs:.1f} | {mpx / secs:.2f} | {max(r[1] for r in runs):.0f} |")
             print(lines[-1], flush=True)
 
 
@@ -81,7 +90,9 @@ def main():
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--skip-classification", action="store_true")
     ap.add_argument("--skip-detection", action="store_true")
-    ap.add_argument("--stores", default="", help="stores with a composed mosaic to search (comma-separated)")
+    ap.add_argument("--stores", default="", help="stores with a composed mosaic to search (comma-separated; STORE:N "
+                    "searches patch N)")
+    ap.add_argument("--model", default="", help="search with this box detector instead of training one (skips the validation)")
     a = ap.parse_args()
     os.makedirs(a.out, exist_ok=True)
     lines = ["# Object identification, validated (issue 25)"]

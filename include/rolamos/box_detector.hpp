@@ -136,7 +136,7 @@ nlohmann::json ToJson(const BoxEvaluation& e);
 struct BoxSearchOptions {
   int patch = 0;                 // 0: the global mosaic
   double min_score = std::numeric_limits<double>::quiet_NaN();  // NaN: the model's threshold
-  int block = 1536;              // pixels read at a time (plus a margin of the largest box)
+  int block = 1024;              // pixels read at a time (plus a margin of the largest box)
   double max_empty = 0.5;        // detections with more "no data" than this under them are dropped
   double cache_mb = 256;
   double density_cell = 0;       // side of a density cell: metres when georeferenced, pixels otherwise; 0 = 512 px

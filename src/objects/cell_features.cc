@@ -30,26 +30,25 @@ cv::Mat WideBlur(const cv::Mat& f, double sigma) {
   return out;
 }
 
-// (f - local mean) / local spread, clipped to +-4.
-cv::Mat NormaliseLocally(const cv::Mat& f) {
+// (f - local mean) / local spread, clipped to +-4; in place, so a level costs two images.
+void NormaliseLocally(cv::Mat& f) {
   const double sigma = 3.0 * kCell;
-  const cv::Mat mean = WideBlur(f, sigma);
-  cv::Mat d = f - mean;
-  const cv::Mat var = WideBlur(d.mul(d), sigma);
-  cv::Mat spread;
-  cv::sqrt(var, spread);
-  cv::Mat n = d / (spread + 0.01);
-  cv::min(n, 4.0, n);
-  cv::max(n, -4.0, n);
-  return n;
+  f -= WideBlur(f, sigma);
+  cv::Mat spread = WideBlur(f.mul(f), sigma);
+  cv::sqrt(spread, spread);
+  spread += 0.01;
+  cv::divide(f, spread, f);
+  spread.release();
+  cv::min(f, 4.0, f);
+  cv::max(f, -4.0, f);
 }
 
 }  // namespace
 
 CellMap DescribeCells(const cv::Mat& gray) {
-  cv::Mat padded;
-  cv::copyMakeBorder(ToFloat01(gray), padded, kCell, kCell, kCell, kCell, cv::BORDER_REFLECT_101);
-  const cv::Mat n = NormaliseLocally(padded);
+  cv::Mat n;
+  cv::copyMakeBorder(ToFloat01(gray), n, kCell, kCell, kCell, kCell, cv::BORDER_REFLECT_101);
+  NormaliseLocally(n);
   CellMap map;
   map.cell = kCell;
   map.origin = kCell;
@@ -57,34 +56,44 @@ CellMap DescribeCells(const cv::Mat& gray) {
   map.cols = n.cols / kCell;
   map.dims = kCellDims;
   const int cells = map.rows * map.cols;
-  // Gradients and their polar form, vectorised by OpenCV; signed orientation in 18 bins.
-  cv::Mat gx, gy, mag, angle;
-  cv::Sobel(n, gx, CV_32F, 1, 0, 1);
-  cv::Sobel(n, gy, CV_32F, 0, 1, 1);
-  cv::cartToPolar(gx, gy, mag, angle);  // radians, 0..2 pi
+  // Gradients and their polar form, vectorised by OpenCV, a strip of cells at a time so that
+  // memory holds the image and one strip (signed orientation in 18 bins).
   constexpr int kSigned = 2 * kBins;
   std::vector<float> hist(static_cast<size_t>(cells) * kSigned, 0.f), sum(static_cast<size_t>(cells), 0.f),
       sum2(static_cast<size_t>(cells), 0.f);
   const int h = map.rows * kCell, w = map.cols * kCell;
   const float to_bin = float(kSigned / (2 * CV_PI));
-  for (int y = 0; y < h; ++y) {
-    const float* row = n.ptr<float>(y);
-    const float* m = mag.ptr<float>(y);
-    const float* a = angle.ptr<float>(y);
-    float* hrow = hist.data() + static_cast<size_t>(y / kCell) * map.cols * kSigned;
-    float* srow = sum.data() + static_cast<size_t>(y / kCell) * map.cols;
-    float* s2row = sum2.data() + static_cast<size_t>(y / kCell) * map.cols;
-    for (int x = 0; x < w; ++x) {
-      const int c = x / kCell;
-      srow[c] += row[x];
-      s2row[c] += row[x] * row[x];
-      // Shared linearly between the two nearest bin centres.
-      const float b = a[x] * to_bin - 0.5f;
-      const int b0 = static_cast<int>(std::floor(b));
-      const float t = b - float(b0);
-      float* hc = hrow + c * kSigned;
-      hc[(b0 + kSigned) % kSigned] += m[x] * (1 - t);
-      hc[(b0 + 1) % kSigned] += m[x] * t;
+  constexpr int kStrip = 8 * kCell;
+  cv::Mat gx, gy, mag, angle;
+  for (int y0 = 0; y0 < h; y0 += kStrip) {
+    const int y1 = std::min(h, y0 + kStrip);
+    // One row of context above and below (mirrored at the image's edge, as Sobel does).
+    const int top = std::max(0, y0 - 1), bottom = std::min(n.rows, y1 + 1);
+    const cv::Mat strip = n.rowRange(top, bottom);
+    cv::Sobel(strip, gx, CV_32F, 1, 0, 1);
+    cv::Sobel(strip, gy, CV_32F, 0, 1, 1);
+    if (top == y0) gy.row(0).setTo(0);  // the image's first row: no row above
+    if (bottom == y1 && y1 == n.rows) gy.row(gy.rows - 1).setTo(0);
+    cv::cartToPolar(gx, gy, mag, angle);  // radians, 0..2 pi
+    for (int y = y0; y < y1; ++y) {
+      const float* row = n.ptr<float>(y);
+      const float* m = mag.ptr<float>(y - top);
+      const float* a = angle.ptr<float>(y - top);
+      float* hrow = hist.data() + static_cast<size_t>(y / kCell) * map.cols * kSigned;
+      float* srow = sum.data() + static_cast<size_t>(y / kCell) * map.cols;
+      float* s2row = sum2.data() + static_cast<size_t>(y / kCell) * map.cols;
+      for (int x = 0; x < w; ++x) {
+        const int c = x / kCell;
+        srow[c] += row[x];
+        s2row[c] += row[x] * row[x];
+        // Shared linearly between the two nearest bin centres.
+        const float b = a[x] * to_bin - 0.5f;
+        const int b0 = static_cast<int>(std::floor(b));
+        const float t = b - float(b0);
+        float* hc = hrow + c * kSigned;
+        hc[(b0 + kSigned) % kSigned] += m[x] * (1 - t);
+        hc[(b0 + 1) % kSigned] += m[x] * t;
+      }
     }
   }
   // Energy of the unsigned histogram (opposite directions folded), for the normalisers.
