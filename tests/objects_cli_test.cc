@@ -37,6 +37,16 @@ TEST(CliObjects, TrainEvalDetect) {
              " --encoding bow --kernel chi2 --image-size 96 --vocabulary 40 --kmeans-samples 20000 --folds 3");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("chi2 kernel"), std::string::npos) << r.output;
+  // Settings chosen by cross-validation over both folders, then the final model on both.
+  r = RunCli("objects validate -q --json --data " + (dir / "train") + " --data " + (dir / "validation") +
+             " --validation-folds 3 --encoding vlad --image-size 96 --vocabulary 24 --kmeans-samples 8000 --folds 3");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto cv = nlohmann::json::parse(r.output);
+  EXPECT_EQ(cv["fold_accuracy"].size(), 3u);
+  EXPECT_GE(cv["mean"].get<double>(), 0.7) << r.output;
+  r = RunCli("objects train -q --data " + (dir / "train") + " --data " + (dir / "validation") + " -o " + (dir / "both.yml.gz") +
+             " --image-size 96 --vocabulary 40 --kmeans-samples 20000 --folds 3");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
 
   const std::string store = dir / "d.rolamos";
   r = RunCli("demo -q --size 1200 -o " + store);

@@ -16,7 +16,8 @@ namespace rolamos::cli {
 namespace {
 
 struct TrainSwitches {
-  std::string data, boxes, output;
+  std::vector<std::string> data;
+  std::string boxes, output;
   ObjectTrainOptions options;
   BoxDetectorOptions box_options;
   bool quiet = false;
@@ -205,7 +206,9 @@ int RunTrain(const TrainSwitches& s) {
   if (!s.options.IsValid(&error)) Fail("objects train", error);
   Progress bar("train", s.quiet);
   std::mutex mutex;
-  ObjectModel model = ObjectModel::Train(s.data, s.options, BarFor(&bar, &mutex));
+  // Several folders train one model (train and validation together, once settings are chosen).
+  ObjectModel model = s.data.size() == 1 ? ObjectModel::Train(s.data[0], s.options, BarFor(&bar, &mutex))
+                                         : ObjectModel::Train(ReadLabelledFolders(s.data), s.options, BarFor(&bar, &mutex));
   model.Save(s.output);
   bar.Done();
   const auto d = model.Describe();
@@ -299,7 +302,7 @@ void AddObjectsCommand(CLI::App& app, Runner* run) {
 
   auto t = std::make_shared<TrainSwitches>();
   auto* train = cmd->add_subcommand("train", "Train a model from a folder per class");
-  auto* data_opt = train->add_option("--data", t->data, "folder with a folder of images per class ('background' = negatives only)");
+  auto* data_opt = train->add_option("--data", t->data, "folder with a folder of images per class ('background' = negatives only); repeat to train on several joined");
   train->add_option("--boxes", t->boxes, "folder with images/ and labels_gt/ (YOLO boxes): train a box detector")->excludes(data_opt);
   AddBoxOptions(train, &t->box_options);
   train->add_option("-o,--output", t->output, "model file (.yml.gz)")->required();
