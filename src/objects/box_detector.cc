@@ -158,25 +158,22 @@ void MineFrame(const WindowSearch& search, const std::vector<float>& w, double b
 }
 
 LinearSvm FitSvm(const std::vector<Samples>& frames, int dims, const BoxDetectorOptions& o, nlohmann::json* facts) {
-  size_t rows = 0;
-  for (const auto& f : frames) rows += f.positive.size();
-  cv::Mat x(static_cast<int>(rows), dims, CV_32F);
+  // The solver reads the frames' samples where they are: no second copy of ~100,000 windows.
+  std::vector<const float*> rows;
   std::vector<bool> positive;
-  positive.reserve(rows);
-  int at = 0, positives = 0;
-  for (const auto& f : frames) {
-    for (size_t i = 0; i < f.positive.size(); ++i, ++at) {
-      std::copy(f.data.begin() + static_cast<long>(i) * dims, f.data.begin() + static_cast<long>(i + 1) * dims, x.ptr<float>(at));
+  int positives = 0;
+  for (const auto& f : frames)
+    for (size_t i = 0; i < f.positive.size(); ++i) {
+      rows.push_back(f.data.data() + i * static_cast<size_t>(dims));
       positive.push_back(f.positive[i]);
       positives += f.positive[i] ? 1 : 0;
     }
-  }
   if (positives == 0) Fail("box detector training", "found no box to learn from (are the label files empty?)");
   LinearSvmOptions so;
   so.c_positive = so.c_negative = o.c;
   so.seed = o.seed;
-  const LinearSvm svm = TrainLinearSvm(x, positive, so);
-  *facts = {{"positives", positives}, {"negatives", static_cast<long long>(rows) - positives}, {"epochs", svm.epochs}};
+  const LinearSvm svm = TrainLinearSvm(rows, dims, positive, so);
+  *facts = {{"positives", positives}, {"negatives", static_cast<long long>(rows.size()) - positives}, {"epochs", svm.epochs}};
   return svm;
 }
 
@@ -206,6 +203,7 @@ BoxDetector BoxDetector::Train(const std::vector<BoxedImage>& images, const BoxD
     std::mt19937 rng(options.seed + static_cast<unsigned>(i) * 7919u);
     SampleFrame(search, ReadGray(images[static_cast<size_t>(i)].path), images[static_cast<size_t>(i)].boxes,
                 options.negatives_per_image, &rng, &frames[static_cast<size_t>(i)]);
+    frames[static_cast<size_t>(i)].data.shrink_to_fit();
   });
   nlohmann::json facts;
   LinearSvm svm = FitSvm(frames, search.Dims(), options, &facts);
@@ -214,6 +212,7 @@ BoxDetector BoxDetector::Train(const std::vector<BoxedImage>& images, const BoxD
       const BoxedImage& b = images[static_cast<size_t>(i)];
       MineFrame(search, svm.weights, svm.bias, ReadGray(b.path), b.boxes, options.hard_negatives_per_image,
                 &frames[static_cast<size_t>(i)]);
+      frames[static_cast<size_t>(i)].data.shrink_to_fit();
     });
     svm = FitSvm(frames, search.Dims(), options, &facts);
   }

@@ -18,12 +18,20 @@ double LinearSvm::Decision(const float* x) const {
 LinearSvm TrainLinearSvm(const cv::Mat& samples, const std::vector<bool>& positive, const LinearSvmOptions& o) {
   if (samples.type() != CV_32F || samples.rows != static_cast<int>(positive.size()))
     Fail("linear SVM", "needs one CV_32F row per label");
-  const int n = samples.rows, d = samples.cols;
+  std::vector<const float*> rows;
+  for (int i = 0; i < samples.rows; ++i) rows.push_back(samples.ptr<float>(i));
+  return TrainLinearSvm(rows, samples.cols, positive, o);
+}
+
+LinearSvm TrainLinearSvm(const std::vector<const float*>& rows, int dims, const std::vector<bool>& positive,
+                         const LinearSvmOptions& o) {
+  if (rows.size() != positive.size()) Fail("linear SVM", "needs one row per label");
+  const int n = static_cast<int>(rows.size()), d = dims;
   // w holds the bias as its last element, learnt on the constant feature o.bias.
   std::vector<double> w(static_cast<size_t>(d) + 1, 0.0), alpha(static_cast<size_t>(n), 0.0), diag(static_cast<size_t>(n)),
       qii(static_cast<size_t>(n));
   for (int i = 0; i < n; ++i) {
-    const float* x = samples.ptr<float>(i);
+    const float* x = rows[static_cast<size_t>(i)];
     double q = o.bias * o.bias;
     for (int j = 0; j < d; ++j) q += double(x[j]) * double(x[j]);
     diag[static_cast<size_t>(i)] = 0.5 / (positive[static_cast<size_t>(i)] ? o.c_positive : o.c_negative);
@@ -37,7 +45,7 @@ LinearSvm TrainLinearSvm(const cv::Mat& samples, const std::vector<bool>& positi
     std::shuffle(order.begin(), order.end(), rng);
     double pg_max = -HUGE_VAL, pg_min = HUGE_VAL;
     for (int i : order) {
-      const float* x = samples.ptr<float>(i);
+      const float* x = rows[static_cast<size_t>(i)];
       const double y = positive[static_cast<size_t>(i)] ? 1.0 : -1.0;
       double wx = w[static_cast<size_t>(d)] * o.bias;
       for (int j = 0; j < d; ++j) wx += w[static_cast<size_t>(j)] * double(x[j]);

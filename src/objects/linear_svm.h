@@ -28,5 +28,8 @@ struct LinearSvm {
 
 // `samples`: one row per sample (CV_32F); `positive`: its label.
 LinearSvm TrainLinearSvm(const cv::Mat& samples, const std::vector<bool>& positive, const LinearSvmOptions& options);
+// The same over rows held elsewhere (`dims` floats each), without copying them.
+LinearSvm TrainLinearSvm(const std::vector<const float*>& rows, int dims, const std::vector<bool>& positive,
+                         const LinearSvmOptions& options);
 
 }  // namespace rolamos
