@@ -94,7 +94,7 @@ void FisherOnlyDefaults(CLI::App* app, ObjectTrainOptions* o) {
   if (app->count("--spatial-coordinates") + app->count("--no-spatial-coordinates") == 0) o->features.spatial_coordinates = false;
 }
 
-// The box detector's training settings, shared by train and eval --by-station.
+// The box detector's training settings, shared by train and validate.
 void AddBoxOptions(CLI::App* app, BoxDetectorOptions* o) {
   app->add_option("--label", o->label, "the class a box detector reports")->capture_default_str();
   app->add_option("--features", o->features, "box detector: cells (ours) or hog (OpenCV's HOG, the peer)")->capture_default_str();
