@@ -109,17 +109,7 @@ py::dict Validate(const py::object& data, int folds, const py::object& progress,
     py::gil_scoped_release release;
     v = CrossValidateBoxes(ReadBoxedFolder(dir), o, folds, report);
   }
-  py::dict d = EvaluationDict(v.pooled);
-  py::list per_fold;
-  for (size_t f = 0; f < v.folds.size(); ++f) {
-    py::dict fd = EvaluationDict(v.folds[f]);
-    fd["stations"] = v.fold_stations[f];
-    per_fold.append(fd);
-  }
-  d["folds"] = per_fold;
-  d["seconds_train"] = v.seconds_train;
-  d["megapixels_per_second"] = v.seconds_detect > 0 ? v.megapixels / v.seconds_detect : 0.0;
-  return d;
+  return ToPython(ToJson(v)).cast<py::dict>();
 }
 
 py::dict DetectInStore(const py::object& store, const py::object& model, const py::object& progress, const py::kwargs& kwargs) {

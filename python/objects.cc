@@ -40,6 +40,13 @@ const OptionTable<ObjectTrainOptions>& TrainTable() {
   return t;
 }
 
+// As the CLI: the Fisher-only additions are off for another encoding unless asked for.
+void FisherOnlyDefaults(ObjectTrainOptions* o, const py::kwargs& kwargs) {
+  if (o->features.encoding == "fisher") return;
+  if (!kwargs.contains("colour_statistics")) o->features.colour_statistics = false;
+  if (!kwargs.contains("spatial_coordinates")) o->features.spatial_coordinates = false;
+}
+
 // A trained model, loaded once and asked many times.
 class PyObjectModel {
  public:
@@ -70,11 +77,7 @@ PyObjectModel Train(const py::object& data, const py::object& output, const py::
                     const py::kwargs& kwargs) {
   ObjectTrainOptions o;
   TrainTable().SetAll(o, kwargs, "objects.train");
-  // As the CLI: the Fisher-only additions are off for another encoding unless asked for.
-  if (o.features.encoding != "fisher") {
-    if (!kwargs.contains("colour_statistics")) o.features.colour_statistics = false;
-    if (!kwargs.contains("spatial_coordinates")) o.features.spatial_coordinates = false;
-  }
+  FisherOnlyDefaults(&o, kwargs);
   std::string error;
   if (!o.IsValid(&error)) throw py::value_error(error);
   const std::string dir = FsPath(data);
@@ -120,10 +123,7 @@ py::dict Validate(const std::vector<py::object>& data, int folds, int repeats, c
                   const py::kwargs& kwargs) {
   ObjectTrainOptions o;
   TrainTable().SetAll(o, kwargs, "objects.validate");
-  if (o.features.encoding != "fisher") {
-    if (!kwargs.contains("colour_statistics")) o.features.colour_statistics = false;
-    if (!kwargs.contains("spatial_coordinates")) o.features.spatial_coordinates = false;
-  }
+  FisherOnlyDefaults(&o, kwargs);
   std::string error;
   if (!o.IsValid(&error)) throw py::value_error(error);
   if (folds < 2 || repeats < 1) throw py::value_error("folds must be 2 or more and repeats 1 or more");
@@ -136,16 +136,7 @@ py::dict Validate(const std::vector<py::object>& data, int folds, int repeats, c
     py::gil_scoped_release release;
     v = CrossValidateObjects(ReadLabelledFolders(dirs), o, folds, repeats, report);
   }
-  py::dict d;
-  d["mean"] = v.mean;
-  d["spread"] = v.spread;
-  d["fold_accuracy"] = v.fold_accuracy;
-  d["classes"] = v.classes;
-  d["recall"] = v.recall;
-  d["confusion"] = v.confusion;
-  d["images"] = v.images;
-  d["seconds"] = v.seconds;
-  return d;
+  return ToPython(ToJson(v)).cast<py::dict>();
 }
 
 py::dict Detect(const py::object& store, const py::object& model, const py::object& progress, const py::kwargs& kwargs) {

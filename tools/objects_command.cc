@@ -153,16 +153,7 @@ int RunValidateBoxes(const ValidateSwitches& s) {
   if (!s.box_options.IsValid(&error)) Fail("objects validate", error);
   const BoxValidation v = CrossValidateBoxes(images, s.box_options, s.folds, BarFor(&bar, &mutex));
   bar.Done();
-  nlohmann::json j = ToJson(v.pooled);
-  j["validation"] = "by station";
-  j["folds"] = nlohmann::json::array();
-  for (size_t f = 0; f < v.folds.size(); ++f) {
-    j["folds"].push_back(ToJson(v.folds[f]));
-    j["folds"].back()["stations"] = v.fold_stations[f];
-  }
-  j["seconds_train"] = v.seconds_train;
-  j["seconds_detect"] = v.seconds_detect;
-  j["megapixels_per_second"] = v.seconds_detect > 0 ? v.megapixels / v.seconds_detect : 0;
+  const nlohmann::json j = ToJson(v);
   if (s.json) {
     std::printf("%s\n", j.dump(1).c_str());
     return 0;
@@ -188,9 +179,7 @@ int RunValidate(const ValidateSwitches& s) {
   const ObjectValidation v = CrossValidateObjects(data, s.options, s.folds, s.repeats, BarFor(&bar, &mutex));
   bar.Done();
   if (s.json) {
-    nlohmann::json j = {{"mean", v.mean}, {"spread", v.spread}, {"fold_accuracy", v.fold_accuracy},
-                        {"classes", v.classes}, {"recall", v.recall}, {"confusion", v.confusion},
-                        {"images", v.images}, {"folds", v.folds}, {"repeats", v.repeats}, {"seconds", v.seconds}};
+    const nlohmann::json j = ToJson(v);
     std::printf("%s\n", j.dump(1).c_str());
     return 0;
   }

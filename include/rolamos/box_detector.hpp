@@ -128,6 +128,9 @@ BoxValidation CrossValidateBoxes(const std::vector<BoxedImage>& images, const Bo
                                  int folds, const ProgressFn& progress = {});
 
 nlohmann::json ToJson(const BoxEvaluation& e);
+// The pooled evaluation's fields, "validation": "by station", "folds" (each with its
+// "stations"), "seconds_train", "seconds_detect" and "megapixels_per_second".
+nlohmann::json ToJson(const BoxValidation& v);
 
 // Detection over a store's mosaic (or a patch) in blocks read through the tile cache, so speed
 // and memory do not grow with the map. Writes the detections as GeoJSON (the schema of

@@ -109,6 +109,8 @@ std::vector<int> StratifiedFolds(const LabelledImages& data, int folds, unsigned
 // Repeat r uses the folds of StratifiedFolds(data, folds, options.seed + 1000 r).
 ObjectValidation CrossValidateObjects(const LabelledImages& data, const ObjectTrainOptions& options, int folds,
                                       int repeats, const ProgressFn& progress = {});
+// Every field by its name ("mean", "spread", "fold_accuracy", "classes", "recall", ...).
+nlohmann::json ToJson(const ObjectValidation& v);
 
 class ObjectModel {
  public:

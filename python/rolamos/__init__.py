@@ -208,19 +208,15 @@ class Store:
     def detections(self) -> Optional[Dict[str, Any]]:
         """The detections ``rolamos objects detect`` wrote (a GeoJSON FeatureCollection as a
         dictionary; map coordinates when the mosaic is georeferenced), or None when there are none."""
-        path = os.path.join(self.path, "objects", "detections.geojson")
-        if not os.path.exists(path):
-            return None
-        try:
-            with open(path) as f:
-                return json.load(f)
-        except (OSError, ValueError) as e:
-            raise Error(f"{path}: {e}") from None
+        return self._objects_layer("detections.geojson")
 
     def density(self) -> Optional[Dict[str, Any]]:
         """The density layer ``rolamos objects detect`` wrote (GeoJSON cells with ``count``,
         ``density`` per m² or per megapixel, ``area``), or None when there is none."""
-        path = os.path.join(self.path, "objects", "density.geojson")
+        return self._objects_layer("density.geojson")
+
+    def _objects_layer(self, name: str) -> Optional[Dict[str, Any]]:
+        path = os.path.join(self.path, "objects", name)
         if not os.path.exists(path):
             return None
         try:

@@ -85,4 +85,18 @@ BoxValidation CrossValidateBoxes(const std::vector<BoxedImage>& images, const Bo
   return v;
 }
 
+nlohmann::json ToJson(const BoxValidation& v) {
+  nlohmann::json j = ToJson(v.pooled);
+  j["validation"] = "by station";
+  j["folds"] = nlohmann::json::array();
+  for (size_t f = 0; f < v.folds.size(); ++f) {
+    j["folds"].push_back(ToJson(v.folds[f]));
+    j["folds"].back()["stations"] = v.fold_stations[f];
+  }
+  j["seconds_train"] = v.seconds_train;
+  j["seconds_detect"] = v.seconds_detect;
+  j["megapixels_per_second"] = v.seconds_detect > 0 ? v.megapixels / v.seconds_detect : 0;
+  return j;
+}
+
 }  // namespace rolamos

@@ -8,7 +8,7 @@
 #include <regex>
 #include <sstream>
 
-#include <opencv2/imgcodecs.hpp>
+#include <OpenImageIO/imageio.h>
 
 #include "input/frame_source.h"
 #include "rolamos/box_detector.hpp"
@@ -33,6 +33,13 @@ long long CaptureTime(const std::string& name) {
   t.tm_min = std::stoi(m[5]);
   t.tm_sec = std::stoi(m[6]);
   return static_cast<long long>(timegm(&t));
+}
+
+cv::Size HeaderSize(const std::string& path) {
+  auto in = OIIO::ImageInput::open(path);
+  if (!in) Fail(path, "cannot be opened as an image (" + OIIO::geterror() + ")");
+  const OIIO::ImageSpec& spec = in->spec();
+  return {spec.width, spec.height};
 }
 
 std::vector<cv::Rect2d> ReadYoloLabels(const std::string& path, cv::Size image) {
@@ -72,10 +79,8 @@ std::vector<BoxedImage> ReadBoxedFolder(const std::string& dir) {
     b.time = CaptureTime(fs::path(f).filename().string());
     const fs::path label = labels / (fs::path(f).stem().string() + ".txt");
     if (fs::exists(label)) {
-      // The label's numbers are fractions of the image's size.
-      const cv::Mat im = cv::imread(f, cv::IMREAD_GRAYSCALE);
-      if (im.empty()) Fail(f, "cannot be decoded as an image");
-      b.boxes = ReadYoloLabels(label.string(), im.size());
+      // The label's numbers are fractions of the image's size, read from its header only.
+      b.boxes = ReadYoloLabels(label.string(), HeaderSize(f));
     }
     out.push_back(std::move(b));
   }

@@ -92,7 +92,7 @@ BoxSearchSummary DetectBoxesInStore(const Store& store, const BoxDetector& model
   const int margin = int(std::ceil(model.max_box() * 48.0 / 32.0)) + 16;
   const int b = options.block;
   const int cols = int((image.width() + b - 1) / b), rows = int((image.height() + b - 1) / b);
-  std::vector<std::vector<MapDetection>> found(static_cast<size_t>(cols) * rows);
+  std::vector<std::vector<BoxDetection>> found(static_cast<size_t>(cols) * rows);
   std::vector<long long> pixels(found.size(), 0);
   ParallelForOptions po;
   po.threads = options.threads;
@@ -113,22 +113,20 @@ BoxSearchSummary DetectBoxesInStore(const Store& store, const BoxDetector& model
       if (!core.contains(cv::Point(int(std::floor(centre.x)), int(std::floor(centre.y))))) continue;
       const cv::Rect under = cv::Rect(d.box) & cv::Rect(0, 0, valid.cols, valid.rows);
       if (under.empty() || 1.0 - double(cv::countNonZero(valid(under))) / double(under.area()) > options.max_empty) continue;
-      const cv::Rect2d box(d.box.x + reach.x, d.box.y + reach.y, d.box.width, d.box.height);
-      const cv::Rect2d window(box.x - box.width / 4, box.y - box.height / 4, box.width * 1.5, box.height * 1.5);
-      found[static_cast<size_t>(i)].push_back({model.options().label, d.score, box, window,
-                                               {{model.options().label, d.score}}});
+      found[static_cast<size_t>(i)].push_back({d.box + cv::Point2d(reach.tl()), d.score});
     }
   }, po);
 
   std::vector<BoxDetection> all;
-  std::vector<MapDetection> layer;
-  for (const auto& f : found)
-    for (const auto& d : f) all.push_back({d.box, d.score});
+  for (const auto& f : found) all.insert(all.end(), f.begin(), f.end());
   // Blocks' parts do not overlap, but a box near a border can be found by both neighbours.
-  for (const BoxDetection& d : SuppressBoxes(all, model.options().nms_iou, model.options().nms_containment))
-    layer.push_back({model.options().label, d.score, d.box,
-                     {d.box.x - d.box.width / 4, d.box.y - d.box.height / 4, d.box.width * 1.5, d.box.height * 1.5},
-                     {{model.options().label, d.score}}});
+  std::vector<MapDetection> layer;
+  const std::string& label = model.options().label;
+  for (const BoxDetection& d : SuppressBoxes(std::move(all), model.options().nms_iou, model.options().nms_containment)) {
+    // The window: the box and a quarter of its side around it, as the detector saw it.
+    const cv::Rect2d window(d.box.x - d.box.width / 4, d.box.y - d.box.height / 4, d.box.width * 1.5, d.box.height * 1.5);
+    layer.push_back({label, d.score, d.box, window, {{label, d.score}}});
+  }
 
   BoxSearchSummary summary;
   const std::optional<Georef> georef = ReadGeoref(path);

@@ -72,4 +72,11 @@ ObjectValidation CrossValidateObjects(const LabelledImages& data, const ObjectTr
   return v;
 }
 
+nlohmann::json ToJson(const ObjectValidation& v) {
+  return {{"mean", v.mean},       {"spread", v.spread},       {"fold_accuracy", v.fold_accuracy},
+          {"classes", v.classes}, {"recall", v.recall},       {"confusion", v.confusion},
+          {"images", v.images},   {"folds", v.folds},         {"repeats", v.repeats},
+          {"seconds", v.seconds}};
+}
+
 }  // namespace rolamos
