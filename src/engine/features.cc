@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <tuple>
 
 #include <opencv2/imgproc.hpp>
 
@@ -92,6 +93,41 @@ std::vector<cv::KeyPoint> DescribeFromHalf(const FeatureOptions& options, const 
   return keypoints;
 }
 
+// One SIFT pass at `contrast`: keypoints in frame pixels, their descriptors.
+std::vector<cv::KeyPoint> RunSift(FeatureOptions options, double contrast, const cv::Mat& image, const cv::Mat& mask,
+                                  cv::Mat* descriptors) {
+  options.contrast_threshold = contrast;
+  descriptors->release();
+  if (!options.double_first_octave) return DescribeFromHalf(options, image, mask, descriptors);
+  std::vector<cv::KeyPoint> keypoints;
+  if (mask.empty()) CreateDetector(options)->detectAndCompute(image, cv::noArray(), keypoints, *descriptors);
+  else CreateDetector(options)->detectAndCompute(image, mask, keypoints, *descriptors);
+  for (auto& k : keypoints) k.pt -= cv::Point2f(kSiftUpscaleBias, kSiftUpscaleBias);
+  return keypoints;
+}
+
+// Keypoints (and their descriptor rows) strongest first, ties by position: SIFT returns its
+// strongest in an order that depends on the weaker candidates it dropped, which the starting
+// threshold changes; the matching's RANSAC draws depend on the order.
+void SortCanonically(std::vector<cv::KeyPoint>* keypoints, cv::Mat* descriptors) {
+  const auto& k = *keypoints;
+  std::vector<int> order(k.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = static_cast<int>(i);
+  std::sort(order.begin(), order.end(), [&](int a, int b) {
+    const cv::KeyPoint &p = k[size_t(a)], &q = k[size_t(b)];
+    return std::tie(q.response, p.pt.y, p.pt.x, p.size, p.angle) < std::tie(p.response, q.pt.y, q.pt.x, q.size, q.angle);
+  });
+  std::vector<cv::KeyPoint> sorted;
+  sorted.reserve(k.size());
+  cv::Mat rows(descriptors->rows, descriptors->cols, descriptors->type());
+  for (size_t i = 0; i < order.size(); ++i) {
+    sorted.push_back(k[size_t(order[i])]);
+    if (!descriptors->empty()) descriptors->row(order[i]).copyTo(rows.row(static_cast<int>(i)));
+  }
+  keypoints->swap(sorted);
+  if (!descriptors->empty()) *descriptors = rows;
+}
+
 }  // namespace
 
 Features FeatureExtractor::Extract(const cv::Mat& gray) const {
@@ -102,20 +138,41 @@ Features FeatureExtractor::Extract(const cv::Mat& gray) const {
   return ExtractScaled(small, scale);
 }
 
+std::vector<cv::KeyPoint> FeatureExtractor::DetectSift(const cv::Mat& image, const cv::Mat& mask,
+                                                       cv::Mat* descriptors) const {
+  const double base = options_.contrast_threshold;
+  const double start = std::max(base, double(start_contrast_->load(std::memory_order_relaxed)));
+  std::vector<cv::KeyPoint> keypoints = RunSift(options_, start, image, mask, descriptors);
+  const bool full = static_cast<int>(keypoints.size()) >= options_.max_features;
+  // Too few above the raised threshold: the weaker ones may be among the strongest kept.
+  if (start > base && !full) keypoints = RunSift(options_, base, image, mask, descriptors);
+  // SIFT keeps a candidate when its response is at least a third of the contrast threshold
+  // (OpenCV divides it among the octave's three layers), so a frame whose weakest kept feature
+  // has response r keeps the same strongest features from a threshold of 3 r. The next frame
+  // starts below that, by a margin for ground that changes.
+  float next = 0;
+  if (static_cast<int>(keypoints.size()) >= options_.max_features) {
+    float weakest = std::numeric_limits<float>::max();
+    for (const auto& k : keypoints) weakest = std::min(weakest, k.response);
+    next = kStartMargin * 3.0f * weakest;
+  }
+  start_contrast_->store(next, std::memory_order_relaxed);
+  SortCanonically(&keypoints, descriptors);
+  return keypoints;
+}
+
 Features FeatureExtractor::ExtractScaled(const cv::Mat& small, double scale, const cv::Mat& mask) const {
   CV_Assert(small.type() == CV_8UC1 && scale > 0);
   CV_Assert(mask.empty() || (mask.type() == CV_8UC1 && mask.size() == small.size()));
   std::vector<cv::KeyPoint> keypoints;
   Features f;
   f.norm = options_.type == "sift" ? cv::NORM_L2 : cv::NORM_HAMMING;
-  if (options_.type == "sift" && !options_.double_first_octave)
-    keypoints = DescribeFromHalf(options_, small, mask, &f.descriptors);
+  if (options_.type == "sift")
+    keypoints = DetectSift(small, mask, &f.descriptors);
   else if (mask.empty())
     CreateDetector(options_)->detectAndCompute(small, cv::noArray(), keypoints, f.descriptors);
   else
     CreateDetector(options_)->detectAndCompute(small, mask, keypoints, f.descriptors);
-  if (options_.type == "sift" && options_.double_first_octave)
-    for (auto& k : keypoints) k.pt -= cv::Point2f(kSiftUpscaleBias, kSiftUpscaleBias);
   if (options_.type == "akaze" && static_cast<int>(keypoints.size()) > options_.max_features) {
     // AKAZE has no count limit: keep the strongest.
     std::vector<int> order(keypoints.size());

@@ -12,6 +12,38 @@
 namespace rolamos {
 namespace {
 
+// Each extraction starts from a threshold raised to the last one's weakest kept response; the
+// features must be those a fresh extractor finds, on textured ground (kept from the raised start)
+// and on flat ground after it (found again from the options' threshold).
+TEST(Features, RaisedStartFindsWhatAFreshExtractorFinds) {
+  cv::Mat textured, flat;
+  cv::cvtColor(RenderSeafloor(0, 0, 640, 480), textured, cv::COLOR_BGR2GRAY);
+  cv::GaussianBlur(textured, flat, cv::Size(), 10);
+  flat.convertTo(flat, CV_8U, 0.2, 100);
+  cv::Mat shifted;
+  cv::warpAffine(textured, shifted, cv::Mat(cv::Matx23d(1, 0, 30, 0, 1, 20)), textured.size(), cv::INTER_LINEAR,
+                 cv::BORDER_REFLECT);
+  FeatureOptions o;
+  o.max_features = 500;
+  o.detect_scale = 1.0;
+  for (bool doubled : {true, false}) {
+    o.double_first_octave = doubled;
+    const FeatureExtractor running(o);
+    for (const cv::Mat* image : {&textured, &shifted, &flat, &textured}) {
+      const Features got = running.Extract(*image);
+      const Features want = FeatureExtractor(o).Extract(*image);
+      ASSERT_EQ(got.points.size(), want.points.size()) << "doubled " << doubled;
+      ASSERT_FALSE(got.points.empty());
+      EXPECT_EQ(got.strong, want.strong);
+      for (size_t i = 0; i < got.points.size(); ++i) ASSERT_EQ(got.points[i], want.points[i]) << i;
+      EXPECT_EQ(cv::norm(got.descriptors, want.descriptors, cv::NORM_INF), 0.0);
+    }
+  }
+  // The flat image has fewer than max_features candidates: it was found again from the
+  // options' threshold (else it would have kept only the strong few).
+  EXPECT_LT(FeatureExtractor(o).Extract(flat).points.size(), 500u);
+}
+
 // SIFT matching uses one distance matrix for both directions; it must keep exactly the matches
 // OpenCV's brute-force kNN + ratio test + mutual-best check keeps.
 TEST(Features, DistanceMatrixMatchingEqualsBruteForceWithCrossCheck) {

@@ -42,17 +42,6 @@ namespace {
 // of the blending work; the patch image is blended at full resolution when it closes.
 constexpr double kWorkingScale = 0.5;
 
-// Largest distance between where two homographies put the frame's corners.
-double MaxCornerShift(const cv::Matx33d& a, const cv::Matx33d& b, cv::Size s) {
-  double worst = 0;
-  for (const cv::Point2d p : {cv::Point2d(0, 0), cv::Point2d(s.width - 1.0, 0),
-                              cv::Point2d(0, s.height - 1.0), cv::Point2d(s.width - 1.0, s.height - 1.0)}) {
-    const cv::Vec3d u = a * cv::Vec3d(p.x, p.y, 1), v = b * cv::Vec3d(p.x, p.y, 1);
-    worst = std::max(worst, std::hypot(u[0] / u[2] - v[0] / v[2], u[1] / u[2] - v[1] / v[2]));
-  }
-  return worst;
-}
-
 std::string SizeText(cv::Size s) { return std::to_string(s.width) + "x" + std::to_string(s.height); }
 
 }  // namespace

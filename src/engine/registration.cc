@@ -9,6 +9,8 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "util/homography.h"
+
 namespace rolamos {
 
 bool SupportOptions::IsValid(std::string* error) const {
@@ -43,14 +45,6 @@ cv::Matx22d Jacobian(const cv::Matx33d& H, cv::Point2d p) {
   const double w = q[2], u = q[0] / w, v = q[1] / w;
   return cv::Matx22d((H(0, 0) - u * H(2, 0)) / w, (H(0, 1) - u * H(2, 1)) / w,
                      (H(1, 0) - v * H(2, 0)) / w, (H(1, 1) - v * H(2, 1)) / w);
-}
-
-double MaxCornerShift(const cv::Matx33d& a, const cv::Matx33d& b, cv::Size s) {
-  double worst = 0;
-  for (const cv::Point2d p : {cv::Point2d(0, 0), cv::Point2d(s.width - 1.0, 0),
-                              cv::Point2d(0, s.height - 1.0), cv::Point2d(s.width - 1.0, s.height - 1.0)})
-    worst = std::max(worst, cv::norm(Apply(a, p) - Apply(b, p)));
-  return worst;
 }
 
 std::vector<cv::Point2f> Corners(cv::Size s) {

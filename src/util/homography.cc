@@ -1,5 +1,7 @@
 #include "util/homography.h"
 
+#include <algorithm>
+
 #include <opencv2/core.hpp>
 
 namespace rolamos {
@@ -31,6 +33,14 @@ cv::Rect2d WarpedBounds(const cv::Matx33d& H, cv::Size size) {
 cv::Point2d ApplyHomography(const cv::Matx33d& H, cv::Point2d p) {
   const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1);
   return {q[0] / q[2], q[1] / q[2]};
+}
+
+double MaxCornerShift(const cv::Matx33d& a, const cv::Matx33d& b, cv::Size size) {
+  double worst = 0;
+  for (const cv::Point2d p : {cv::Point2d(0, 0), cv::Point2d(size.width - 1.0, 0), cv::Point2d(0, size.height - 1.0),
+                              cv::Point2d(size.width - 1.0, size.height - 1.0)})
+    worst = std::max(worst, cv::norm(ApplyHomography(a, p) - ApplyHomography(b, p)));
+  return worst;
 }
 
 }  // namespace rolamos

@@ -15,5 +15,7 @@ std::array<double, 9> ToArray9(const cv::Matx33d& m);
 cv::Point2d ApplyHomography(const cv::Matx33d& H, cv::Point2d p);
 // Bounding box of an image of `size` (pixel edges, -0.5 .. size - 0.5) mapped by H.
 cv::Rect2d WarpedBounds(const cv::Matx33d& H, cv::Size size);
+// The largest distance between where `a` and `b` put the corners of an image of `size`.
+double MaxCornerShift(const cv::Matx33d& a, const cv::Matx33d& b, cv::Size size);
 
 }  // namespace rolamos
