@@ -2,7 +2,7 @@
 // mosaicking (decode, undistort, the tracking pyramid), and what each of the engine's building
 // blocks costs on the same frames, one core, medians over the frames given.
 //
-//   engine_floor_bench FRAMES_DIR [--frames N] [--window W --levels L --points P --track-pixels N --normalize-sigma S]
+//   engine_floor_bench FRAMES_DIR [--frames N] [--window W --levels L --points P --track-pixels N --normalize-sigma S --iterations N --min-step PX]
 //
 // FRAMES_DIR holds consecutive JPEG (or PNG) frames, e.g. `rolamos synth ... -o DIR` then
 // DIR/frames. The figures are milliseconds of one core; the engine spreads them over the cores.
@@ -57,7 +57,7 @@ std::string ReadBytes(const std::string& path) {
 
 int main(int argc, char** argv) {
   if (argc < 2) {
-    std::fprintf(stderr, "usage: engine_floor_bench FRAMES_DIR [--frames N] [--window W --levels L --points P --track-pixels N --normalize-sigma S]\n");
+    std::fprintf(stderr, "usage: engine_floor_bench FRAMES_DIR [--frames N] [--window W --levels L --points P --track-pixels N --normalize-sigma S --iterations N --min-step PX]\n");
     return 2;
   }
   int limit = 30;
@@ -70,6 +70,8 @@ int main(int argc, char** argv) {
     if (flag == "--points") to.max_points = std::atoi(argv[i + 1]);
     if (flag == "--track-pixels") to.track_pixels = std::atof(argv[i + 1]);
     if (flag == "--normalize-sigma") to.normalize_sigma = std::atof(argv[i + 1]);
+    if (flag == "--iterations") to.max_iterations = std::atoi(argv[i + 1]);
+    if (flag == "--min-step") to.min_step_px = std::atof(argv[i + 1]);
   }
   cv::setNumThreads(1);  // one core's cost
   std::vector<std::string> paths;

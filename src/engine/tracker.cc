@@ -20,6 +20,10 @@ bool TrackerOptions::IsValid(std::string* error) const {
     *error = "tracker settings are out of range (points >= 30, window 5..61, levels 0..6)";
     return false;
   }
+  if (max_iterations < 1 || !(min_step_px > 0)) {
+    *error = "Lucas-Kanade needs at least one step and a positive smallest step";
+    return false;
+  }
   if (!(max_fb_px > 0) || !(corner_quality > 0 && corner_quality < 1) ||
       !(normalize_sigma >= 0)) {
     *error = "tracker thresholds must be positive (corner quality below 1)";
@@ -205,7 +209,8 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
   std::vector<uchar> forward, backward;
   std::vector<float> err;
   const cv::Size win(options_.window, options_.window);
-  const cv::TermCriteria until(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 20, 0.01);
+  const cv::TermCriteria until(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, options_.max_iterations,
+                               options_.min_step_px);
   cv::calcOpticalFlowPyrLK(from.pyramid, to.pyramid, a, b, forward, err, win, options_.levels, until,
                            cv::OPTFLOW_USE_INITIAL_FLOW, 1e-4);
   cv::calcOpticalFlowPyrLK(to.pyramid, from.pyramid, b, back, backward, err, win, options_.levels, until,

@@ -24,6 +24,10 @@ struct TrackerOptions {
   int window = 21;          // Lucas-Kanade window, tracking pixels
   int levels = 3;           // pyramid levels above the tracking image
   double max_fb_px = 0.7;   // forward-backward disagreement allowed, tracking pixels
+  // Lucas-Kanade stops at a level after this many steps, or once a step moves less than
+  // `min_step_px` (tracking pixels).
+  int max_iterations = 20;
+  double min_step_px = 0.01;
   // Contrast normalised before following: each pixel's difference from the mean around it
   // (a Gaussian of this sigma, tracking pixels), divided by the standard deviation around it.
   // Dark and hazy seafloor has texture only relative to itself; a frame darker than the one
