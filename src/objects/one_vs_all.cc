@@ -119,6 +119,77 @@ double Decision(const Fit& f, const cv::Mat& gram, int sample) {
   return s;
 }
 
+// Out-of-fold decision values: one row per sample, one column per class with an SVM.
+struct FoldScores {
+  cv::Mat values;                      // n x scored (CV_64F)
+  std::vector<int> scored;             // the class of each column
+  std::vector<int> truth;              // per sample: its class, or -2 (background)
+  bool with_background = false;
+};
+
+// The one-vs-all decision: the class whose SVM scores highest after its offset (background when
+// none is positive and the data has a background class).
+int Decide(const FoldScores& f, int sample, const std::vector<double>& offsets) {
+  int winner = -1;
+  double top = -std::numeric_limits<double>::infinity();
+  const double* row = f.values.ptr<double>(sample);
+  for (size_t s = 0; s < f.scored.size(); ++s) {
+    const double d = row[s] + offsets[s];
+    if (d > top) {
+      top = d;
+      winner = f.scored[s];
+    }
+  }
+  return f.with_background && top < 0 ? -2 : winner;
+}
+
+// Share of samples right, or (balanced) the mean of the classes' recalls.
+double Agreement(const FoldScores& f, const std::vector<double>& offsets, bool balanced) {
+  std::map<int, std::pair<int, int>> per_class;  // truth -> (right, seen)
+  int correct = 0;
+  for (int i = 0; i < f.values.rows; ++i) {
+    const int truth = f.truth[static_cast<size_t>(i)];
+    const bool right = Decide(f, i, offsets) == truth;
+    correct += right;
+    per_class[truth].first += right;
+    ++per_class[truth].second;
+  }
+  if (!balanced) return double(correct) / std::max(1, f.values.rows);
+  double recall = 0;
+  for (const auto& [truth, rs] : per_class) recall += double(rs.first) / rs.second;
+  return recall / double(std::max<size_t>(1, per_class.size()));
+}
+
+// Offsets added to each class's decision, chosen on the out-of-fold decisions to raise the
+// mean recall: SVMs trained one against all score on scales of their own, and a rare class
+// (20 images among 1,400) rarely wins the argmax even when its SVM ranks its images first.
+// Coordinate ascent over a grid of offsets, smallest change first on ties.
+std::vector<double> FitOffsets(const FoldScores& f) {
+  std::vector<double> offsets(f.scored.size(), 0.0), grid;
+  for (int k = -20; k <= 20; ++k) grid.push_back(0.05 * k);
+  std::sort(grid.begin(), grid.end(), [](double a, double b) { return std::abs(a) < std::abs(b); });
+  double best = Agreement(f, offsets, true);
+  for (int round = 0; round < 3; ++round) {
+    bool changed = false;
+    for (size_t s = 0; s < offsets.size(); ++s) {
+      const double was = offsets[s];
+      double pick = was;
+      for (double g : grid) {
+        offsets[s] = g;
+        const double score = Agreement(f, offsets, true);
+        if (score > best + 1e-12) {
+          best = score;
+          pick = g;
+        }
+      }
+      offsets[s] = pick;
+      changed |= pick != was;
+    }
+    if (!changed) break;
+  }
+  return offsets;
+}
+
 }  // namespace
 
 void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, int classes,
@@ -161,8 +232,16 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
   std::vector<int> scored;  // classes that get an SVM
   for (int c = 0; c < classes; ++c)
     if (!negatives_only[static_cast<size_t>(c)]) scored.push_back(c);
-  const bool with_background = static_cast<int>(scored.size()) < classes;
-  cv::Mat gram(n, n, CV_32F);
+  FoldScores folds_scored;
+  folds_scored.scored = scored;
+  folds_scored.with_background = static_cast<int>(scored.size()) < classes;
+  for (int i = 0; i < n; ++i) {
+    const int label = labels[static_cast<size_t>(i)];
+    folds_scored.truth.push_back(negatives_only[static_cast<size_t>(label)] ? -2 : label);
+  }
+  const bool balanced = o.select_by == "balanced";
+  const std::vector<double> no_offsets(scored.size(), 0.0);
+  cv::Mat gram(n, n, CV_32F), best_values;
   double best = -1;
   const int steps = static_cast<int>(gammas.size() * o.c_grid.size()) + 1;
   int step = 0;
@@ -171,10 +250,8 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
       for (int j = 0; j < n; ++j) gram.at<float>(i, j) = static_cast<float>(KernelValue(kernel_, pairwise.at<float>(i, j), gamma));
     for (double c : o.c_grid) {
       if (progress) progress(step++, steps);
-      // The one-vs-all decision on each held-out fold: the class whose SVM scores highest
-      // (background when none is positive and the data has a background class).
-      int correct = 0;
-      std::map<int, std::pair<int, int>> per_class;  // truth -> (right, seen)
+      // Each held-out fold scored by SVMs trained on the others.
+      folds_scored.values.create(n, static_cast<int>(scored.size()), CV_64F);
       for (int k = 0; k < o.folds; ++k) {
         std::vector<int> train_rows, test_rows;
         for (int i = 0; i < n; ++i) (fold[static_cast<size_t>(i)] == k ? test_rows : train_rows).push_back(i);
@@ -182,37 +259,28 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
         cv::parallel_for_(cv::Range(0, static_cast<int>(scored.size())), [&](const cv::Range& r) {
           for (int s = r.start; s < r.end; ++s) fits[static_cast<size_t>(s)] = TrainOne(gram, train_rows, labels, scored[static_cast<size_t>(s)], c);
         });
-        for (int t : test_rows) {
-          int winner = -1;
-          double top = -std::numeric_limits<double>::infinity();
-          for (size_t s = 0; s < scored.size(); ++s) {
-            const double d = Decision(fits[s], gram, t);
-            if (d > top) {
-              top = d;
-              winner = scored[s];
-            }
-          }
-          if (with_background && top < 0) winner = -2;  // background
-          const int truth = negatives_only[static_cast<size_t>(labels[static_cast<size_t>(t)])] ? -2 : labels[static_cast<size_t>(t)];
-          correct += winner == truth;
-          per_class[truth].first += winner == truth;
-          ++per_class[truth].second;
-        }
+        for (int t : test_rows)
+          for (size_t s = 0; s < scored.size(); ++s)
+            folds_scored.values.at<double>(t, static_cast<int>(s)) = Decision(fits[s], gram, t);
       }
-      double accuracy = double(correct) / n;
-      if (o.select_by == "balanced") {
-        double recall = 0;
-        for (const auto& [truth, rs] : per_class) recall += double(rs.first) / rs.second;
-        accuracy = recall / double(per_class.size());
-      }
+      const double accuracy = Agreement(folds_scored, no_offsets, balanced);
       if (accuracy > best + 1e-12) {  // ties keep the smaller C, the earlier gamma
         best = accuracy;
         c_ = c;
         gamma_ = gamma;
+        folds_scored.values.copyTo(best_values);
       }
     }
   }
   cv_accuracy_ = best;
+  // Chosen by mean recall: offsets on the classes' decisions, fitted on the same held-out scores.
+  offsets_.assign(static_cast<size_t>(classes), 0.0);
+  if (balanced) {
+    folds_scored.values = best_values;
+    const std::vector<double> fitted = FitOffsets(folds_scored);
+    for (size_t s = 0; s < scored.size(); ++s) offsets_[static_cast<size_t>(scored[s])] = fitted[s];
+    cv_balanced_after_offsets_ = Agreement(folds_scored, fitted, true);
+  }
   // The final SVMs on every sample with the chosen C and gamma.
   for (int i = 0; i < n; ++i)
     for (int j = 0; j < n; ++j) gram.at<float>(i, j) = static_cast<float>(KernelValue(kernel_, pairwise.at<float>(i, j), gamma_));
@@ -232,7 +300,7 @@ void OneVsAll::Train(const cv::Mat& features, const std::vector<int>& labels, in
     const Fit& f = fits[static_cast<size_t>(c)];
     if (f.support.empty()) continue;
     trained_[static_cast<size_t>(c)] = true;
-    rho_[static_cast<size_t>(c)] = f.rho;
+    rho_[static_cast<size_t>(c)] = f.rho - offsets_[static_cast<size_t>(c)];  // decision = ... - rho
     for (size_t k = 0; k < f.support.size(); ++k) {
       alpha.at<double>(c, f.support[k]) += f.alpha[k];
       is_support[static_cast<size_t>(f.support[k])] = true;
@@ -288,14 +356,15 @@ nlohmann::json OneVsAll::Describe() const {
     per_class.push_back({{"support_vectors", support_counts_[c]}});
   }
   return {{"kernel", KernelName(kernel_)}, {"C", c_}, {"gamma", gamma_},
-          {"cv_accuracy", cv_accuracy_}, {"support_vectors", support_total_}, {"classes", per_class}};
+          {"cv_accuracy", cv_accuracy_}, {"support_vectors", support_total_}, {"classes", per_class},
+          {"offsets", offsets_}, {"cv_balanced_after_offsets", cv_balanced_after_offsets_}};
 }
 
 void OneVsAll::Write(cv::FileStorage& fs) const {
   fs << "svm" << "{" << "kernel" << KernelName(kernel_) << "C" << c_ << "gamma" << gamma_
      << "cv_accuracy" << cv_accuracy_ << "support" << support_ << "coefficients" << coefficients_
      << "support_counts" << support_counts_ << "support_total" << support_total_
-     << "rho" << rho_;
+     << "rho" << rho_ << "offsets" << offsets_ << "cv_balanced_after_offsets" << cv_balanced_after_offsets_;
   std::vector<int> trained(trained_.begin(), trained_.end());
   fs << "trained" << trained << "}";
 }
@@ -319,6 +388,10 @@ void OneVsAll::Read(const cv::FileNode& root, const std::string& where) {
     support_total_ = support_.rows;
   }
   n["rho"] >> rho_;
+  // Added later (already inside rho: informative only); absent in older models.
+  offsets_.assign(rho_.size(), 0.0);
+  if (!n["offsets"].empty()) n["offsets"] >> offsets_;
+  cv_balanced_after_offsets_ = n["cv_balanced_after_offsets"].empty() ? 0.0 : static_cast<double>(n["cv_balanced_after_offsets"]);
   std::vector<int> trained;
   n["trained"] >> trained;
   trained_.assign(trained.begin(), trained.end());

@@ -22,7 +22,9 @@ struct OneVsAllOptions {
   std::vector<double> gamma_factors = {0.5, 1, 2};  // times 1 / mean pairwise distance
   unsigned seed = 1;
   // What the folds choose C (and gamma) by: "accuracy" (share of samples right) or "balanced"
-  // (the mean of the classes' recalls, so a class of 20 images weighs as much as one of 300).
+  // (the mean of the classes' recalls, so a class of 20 images weighs as much as one of 300;
+  // each class's decision then also gets an offset, fitted on the same held-out scores to raise
+  // the mean recall).
   std::string select_by = "accuracy";
 };
 
@@ -50,7 +52,9 @@ class OneVsAll {
   cv::Mat coefficients_;         // classes x support (CV_64F); zero rows for negatives-only; linear: identity
   std::vector<int> support_counts_;  // support vectors per class, as trained
   int support_total_ = 0;
-  std::vector<double> rho_;      // per class
+  std::vector<double> rho_;      // per class, its offset included
+  std::vector<double> offsets_;  // per class, added to its decision (select_by "balanced")
+  double cv_balanced_after_offsets_ = 0;  // mean recall of the held-out scores with the offsets
   std::vector<bool> trained_;
 };
 
