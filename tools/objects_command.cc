@@ -54,7 +54,7 @@ ProgressFn BarFor(Progress* bar, std::mutex* mutex) {
 
 // The class model's training settings, shared by train and validate.
 void AddClassModelOptions(CLI::App* app, ObjectTrainOptions* o) {
-  app->add_option("--select-by", o->select_by, "what the folds choose the SVM's C by: accuracy, or balanced (mean of the classes' recalls)")
+  app->add_option("--select-by", o->select_by, "what the folds choose the SVM's C by: accuracy, or balanced (mean of the classes' recalls; each class's decision also gets an offset fitted on the held-out scores, so that rare classes are predicted)")
       ->capture_default_str();
   app->add_option("--vocabulary", o->vocabulary, "visual words (k-means)")->capture_default_str();
   app->add_option("--descriptor", o->features.descriptor, "sift (gray) or opponent-sift (colour)")
