@@ -25,6 +25,9 @@ static int RunAlign(const AlignSwitches& s) {
     std::printf("%d frames had no stored features and were read and described again\n", r.frames_described);
   std::printf("edges: %d from the engine, %d of %d by appearance, %d of %d loop closures; %d found false and dropped\n",
               r.online_edges, r.retrieval_edges, r.retrieval_tried, r.loop_edges, r.loop_tried, r.edges_dropped);
+  if (r.chain_break_px > o.chain_break_px)
+    std::printf("the engine's chain was broken by %.0f px (a group of frames pulled away by links that agree with "
+                "each other, not with it): solved again with the chain first\n", r.chain_break_px);
   if (r.edges_inconsistent > 0) {
     std::printf("%d appearance edges disagreed with the rest of the map and were left out:\n", r.edges_inconsistent);
     for (size_t k = 0; k < r.rejected_joins.size() && k < 10; ++k)

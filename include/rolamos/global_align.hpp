@@ -49,6 +49,10 @@ struct AlignOptions {
   // parts the chain does not join, the edges of one set within this of each other.
   double chain_tolerance = 0.25;
   double chain_drift = 0.0005;
+  // A link of the engine's chain within a patch that the solve finds false this far off (frame
+  // pixels) means a group of frames was pulled away, not a noisy link: the graph is solved again
+  // with the chain first.
+  double chain_break_px = 100.0;
   // After the solve: a frame whose edges' residual passes this (and five times the typical one) is
   // placed again or flagged; regions whose uncertainty passes doubtful_px (and five times the
   // typical one) are named.
@@ -81,6 +85,9 @@ struct AlignSummary {
   int retrieval_tried = 0, retrieval_edges = 0;
   int loop_tried = 0, loop_edges = 0;
   int edges_dropped = 0;          // found false by the optimisation
+  // The worst engine link within a patch found false (frame pixels); past
+  // AlignOptions::chain_break_px the graph was solved again with the chain first.
+  double chain_break_px = 0;
   int edges_inconsistent = 0;     // appearance edges that disagreed with the chain or each other
   std::vector<RejectedJoin> rejected_joins;
   int frames_replaced = 0;        // far off their edges after the solve, placed again from them

@@ -32,7 +32,7 @@ GraphSolution StartSolution(const FrameGraph& g, const std::vector<cv::Matx33d>&
 }
 
 int AdjustParts(const FrameGraph& g, GraphSolution& s, const std::vector<GroundPrior>& priors, const AlignOptions& o,
-                const ParallelForOptions& pfo) {
+                const ParallelForOptions& pfo, bool trust_chain) {
   PlaneAdjustmentOptions po;
   po.loss = "cauchy";
   po.loss_px = o.loss_px;
@@ -60,6 +60,10 @@ int AdjustParts(const FrameGraph& g, GraphSolution& s, const std::vector<GroundP
       l.b = local[g.edges[k].b];
       l.in_a = g.edges[k].in_a;
       l.in_b = g.edges[k].in_b;
+      // The chain within a patch (its links passed the patch's own adjustment) decides where
+      // groups of frames go; joins between patches stay as open to doubt as the rest.
+      l.trusted = trust_chain && g.edges[k].kind == kOnline &&
+                  g.nodes[size_t(g.edges[k].a)].patch == g.nodes[size_t(g.edges[k].b)].patch;
       links.push_back(std::move(l));
       which.push_back(k);
     }
@@ -84,6 +88,21 @@ int AdjustParts(const FrameGraph& g, GraphSolution& s, const std::vector<GroundP
     for (int i : list) s.poses[size_t(i)] = part[size_t(local[i])];
   }, pfo);
   return dropped_count.load();
+}
+
+double WorstDroppedChainLink(const FrameGraph& g, const GraphSolution& s) {
+  double worst = 0;
+  for (size_t k = 0; k < g.edges.size() && k < s.dropped.size(); ++k) {
+    const GraphEdge& e = g.edges[k];
+    if (!s.dropped[k] || e.kind != kOnline || g.nodes[size_t(e.a)].patch != g.nodes[size_t(e.b)].patch) continue;
+    PlaneLink l;
+    l.a = e.a;
+    l.b = e.b;
+    l.in_a = e.in_a;
+    l.in_b = e.in_b;
+    worst = std::max(worst, PlaneTransferRms(s.poses, g.focal, g.frame, {l}));
+  }
+  return worst;
 }
 
 double KeptEdgesRms(const FrameGraph& g, const GraphSolution& s) {

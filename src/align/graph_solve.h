@@ -25,10 +25,15 @@ struct GraphSolution {
 // registration must not hold the whole part where it is.
 GraphSolution StartSolution(const FrameGraph& g, const std::vector<cv::Matx33d>& G, UnionFind& comp);
 
-// Every part adjusted on its own, in parallel; `priors` (navigation) when given. Returns the
-// edges newly found false.
+// The largest transfer RMS (frame pixels) of an engine link within a patch that the solve
+// found false; 0 when none was.
+double WorstDroppedChainLink(const FrameGraph& g, const GraphSolution& s);
+
+// Every part adjusted on its own, in parallel; `priors` (navigation) when given. With
+// `trust_chain`, the engine's links within a patch are never found false and keep their pull
+// however far off they are (PlaneLink::trusted). Returns the edges newly found false.
 int AdjustParts(const FrameGraph& g, GraphSolution& s, const std::vector<GroundPrior>& priors, const AlignOptions& o,
-                const ParallelForOptions& pfo);
+                const ParallelForOptions& pfo, bool trust_chain = false);
 
 // Transfer error of every kept edge, frame pixels (RMS).
 double KeptEdgesRms(const FrameGraph& g, const GraphSolution& s);

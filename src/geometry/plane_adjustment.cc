@@ -150,11 +150,14 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
           new LinkTransfer(&l, cx, cy), 2 * static_cast<int>(l.in_a.size()));
       // The knee where the link's RMS reaches loss_px.
       const double a = o.loss_px * std::sqrt(double(l.in_a.size()));
+      // A trusted link is not discounted: its pull grows with how far off it is.
       ceres::LossFunction* link_loss =
-          o.loss == "cauchy" ? static_cast<ceres::LossFunction*>(new ceres::CauchyLoss(a)) : new ceres::HuberLoss(a);
+          l.trusted ? nullptr
+          : o.loss == "cauchy" ? static_cast<ceres::LossFunction*>(new ceres::CauchyLoss(a))
+                               : new ceres::HuberLoss(a);
       problem.AddResidualBlock(cost, link_loss, angles[size_t(l.a)].data(), centres[size_t(l.a)].data(),
                                angles[size_t(l.b)].data(), centres[size_t(l.b)].data(), focal);
-      owned_losses.emplace_back(link_loss);
+      if (link_loss) owned_losses.emplace_back(link_loss);
       result.residuals += static_cast<int>(l.in_a.size());
       used[size_t(l.a)] = used[size_t(l.b)] = 1;
       continue;
@@ -162,8 +165,9 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
     for (size_t i = 0; i < l.in_a.size(); ++i) {
       auto* cost = new ceres::AutoDiffCostFunction<Transfer, 2, 3, 3, 3, 3, 1>(
           new Transfer(l.in_a[i], l.in_b[i], cx, cy, l.weight));
-      problem.AddResidualBlock(cost, loss.get(), angles[size_t(l.a)].data(), centres[size_t(l.a)].data(),
-                               angles[size_t(l.b)].data(), centres[size_t(l.b)].data(), focal);
+      problem.AddResidualBlock(cost, l.trusted ? nullptr : loss.get(), angles[size_t(l.a)].data(),
+                               centres[size_t(l.a)].data(), angles[size_t(l.b)].data(), centres[size_t(l.b)].data(),
+                               focal);
       ++result.residuals;
     }
     used[size_t(l.a)] = used[size_t(l.b)] = 1;
@@ -271,6 +275,8 @@ std::vector<char> Bridges(size_t n, const std::vector<PlaneLink>& links, const s
   return bridge;
 }
 
+constexpr double kTrustedWeight = 10.0;
+
 double LinkRms(const std::vector<PlanePose>& poses, double focal, cv::Size frame, const PlaneLink& l) {
   return PlaneTransferRms(poses, focal, frame, {l});
 }
@@ -291,8 +297,14 @@ PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, c
   result.initial_rms_px = PlaneTransferRms(*poses, *focal, frame, links);
   result.dropped.assign(links.size(), 0);
   const size_t n = poses->size();
+  // Trusted links weigh as much as kTrustedWeight links each: a group held by one link of the
+  // chain against several that agree with each other goes where the chain puts it, and those
+  // are left far off, to be found false below.
+  std::vector<PlaneLink> solved = links;
+  for (auto& l : solved)
+    if (l.trusted) l.weight *= kTrustedWeight;
   for (int round = 0;; ++round) {
-    PlaneAdjustment r = SolveOnce(poses, focal, frame, links, result.dropped, anchor, held, priors, o);
+    PlaneAdjustment r = SolveOnce(poses, focal, frame, solved, result.dropped, anchor, held, priors, o);
     result.ok = r.ok;
     result.message = r.message;
     result.residuals = r.residuals;
@@ -306,7 +318,7 @@ PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, c
       ++degree[size_t(links[k].a)];
       ++degree[size_t(links[k].b)];
       const double rms = LinkRms(*poses, *focal, frame, links[k]);
-      if (rms > o.drop_link_px) bad.emplace_back(rms, k);
+      if (rms > o.drop_link_px && !links[k].trusted) bad.emplace_back(rms, k);
     }
     if (bad.empty()) break;
     // Only the links far worse than the typical one, and a few at a time: when much is wrong,
