@@ -160,15 +160,20 @@ double Agreement(const FoldScores& f, const std::vector<double>& offsets, bool b
   return recall / double(std::max<size_t>(1, per_class.size()));
 }
 
-// Offsets added to each class's decision, chosen on the out-of-fold decisions to raise the
-// mean recall: SVMs trained one against all score on scales of their own, and a rare class
-// (20 images among 1,400) rarely wins the argmax even when its SVM ranks its images first.
+// Offsets added to each class's decision, chosen on the out-of-fold decisions: SVMs trained one
+// against all score on scales of their own, and a rare class (20 images among 1,400) rarely wins
+// the argmax even when its SVM ranks its images first. The fit raises the mean of accuracy and
+// mean recall: mean recall alone, fitted on 20 crabs a fold, called 88 images crab to find 8.
 // Coordinate ascent over a grid of offsets, smallest change first on ties.
+double OffsetObjective(const FoldScores& f, const std::vector<double>& offsets) {
+  return 0.5 * (Agreement(f, offsets, false) + Agreement(f, offsets, true));
+}
+
 std::vector<double> FitOffsets(const FoldScores& f) {
   std::vector<double> offsets(f.scored.size(), 0.0), grid;
   for (int k = -20; k <= 20; ++k) grid.push_back(0.05 * k);
   std::sort(grid.begin(), grid.end(), [](double a, double b) { return std::abs(a) < std::abs(b); });
-  double best = Agreement(f, offsets, true);
+  double best = OffsetObjective(f, offsets);
   for (int round = 0; round < 3; ++round) {
     bool changed = false;
     for (size_t s = 0; s < offsets.size(); ++s) {
@@ -176,7 +181,7 @@ std::vector<double> FitOffsets(const FoldScores& f) {
       double pick = was;
       for (double g : grid) {
         offsets[s] = g;
-        const double score = Agreement(f, offsets, true);
+        const double score = OffsetObjective(f, offsets);
         if (score > best + 1e-12) {
           best = score;
           pick = g;
