@@ -209,10 +209,9 @@ void WriteAlignment(Store& store, FrameGraph& g, const GraphSolution& s, const s
 }  // namespace
 
 // 4-6. From the first placement: the adjustment, then loop closures under it (twice: the
-// first straighten the map and bring more neighbours into view). With `trust_chain`, the chain
-// within each patch decides where groups of frames go (a group that other links pulled away
-// comes back and those links become the outliers), then every link is judged on its residual
-// from there (a lane join turned 180 degrees can be off).
+// first straighten the map and bring more neighbours into view). With `trust_chain`, the
+// engine's chain decides where groups of frames go: a group that other links pulled away comes
+// back, and those links become the outliers.
 GraphSolution SolveGraph(FrameGraph& g, const std::vector<cv::Matx33d>& G, UnionFind& comp, const AlignOptions& o,
                          const ParallelForOptions& pfo, bool trust_chain, AlignSummary* summary) {
   GraphSolution s = StartSolution(g, G, comp);
@@ -221,6 +220,8 @@ GraphSolution SolveGraph(FrameGraph& g, const std::vector<cv::Matx33d>& G, Union
     if (AddLoopClosures(g, s, comp, o, summary, pfo) == 0) break;
     summary->edges_dropped += AdjustParts(g, s, {}, o, pfo, trust_chain);
   }
+  // Then every link, the chain's too, judged on its residual from there: the loop closures
+  // found under the chain's placement undo its drift.
   if (trust_chain) summary->edges_dropped += AdjustParts(g, s, {}, o, pfo);
   return s;
 }
@@ -272,7 +273,16 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
   // chain first.
   summary.chain_break_px = WorstDroppedChainLink(g, s);
   if (summary.chain_break_px > o.chain_break_px) {
-    summary.edges_dropped = 0;
+    // The loop closures found under the broken placement stand on it: found again from the
+    // chain's.
+    std::vector<char> loops(g.edges.size(), 0);
+    for (size_t k = 0; k < g.edges.size(); ++k)
+      if (g.edges[k].kind == kLoop) {
+        loops[k] = 1;
+        g.linked.erase({std::min(g.edges[k].a, g.edges[k].b), std::max(g.edges[k].a, g.edges[k].b)});
+      }
+    RemoveEdges(g, loops);
+    summary.edges_dropped = summary.loop_edges = summary.loop_tried = 0;
     s = SolveGraph(g, G, comp, o, pfo, /*trust_chain=*/true, &summary);
   }
   report(0.8);

@@ -60,10 +60,7 @@ int AdjustParts(const FrameGraph& g, GraphSolution& s, const std::vector<GroundP
       l.b = local[g.edges[k].b];
       l.in_a = g.edges[k].in_a;
       l.in_b = g.edges[k].in_b;
-      // The chain within a patch (its links passed the patch's own adjustment) decides where
-      // groups of frames go; joins between patches stay as open to doubt as the rest.
-      l.trusted = trust_chain && g.edges[k].kind == kOnline &&
-                  g.nodes[size_t(g.edges[k].a)].patch == g.nodes[size_t(g.edges[k].b)].patch;
+      l.trusted = trust_chain && g.edges[k].kind == kOnline;
       links.push_back(std::move(l));
       which.push_back(k);
     }

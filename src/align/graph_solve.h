@@ -30,8 +30,8 @@ GraphSolution StartSolution(const FrameGraph& g, const std::vector<cv::Matx33d>&
 double WorstDroppedChainLink(const FrameGraph& g, const GraphSolution& s);
 
 // Every part adjusted on its own, in parallel; `priors` (navigation) when given. With
-// `trust_chain`, the engine's links within a patch are never found false and keep their pull
-// however far off they are (PlaneLink::trusted). Returns the edges newly found false.
+// `trust_chain`, the engine's links are never found false and keep their pull however far off
+// they are (PlaneLink::trusted). Returns the edges newly found false.
 int AdjustParts(const FrameGraph& g, GraphSolution& s, const std::vector<GroundPrior>& priors, const AlignOptions& o,
                 const ParallelForOptions& pfo, bool trust_chain = false);
 
