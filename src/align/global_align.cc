@@ -273,15 +273,7 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
   // chain first.
   summary.chain_break_px = WorstDroppedChainLink(g, s);
   if (summary.chain_break_px > o.chain_break_px) {
-    // The loop closures found under the broken placement stand on it: found again from the
-    // chain's.
-    std::vector<char> loops(g.edges.size(), 0);
-    for (size_t k = 0; k < g.edges.size(); ++k)
-      if (g.edges[k].kind == kLoop) {
-        loops[k] = 1;
-        g.linked.erase({std::min(g.edges[k].a, g.edges[k].b), std::max(g.edges[k].a, g.edges[k].b)});
-      }
-    RemoveEdges(g, loops);
+    RemoveLoopClosures(g);  // found again from the chain's placement
     summary.edges_dropped = summary.loop_edges = summary.loop_tried = 0;
     s = SolveGraph(g, G, comp, o, pfo, /*trust_chain=*/true, &summary);
   }

@@ -10,6 +10,20 @@
 
 namespace rolamos {
 
+namespace {
+
+// An edge as the plane adjustment takes it, between nodes `a` and `b` of the problem.
+PlaneLink LinkOf(const GraphEdge& e, int a, int b) {
+  PlaneLink l;
+  l.a = a;
+  l.b = b;
+  l.in_a = e.in_a;
+  l.in_b = e.in_b;
+  return l;
+}
+
+}  // namespace
+
 cv::Matx33d NodeToPlane(const FrameGraph& g, const GraphSolution& s, int i) { return FrameToPlane(s.poses[size_t(i)], g.K); }
 
 GraphSolution StartSolution(const FrameGraph& g, const std::vector<cv::Matx33d>& G, UnionFind& comp) {
@@ -55,11 +69,7 @@ int AdjustParts(const FrameGraph& g, GraphSolution& s, const std::vector<GroundP
     std::vector<size_t> which;
     for (size_t k = 0; k < g.edges.size(); ++k) {
       if (s.dropped[k] || !local.count(g.edges[k].a)) continue;
-      PlaneLink l;
-      l.a = local[g.edges[k].a];
-      l.b = local[g.edges[k].b];
-      l.in_a = g.edges[k].in_a;
-      l.in_b = g.edges[k].in_b;
+      PlaneLink l = LinkOf(g.edges[k], local[g.edges[k].a], local[g.edges[k].b]);
       l.trusted = trust_chain && g.edges[k].kind == kOnline;
       links.push_back(std::move(l));
       which.push_back(k);
@@ -92,12 +102,7 @@ double WorstDroppedChainLink(const FrameGraph& g, const GraphSolution& s) {
   for (size_t k = 0; k < g.edges.size() && k < s.dropped.size(); ++k) {
     const GraphEdge& e = g.edges[k];
     if (!s.dropped[k] || e.kind != kOnline || g.nodes[size_t(e.a)].patch != g.nodes[size_t(e.b)].patch) continue;
-    PlaneLink l;
-    l.a = e.a;
-    l.b = e.b;
-    l.in_a = e.in_a;
-    l.in_b = e.in_b;
-    worst = std::max(worst, PlaneTransferRms(s.poses, g.focal, g.frame, {l}));
+    worst = std::max(worst, PlaneTransferRms(s.poses, g.focal, g.frame, {LinkOf(e, e.a, e.b)}));
   }
   return worst;
 }
@@ -106,12 +111,7 @@ double KeptEdgesRms(const FrameGraph& g, const GraphSolution& s) {
   std::vector<PlaneLink> all;
   for (size_t k = 0; k < g.edges.size(); ++k) {
     if (k < s.dropped.size() && s.dropped[k]) continue;
-    PlaneLink l;
-    l.a = g.edges[k].a;
-    l.b = g.edges[k].b;
-    l.in_a = g.edges[k].in_a;
-    l.in_b = g.edges[k].in_b;
-    all.push_back(std::move(l));
+    all.push_back(LinkOf(g.edges[k], g.edges[k].a, g.edges[k].b));
   }
   return PlaneTransferRms(s.poses, g.focal, g.frame, all);
 }
@@ -173,6 +173,15 @@ int AddLoopClosures(FrameGraph& g, GraphSolution& s, UnionFind& comp, const Alig
     }
   summary->loop_edges += added;
   return added;
+}
+
+void RemoveLoopClosures(FrameGraph& g) {
+  std::vector<GraphEdge> kept;
+  for (auto& e : g.edges) {
+    if (e.kind == kLoop) g.linked.erase({std::min(e.a, e.b), std::max(e.a, e.b)});
+    else kept.push_back(std::move(e));
+  }
+  g.edges = std::move(kept);
 }
 
 }  // namespace rolamos

@@ -47,4 +47,8 @@ int AddLoopClosures(FrameGraph& g, GraphSolution& s, UnionFind& comp, const Alig
 // A node's placement (frame -> plane) in the solution.
 cv::Matx33d NodeToPlane(const FrameGraph& g, const GraphSolution& s, int i);
 
+// The loop closures found so far out of the graph, their pairs free to be found again: they
+// stand on the placement they were found under.
+void RemoveLoopClosures(FrameGraph& g);
+
 }  // namespace rolamos

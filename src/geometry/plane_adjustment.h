@@ -22,8 +22,9 @@ struct PlaneLink {
   std::vector<cv::Point2f> in_a, in_b;
   double weight = 1.0;  // multiplies every residual of the link
   // A link the others must agree with (the engine's chain of consecutive frames, verified as it
-  // was made): never dropped, and not discounted by the robust loss, so that a group of frames
-  // other links pulled away is pulled back by it and those links become the outliers.
+  // was made): never dropped, not discounted by the robust loss, and ten times the weight, so
+  // that a group of frames other links pulled away is pulled back by it and those links become
+  // the outliers.
   bool trusted = false;
 };
 
