@@ -1,11 +1,15 @@
-// A bounded cache of decoded tiles shared by every reader (OpenImageIO's ImageCache underneath).
-// Its memory limit is an explicit number: nothing reads tiles outside it.
+// A bounded cache of decoded tiles shared by every reader. Tiled TIFFs (ours, GDAL's, COGs) are
+// decoded by libtiff into a cache of our own; other images go through OpenImageIO's ImageCache.
+// The memory limit is an explicit number, shared: 7/8 for the TIFF tiles, 1/8 (at least 1 MB)
+// for OpenImageIO's; nothing reads tiles outside them.
 #pragma once
 
 #include <memory>
 #include <string>
 
 namespace rolamos {
+
+class DecodedTiles;
 
 struct TileCacheOptions {
   double max_memory_mb = 256.0;
@@ -31,6 +35,7 @@ class TileCache {
   friend class TiledImage;  // reads through the OpenImageIO cache underneath
   TileCacheOptions options_;
   void* cache_ = nullptr;   // OIIO::ImageCache*; OpenImageIO stays out of the public headers
+  std::unique_ptr<DecodedTiles> tiles_;  // what libtiff decoded
 };
 
 }  // namespace rolamos

@@ -65,6 +65,8 @@ class TiledImage {
 
  private:
   struct Impl;
+  // Images other than tiled TIFFs (strips, JPEG, PNG, ...): through OpenImageIO's cache.
+  void ReadThroughOiio(int level, const cv::Rect& region, cv::Mat& out) const;
   std::shared_ptr<const Impl> impl_;
 };
 

@@ -3,10 +3,13 @@
 #include <OpenImageIO/imagecache.h>
 #include <OpenImageIO/imageio.h>
 
+#include <algorithm>
 #include <cstdlib>
+#include <filesystem>
 #include <mutex>
 
 #include "rolamos/error.hpp"
+#include "raster/decoded_tiles.h"
 
 namespace rolamos {
 
@@ -33,7 +36,9 @@ TileCache::TileCache(const TileCacheOptions& options) : options_(options) {
     OIIO::attribute("limits:imagesize_MB", 1 << 20);
   });
   auto* ic = OIIO::ImageCache::create(/*shared=*/false);
-  ic->attribute("max_memory_MB", static_cast<float>(options.max_memory_mb));
+  const double oiio_mb = std::max(1.0, options.max_memory_mb / 8);
+  ic->attribute("max_memory_MB", static_cast<float>(oiio_mb));
+  tiles_ = std::make_unique<DecodedTiles>(static_cast<size_t>((options.max_memory_mb - oiio_mb) * 1024 * 1024));
   ic->attribute("max_open_files", options.max_open_files);
   ic->attribute("autotile", 256);       // scanline images are served in 256-row tiles
   ic->attribute("autoscanline", 1);
@@ -50,11 +55,13 @@ TileCache::~TileCache() {
 }
 
 void TileCache::Invalidate(const std::string& path) {
-  static_cast<OIIO::ImageCache*>(cache_)->invalidate(OIIO::ustring(path), true);
+  const std::string absolute = std::filesystem::absolute(path).lexically_normal().string();
+  static_cast<OIIO::ImageCache*>(cache_)->invalidate(OIIO::ustring(absolute), true);
+  tiles_->Forget(absolute);
 }
 
 std::string TileCache::Stats(int level) const {
-  return static_cast<OIIO::ImageCache*>(cache_)->getstats(level);
+  return tiles_->Stats() + static_cast<OIIO::ImageCache*>(cache_)->getstats(level);
 }
 
 std::shared_ptr<TileCache> DefaultTileCache() {

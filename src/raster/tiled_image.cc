@@ -4,13 +4,16 @@
 
 #include <algorithm>
 #include <cmath>
+#include <exception>
 #include <filesystem>
 
 #include <opencv2/imgproc.hpp>
 
 #include "rolamos/error.hpp"
 #include "raster/resample.h"
+#include "raster/decoded_tiles.h"
 #include "raster/tiff_inspect.h"
+#include "raster/tiff_tile_reader.h"
 
 namespace rolamos {
 
@@ -20,7 +23,49 @@ struct TiledImage::Impl {
   OIIO::ustring name;
   // Per level: OpenImageIO's (subimage, miplevel) for that level.
   std::vector<std::pair<int, int>> oiio_index;
+  // Tiled TIFFs: decoded by libtiff into the cache's own tiles (OpenImageIO's otherwise).
+  std::unique_ptr<TiffTileReader> tiff;
+  uint64_t file_id = 0;
+  void ReadTiles(int level, const cv::Rect& region, cv::Mat& out) const;
 };
+
+void TiledImage::Impl::ReadTiles(int level, const cv::Rect& region, cv::Mat& out) const {
+  DecodedTiles& tiles = *cache->tiles_;
+  const int tw = tiff->tile_width(level), th = tiff->tile_height(level);
+  struct Piece {
+    int tx, ty;
+    std::shared_ptr<const cv::Mat> tile;
+  };
+  std::vector<Piece> pieces;
+  std::vector<size_t> missing;
+  for (int ty = region.y / th; ty <= (region.y + region.height - 1) / th; ++ty)
+    for (int tx = region.x / tw; tx <= (region.x + region.width - 1) / tw; ++tx) {
+      pieces.push_back({tx, ty, tiles.Find(file_id, level, tx, ty)});
+      if (!pieces.back().tile) missing.push_back(pieces.size() - 1);
+    }
+  // The tiles not held are decoded on every core (libtiff's handles are one per thread).
+  std::vector<std::exception_ptr> failed(missing.size());
+  const auto decode = [&](const cv::Range& range) {
+    for (int k = range.start; k < range.end; ++k) {
+      Piece& p = pieces[missing[size_t(k)]];
+      try {
+        p.tile = std::make_shared<const cv::Mat>(tiff->DecodeTile(level, p.tx, p.ty));
+        tiles.Add(file_id, level, p.tx, p.ty, p.tile);
+      } catch (...) {
+        failed[size_t(k)] = std::current_exception();
+      }
+    }
+  };
+  if (missing.size() > 1) cv::parallel_for_(cv::Range(0, int(missing.size())), decode);
+  else decode(cv::Range(0, int(missing.size())));
+  for (const auto& e : failed)
+    if (e) std::rethrow_exception(e);
+  for (const Piece& p : pieces) {
+    const cv::Rect in = cv::Rect(p.tx * tw, p.ty * th, tw, th) & region;
+    (*p.tile)(cv::Rect(in.x - p.tx * tw, in.y - p.ty * th, in.width, in.height))
+        .copyTo(out(cv::Rect(in.x - region.x, in.y - region.y, in.width, in.height)));
+  }
+}
 
 namespace {
 
@@ -59,10 +104,15 @@ TiledImage TiledImage::Open(const std::string& path, std::shared_ptr<TileCache> 
                      " are not read here (8 or 16-bit unsigned; use `rolamos convert`)");
     if (d0.samples > 4)
       Fail(path, std::to_string(d0.samples) + " samples per pixel; 1 to 4 are read");
+    impl->tiff = TiffTileReader::TryOpen(impl->name.string(), s);
     int mip_levels = 1;
-    ic->get_image_info(impl->name, 0, 0, OIIO::ustring("miplevels"), OIIO::TypeInt, &mip_levels);
-    const std::string open_error = ic->geterror();
-    if (!open_error.empty()) Fail(path, open_error);
+    if (impl->tiff) {
+      impl->file_id = cache->tiles_->FileId(impl->name.string());
+    } else {
+      ic->get_image_info(impl->name, 0, 0, OIIO::ustring("miplevels"), OIIO::TypeInt, &mip_levels);
+      const std::string open_error = ic->geterror();
+      if (!open_error.empty()) Fail(path, open_error);
+    }
     const bool as_mip = mip_levels == static_cast<int>(s.directories.size());
     for (int dir : s.levels) {
       const auto& d = s.directories[dir];
@@ -123,6 +173,18 @@ void TiledImage::ReadRegionInto(int level, const cv::Rect& region, cv::Mat& out,
                         " is outside level " + std::to_string(level) + " (" +
                         std::to_string(l.width) + "x" + std::to_string(l.height) + ")");
   CV_Assert(out.rows == region.height && out.cols == region.width && out.type() == cv_type());
+  if (impl_->tiff) {
+    impl_->ReadTiles(level, region, out);
+  } else {
+    ReadThroughOiio(level, region, out);
+  }
+  if (file_order) return;
+  if (info.channels == 3) cv::cvtColor(out, out, cv::COLOR_RGB2BGR);
+  if (info.channels == 4) cv::cvtColor(out, out, cv::COLOR_RGBA2BGRA);
+}
+
+void TiledImage::ReadThroughOiio(int level, const cv::Rect& region, cv::Mat& out) const {
+  const auto& info = impl_->info;
   auto* ic = static_cast<OIIO::ImageCache*>(impl_->cache->cache_);
   const auto [subimage, miplevel] = impl_->oiio_index[static_cast<size_t>(level)];
   const OIIO::TypeDesc type = info.bits == 16 ? OIIO::TypeDesc::UINT16 : OIIO::TypeDesc::UINT8;
@@ -133,9 +195,6 @@ void TiledImage::ReadRegionInto(int level, const cv::Rect& region, cv::Mat& out,
                         "," + std::to_string(region.y) + "," + std::to_string(region.width) +
                         "," + std::to_string(region.height) +
                         " cannot be decoded: " + OiioError(ic));
-  if (file_order) return;
-  if (info.channels == 3) cv::cvtColor(out, out, cv::COLOR_RGB2BGR);
-  if (info.channels == 4) cv::cvtColor(out, out, cv::COLOR_RGBA2BGRA);
 }
 
 int TiledImage::LevelForScale(double scale) const {

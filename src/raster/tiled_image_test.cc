@@ -123,6 +123,74 @@ TEST(TiledImage, ReadsGdalCogAndPlainImages) {
                      cv::NORM_INF), 0.0);
 }
 
+// Tiled TIFFs are decoded by libtiff directly: the pixels are GDAL's own, bit for bit, in every
+// colour model and depth the fast path takes (JPEG in YCbCr, 16-bit grey, RGBA), at every level.
+TEST(TiledImage, TiffTilesReadAsGdalReadsThem) {
+  if (!test::HaveCommand("gdal_translate")) GTEST_SKIP() << "gdal_translate not installed";
+  ScratchDir dir;
+  cv::imwrite(dir / "rgb.png", MakeImage(700, 530));
+  cv::Mat grey16 = MakeImage(650, 470, 1, 16);
+  cv::imwrite(dir / "grey16.png", grey16);
+  cv::imwrite(dir / "rgba.png", MakeImage(600, 450, 4));
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"rgb.png", "-of COG -co COMPRESS=JPEG -co QUALITY=85 -co BLOCKSIZE=128"},
+      {"rgb.png", "-of GTiff -co TILED=YES -co COMPRESS=JPEG -co PHOTOMETRIC=YCBCR -co BLOCKXSIZE=96 -co BLOCKYSIZE=64"},
+      {"grey16.png", "-of COG -co COMPRESS=DEFLATE -co BLOCKSIZE=256"},
+      {"rgba.png", "-of COG -co COMPRESS=WEBP -co QUALITY=90 -co BLOCKSIZE=128"},
+  };
+  auto cache = std::make_shared<TileCache>();
+  int k = 0;
+  for (const auto& [source, options] : cases) {
+    const std::string tif = dir / ("case" + std::to_string(k++) + ".tif");
+    auto r = test::RunShell("gdal_translate -q " + options + " " + (dir / source) + " " + tif);
+    ASSERT_EQ(r.exit_code, 0) << r.output;
+    TiledImage t = TiledImage::Open(tif, cache);
+    for (int level = 0; level < std::min(2, t.num_levels()); ++level) {
+      const std::string png = tif + ".level" + std::to_string(level) + ".png";
+      const std::string overview = level == 0 ? "" : " -oo OVERVIEW_LEVEL=" + std::to_string(level - 1);
+      r = test::RunShell("gdal_translate -q -of PNG" + overview + " " + tif + " " + png);
+      ASSERT_EQ(r.exit_code, 0) << r.output;
+      const cv::Mat gdal = cv::imread(png, cv::IMREAD_UNCHANGED);
+      const auto& l = t.info().levels[size_t(level)];
+      ASSERT_EQ(gdal.size(), cv::Size(int(l.width), int(l.height))) << options;
+      // The whole level, and a window across tile edges.
+      EXPECT_EQ(cv::norm(t.ReadRegion(level, cv::Rect(0, 0, gdal.cols, gdal.rows)), gdal, cv::NORM_INF), 0.0)
+          << options << " level " << level;
+      const cv::Rect w(gdal.cols / 3, gdal.rows / 4, gdal.cols / 2, gdal.rows / 2);
+      EXPECT_EQ(cv::norm(t.ReadRegion(level, w), gdal(w), cv::NORM_INF), 0.0) << options << " level " << level;
+    }
+    // Through libtiff, not OpenImageIO: the cache's own tiles hold them.
+    EXPECT_EQ(cache->Stats().find("decoded tiles (libtiff): 0 held"), std::string::npos) << options;
+    cache->Invalidate(tif);
+    EXPECT_EQ(cache->Stats().rfind("decoded tiles (libtiff): 0 held", 0), 0u) << options;
+  }
+}
+
+// A tile the file does not hold (GDAL's SPARSE_OK, a writer stopped early) reads as zeros.
+TEST(TiledImage, TilesTheFileDoesNotHoldReadAsZeros) {
+  ScratchDir dir;
+  const std::string path = dir / "sparse.tif";
+  TIFF* tif = TIFFOpen(path.c_str(), "w8");
+  ASSERT_NE(tif, nullptr);
+  TIFFSetField(tif, TIFFTAG_IMAGEWIDTH, 128);
+  TIFFSetField(tif, TIFFTAG_IMAGELENGTH, 128);
+  TIFFSetField(tif, TIFFTAG_SAMPLESPERPIXEL, 1);
+  TIFFSetField(tif, TIFFTAG_BITSPERSAMPLE, 8);
+  TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MINISBLACK);
+  TIFFSetField(tif, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG);
+  TIFFSetField(tif, TIFFTAG_COMPRESSION, COMPRESSION_ADOBE_DEFLATE);
+  TIFFSetField(tif, TIFFTAG_TILEWIDTH, 64);
+  TIFFSetField(tif, TIFFTAG_TILELENGTH, 64);
+  cv::Mat tile(64, 64, CV_8U, cv::Scalar(200));
+  ASSERT_GT(TIFFWriteEncodedTile(tif, 0, tile.data, 64 * 64), 0);  // only the first of four
+  TIFFClose(tif);
+  TiledImage t = TiledImage::Open(path, std::make_shared<TileCache>());
+  const cv::Mat all = t.ReadRegion(0, cv::Rect(0, 0, 128, 128));
+  EXPECT_EQ(cv::countNonZero(all(cv::Rect(0, 0, 64, 64)) == 200), 64 * 64);
+  EXPECT_EQ(cv::countNonZero(all(cv::Rect(64, 0, 64, 128))), 0);
+  EXPECT_EQ(cv::countNonZero(all(cv::Rect(0, 64, 64, 64))), 0);
+}
+
 TEST(TiledImage, RegionOutsideTheImageIsAnError) {
   ScratchDir dir;
   TiledImage t = TiledImage::Open(WriteSample(dir, Compression::kDeflate), std::make_shared<TileCache>());

@@ -1,0 +1,108 @@
+#include "raster/tiff_tile_reader.h"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include "rolamos/error.hpp"
+
+namespace rolamos {
+
+std::unique_ptr<TiffTileReader> TiffTileReader::TryOpen(const std::string& path, const TiffStructure& s) {
+  std::unique_ptr<TiffTileReader> r(new TiffTileReader());
+  r->path_ = path;
+  for (int dir : s.levels) {
+    const TiffDirectory& d = s.directories[size_t(dir)];
+    if (!d.tiled || d.planar != PLANARCONFIG_CONTIG || d.sample_format != SAMPLEFORMAT_UINT) return nullptr;
+    if (d.bits != 8 && d.bits != 16) return nullptr;
+    const bool ycbcr_jpeg = d.photometric == PHOTOMETRIC_YCBCR && d.compression == COMPRESSION_JPEG && d.bits == 8;
+    if (d.photometric != PHOTOMETRIC_MINISBLACK && d.photometric != PHOTOMETRIC_RGB && !ycbcr_jpeg) return nullptr;
+    if (d.samples < 1 || d.samples > 4 || d.tile_width == 0 || d.tile_height == 0) return nullptr;
+    if (!r->levels_.empty() && (d.samples != r->samples_ || d.bits != r->bits_)) return nullptr;
+    r->samples_ = d.samples;
+    r->bits_ = d.bits;
+    r->levels_.push_back({dir, int(d.tile_width), int(d.tile_height), d.width, d.height, ycbcr_jpeg});
+  }
+  if (r->levels_.empty()) return nullptr;
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return nullptr;
+  r->identity_ = IdentityOf(fd);
+  ::close(fd);
+  // A codec libtiff was built without: OpenImageIO's path reports it.
+  for (int dir : s.levels)
+    if (!TIFFIsCODECConfigured(s.directories[size_t(dir)].compression)) return nullptr;
+  return r;
+}
+
+TiffTileReader::~TiffTileReader() = default;
+
+TiffTileReader::Identity TiffTileReader::IdentityOf(int fd) {
+  struct stat st {};
+  Identity id;
+  if (::fstat(fd, &st) != 0) return id;
+  id.inode = st.st_ino;
+  id.size = static_cast<unsigned long long>(st.st_size);
+  id.mtime_ns = static_cast<long long>(st.st_mtim.tv_sec) * 1000000000LL + st.st_mtim.tv_nsec;
+  return id;
+}
+
+std::unique_ptr<TiffTileReader::Handle> TiffTileReader::Borrow(int directory) const {
+  std::unique_ptr<Handle> h;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    // One already at the directory saves reading it again.
+    for (auto it = idle_.begin(); it != idle_.end(); ++it)
+      if ((*it)->directory == directory) {
+        h = std::move(*it);
+        idle_.erase(it);
+        return h;
+      }
+    if (!idle_.empty()) {
+      h = std::move(idle_.back());
+      idle_.pop_back();
+    }
+  }
+  if (!h) {
+    h = std::make_unique<Handle>();
+    h->file = TiffFile::Open(path_, "r");
+    if (!(IdentityOf(TIFFFileno(h->file->get())) == identity_))
+      Fail(path_, "was replaced or changed since it was opened: open it again");
+  }
+  return h;
+}
+
+void TiffTileReader::Return(std::unique_ptr<Handle> h) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (idle_.size() < 8) idle_.push_back(std::move(h));
+}
+
+cv::Mat TiffTileReader::DecodeTile(int level, int tx, int ty) const {
+  const Level& l = levels_[size_t(level)];
+  const auto where = [&] {
+    return "level " + std::to_string(level) + " tile (" + std::to_string(tx) + ", " + std::to_string(ty) + ")";
+  };
+  std::unique_ptr<Handle> h = Borrow(l.directory);
+  TIFF* tif = h->file->get();
+  if (h->directory != l.directory) {
+    h->directory = -1;
+    if (!TIFFSetDirectory(tif, tdir_t(l.directory))) Fail(path_, where() + ": " + h->file->TakeError());
+    if (l.jpeg_ycbcr) TIFFSetField(tif, TIFFTAG_JPEGCOLORMODE, JPEGCOLORMODE_RGB);
+    h->directory = l.directory;
+  }
+  cv::Mat tile(l.tile_height, l.tile_width, CV_MAKETYPE(bits_ == 16 ? CV_16U : CV_8U, samples_), cv::Scalar::all(0));
+  const uint32_t index = TIFFComputeTile(tif, uint32_t(tx) * uint32_t(l.tile_width),
+                                         uint32_t(ty) * uint32_t(l.tile_height), 0, 0);
+  if (TIFFGetStrileByteCount(tif, index) > 0) {
+    const tmsize_t bytes = tmsize_t(tile.total() * tile.elemSize());
+    if (TIFFReadEncodedTile(tif, index, tile.data, bytes) < 0) {
+      const std::string why = h->file->TakeError();
+      h->directory = -1;  // the handle may be left mid-tile
+      Return(std::move(h));
+      Fail(path_, where() + " cannot be decoded: " + (why.empty() ? "libtiff gave no reason" : why));
+    }
+  }
+  Return(std::move(h));
+  return tile;
+}
+
+}  // namespace rolamos

@@ -1,0 +1,64 @@
+// Tiles of a tiled TIFF decoded by libtiff directly (libjpeg-turbo, zstd, deflate, WebP, LZW),
+// for TiledImage's reads of our BigTIFFs and of GDAL's tiled TIFFs and COGs. OpenImageIO's cache
+// costs 0.7 ms a 256 x 256 JPEG tile where libtiff alone takes 0.25 (bench/RESULTS.md): its
+// bookkeeping, page faults and copies, and one decode at a time per file.
+#pragma once
+
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "raster/tiff_file.h"
+#include "raster/tiff_inspect.h"
+
+namespace rolamos {
+
+class TiffTileReader {
+ public:
+  // A reader when every level of `s` is tiled, interleaved, and in a colour model the file's own
+  // samples give as stored (grey, RGB(A), or JPEG's YCbCr returned as RGB); else none.
+  static std::unique_ptr<TiffTileReader> TryOpen(const std::string& path, const TiffStructure& s);
+  ~TiffTileReader();
+
+  // Tile (tx, ty) of level `level`, whole (the edge tiles' padding included), in the file's
+  // channel order; 8 or 16-bit. A tile the file does not hold (sparse) is zeros. Throws Error
+  // naming the file, level and tile when libtiff cannot decode it. Any thread.
+  cv::Mat DecodeTile(int level, int tx, int ty) const;
+  int tile_width(int level) const { return levels_[size_t(level)].tile_width; }
+  int tile_height(int level) const { return levels_[size_t(level)].tile_height; }
+
+ private:
+  struct Level {
+    int directory = 0;
+    int tile_width = 0, tile_height = 0;
+    long long width = 0, height = 0;
+    bool jpeg_ycbcr = false;  // decoded as RGB by libjpeg
+  };
+  // libtiff's handles are one thread's at a time: each decode borrows one (opened on demand,
+  // at most a few kept), set to the level's directory.
+  struct Handle {
+    std::unique_ptr<TiffFile> file;
+    int directory = -1;
+  };
+  std::unique_ptr<Handle> Borrow(int directory) const;
+  void Return(std::unique_ptr<Handle> h) const;
+
+  std::string path_;
+  // The file as it was opened: a handle opened later on a file replaced meanwhile is refused.
+  struct Identity {
+    unsigned long long inode = 0, size = 0;
+    long long mtime_ns = 0;
+    bool operator==(const Identity& o) const { return inode == o.inode && size == o.size && mtime_ns == o.mtime_ns; }
+  };
+  static Identity IdentityOf(int fd);
+  Identity identity_;
+  int samples_ = 0, bits_ = 8;
+  std::vector<Level> levels_;
+  mutable std::mutex mutex_;
+  mutable std::vector<std::unique_ptr<Handle>> idle_;
+};
+
+}  // namespace rolamos
