@@ -70,6 +70,16 @@ KINDS = {
     "video-800": ("video 800 x 600 at 30 frames/s (95 % overlap), 60 deg, MPEG-4, 300 frames (10 s)",
                   ["PHOTO3", "--width", "800", "--height", "600", "--frames", "300", "--fov", "60", "--lanes", "2",
                    "--overlap", "0.95", "--gsd", "0.9", "--attitude-jitter", "0.2", "--tilt", "1", "--video", "video.mp4"]),
+    # Two more 800 x 600 videos over other ground: one survey's figure moves by a tenth of a pixel
+    # with any change of the tracks kept, so a change is judged on three.
+    "video-800-b": ("video 800 x 600 at 30 frames/s, another photo and path seed, MPEG-4, 300 frames",
+                    ["PHOTO5", "--width", "800", "--height", "600", "--frames", "300", "--fov", "60", "--lanes", "2",
+                     "--overlap", "0.95", "--gsd", "0.9", "--attitude-jitter", "0.2", "--tilt", "1", "--seed", "2",
+                     "--video", "video.mp4"]),
+    "video-800-c": ("video 800 x 600 at 30 frames/s, a third photo, 70 deg, MPEG-4, 300 frames",
+                    ["PHOTO7", "--width", "800", "--height", "600", "--frames", "300", "--fov", "70", "--lanes", "2",
+                     "--overlap", "0.95", "--gsd", "0.8", "--attitude-jitter", "0.3", "--tilt", "1", "--seed", "3",
+                     "--video", "video.mp4"]),
 }
 # The video surveys' JPEG frames (same survey, no video codec).
 SAME_SURVEY = {"video-1292-jpeg": "video-1292", "video-800-jpeg": "video-800"}
