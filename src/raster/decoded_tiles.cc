@@ -64,10 +64,21 @@ void DecodedTiles::Forget(const std::string& path) {
       ++it;
     }
   }
+  // The ids too: a server that replaces its live preview several times a second for hours must
+  // not keep a name per file it ever read.
   for (auto it = file_ids_.begin(); it != file_ids_.end();) {
     if (it->first == path || it->first.rfind(path + "|", 0) == 0) it = file_ids_.erase(it);
     else ++it;
   }
+  for (auto it = file_paths_.begin(); it != file_paths_.end();) {
+    if (it->second == path) it = file_paths_.erase(it);
+    else ++it;
+  }
+}
+
+size_t DecodedTiles::files() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return file_paths_.size();
 }
 
 size_t DecodedTiles::bytes() const {

@@ -26,6 +26,7 @@ class DecodedTiles {
   // Drops every tile of files at `path`.
   void Forget(const std::string& path);
   size_t bytes() const;
+  size_t files() const;  // files with an id
   std::string Stats() const;
 
  private:

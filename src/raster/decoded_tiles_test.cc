@@ -44,8 +44,10 @@ TEST(DecodedTiles, ARewrittenFileIsANewFile) {
   const uint64_t second = tiles.FileId(path);
   EXPECT_NE(second, first);
   EXPECT_FALSE(tiles.Find(second, 0, 0, 0));
+  EXPECT_EQ(tiles.files(), 2u);
   tiles.Forget(path);
   EXPECT_EQ(tiles.bytes(), 0u);
+  EXPECT_EQ(tiles.files(), 0u);  // nothing kept of a file forgotten
 }
 
 }  // namespace

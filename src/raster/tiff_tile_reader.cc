@@ -28,6 +28,9 @@ std::unique_ptr<TiffTileReader> TiffTileReader::TryOpen(const std::string& path,
   if (fd < 0) return nullptr;
   r->identity_ = IdentityOf(fd);
   ::close(fd);
+  // Held from now on: reads go on if the file is deleted or replaced later.
+  r->idle_.push_back(r->OpenHandle());
+  r->open_ = 1;
   // A codec libtiff was built without: OpenImageIO's path reports it.
   for (int dir : s.levels)
     if (!TIFFIsCODECConfigured(s.directories[size_t(dir)].compression)) return nullptr;
@@ -46,34 +49,48 @@ TiffTileReader::Identity TiffTileReader::IdentityOf(int fd) {
   return id;
 }
 
-std::unique_ptr<TiffTileReader::Handle> TiffTileReader::Borrow(int directory) const {
-  std::unique_ptr<Handle> h;
-  {
-    std::lock_guard<std::mutex> lock(mutex_);
-    // One already at the directory saves reading it again.
-    for (auto it = idle_.begin(); it != idle_.end(); ++it)
-      if ((*it)->directory == directory) {
-        h = std::move(*it);
-        idle_.erase(it);
-        return h;
-      }
-    if (!idle_.empty()) {
-      h = std::move(idle_.back());
-      idle_.pop_back();
-    }
-  }
-  if (!h) {
-    h = std::make_unique<Handle>();
-    h->file = TiffFile::Open(path_, "r");
-    if (!(IdentityOf(TIFFFileno(h->file->get())) == identity_))
-      Fail(path_, "was replaced or changed since it was opened: open it again");
-  }
+std::unique_ptr<TiffTileReader::Handle> TiffTileReader::OpenHandle() const {
+  auto h = std::make_unique<Handle>();
+  h->file = TiffFile::Open(path_, "r");
+  if (!(IdentityOf(TIFFFileno(h->file->get())) == identity_))
+    Fail(path_, "was replaced or changed since it was opened: open it again");
   return h;
 }
 
+std::unique_ptr<TiffTileReader::Handle> TiffTileReader::Borrow(int directory) const {
+  std::unique_lock<std::mutex> lock(mutex_);
+  const auto take = [&]() {
+    // One already at the directory saves reading it again.
+    auto it = idle_.begin();
+    for (; it != idle_.end(); ++it)
+      if ((*it)->directory == directory) break;
+    if (it == idle_.end()) --it;
+    std::unique_ptr<Handle> h = std::move(*it);
+    idle_.erase(it);
+    return h;
+  };
+  if (!idle_.empty()) return take();
+  if (open_ < kMaxHandles) {
+    ++open_;
+    lock.unlock();
+    try {
+      return OpenHandle();
+    } catch (const Error&) {
+      lock.lock();
+      --open_;
+      if (open_ == 0) throw;  // none open to wait for
+    }
+  }
+  returned_.wait(lock, [&] { return !idle_.empty(); });
+  return take();
+}
+
 void TiffTileReader::Return(std::unique_ptr<Handle> h) const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  if (idle_.size() < 8) idle_.push_back(std::move(h));
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    idle_.push_back(std::move(h));
+  }
+  returned_.notify_one();
 }
 
 cv::Mat TiffTileReader::DecodeTile(int level, int tx, int ty) const {
@@ -81,7 +98,8 @@ cv::Mat TiffTileReader::DecodeTile(int level, int tx, int ty) const {
   const auto where = [&] {
     return "level " + std::to_string(level) + " tile (" + std::to_string(tx) + ", " + std::to_string(ty) + ")";
   };
-  std::unique_ptr<Handle> h = Borrow(l.directory);
+  Lease lease{this, Borrow(l.directory)};
+  Handle* h = lease.handle.get();
   TIFF* tif = h->file->get();
   if (h->directory != l.directory) {
     h->directory = -1;
@@ -97,11 +115,9 @@ cv::Mat TiffTileReader::DecodeTile(int level, int tx, int ty) const {
     if (TIFFReadEncodedTile(tif, index, tile.data, bytes) < 0) {
       const std::string why = h->file->TakeError();
       h->directory = -1;  // the handle may be left mid-tile
-      Return(std::move(h));
       Fail(path_, where() + " cannot be decoded: " + (why.empty() ? "libtiff gave no reason" : why));
     }
   }
-  Return(std::move(h));
   return tile;
 }
 

@@ -4,6 +4,7 @@
 // bookkeeping, page faults and copies, and one decode at a time per file.
 #pragma once
 
+#include <condition_variable>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -37,14 +38,27 @@ class TiffTileReader {
     long long width = 0, height = 0;
     bool jpeg_ycbcr = false;  // decoded as RGB by libjpeg
   };
-  // libtiff's handles are one thread's at a time: each decode borrows one (opened on demand,
-  // at most a few kept), set to the level's directory.
+  // libtiff's handles are one thread's at a time: each decode borrows one, set to the level's
+  // directory. The first is opened with the reader, more on demand (at most kMaxHandles); when
+  // one cannot be opened (the file was deleted or replaced since: a live preview superseded, a
+  // mosaic composed anew), the decode waits for one already open, which still reads the file
+  // as it was.
   struct Handle {
     std::unique_ptr<TiffFile> file;
     int directory = -1;
   };
+  static constexpr size_t kMaxHandles = 8;
+  std::unique_ptr<Handle> OpenHandle() const;
   std::unique_ptr<Handle> Borrow(int directory) const;
   void Return(std::unique_ptr<Handle> h) const;
+  // A borrowed handle, given back however the decode ends.
+  struct Lease {
+    const TiffTileReader* reader;
+    std::unique_ptr<Handle> handle;
+    ~Lease() {
+      if (handle) reader->Return(std::move(handle));
+    }
+  };
 
   std::string path_;
   // The file as it was opened: a handle opened later on a file replaced meanwhile is refused.
@@ -58,7 +72,9 @@ class TiffTileReader {
   int samples_ = 0, bits_ = 8;
   std::vector<Level> levels_;
   mutable std::mutex mutex_;
+  mutable std::condition_variable returned_;
   mutable std::vector<std::unique_ptr<Handle>> idle_;
+  mutable size_t open_ = 0;  // handles open: idle or borrowed
 };
 
 }  // namespace rolamos

@@ -191,6 +191,23 @@ TEST(TiledImage, TilesTheFileDoesNotHoldReadAsZeros) {
   EXPECT_EQ(cv::countNonZero(all(cv::Rect(0, 64, 64, 64))), 0);
 }
 
+// A file deleted or replaced while it is open (a live preview superseded, a mosaic composed
+// anew) goes on reading as it was: the tiles decoded on both cores wait for the handle the image
+// holds instead of failing to open the file again.
+TEST(TiledImage, AFileDeletedWhileOpenStillReadsAsItWas) {
+  ScratchDir dir;
+  const std::string path = WriteSample(dir, Compression::kZstd, 1500, 1100);
+  TiledImage first = TiledImage::Open(path, std::make_shared<TileCache>());
+  const cv::Mat level0 = first.ReadRegion(0, cv::Rect(0, 0, 1500, 1100));
+  const cv::Mat level1 = first.ReadRegion(1, cv::Rect(0, 0, 750, 550));
+  TiledImage t = TiledImage::Open(path, std::make_shared<TileCache>());
+  std::filesystem::remove(path);
+  EXPECT_EQ(cv::norm(t.ReadRegion(0, cv::Rect(0, 0, 1500, 1100)), level0, cv::NORM_INF), 0.0);
+  // Replaced by another image under the same name: still the first one's pixels.
+  WritePyramidTiff(path, MakeImage(1500, 1100, 3, 8, 99), TiffWriteOptions{});
+  EXPECT_EQ(cv::norm(t.ReadRegion(1, cv::Rect(0, 0, 750, 550)), level1, cv::NORM_INF), 0.0);
+}
+
 TEST(TiledImage, RegionOutsideTheImageIsAnError) {
   ScratchDir dir;
   TiledImage t = TiledImage::Open(WriteSample(dir, Compression::kDeflate), std::make_shared<TileCache>());
