@@ -194,34 +194,30 @@ class FinishLock {
 
 }  // namespace
 
-ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const ProgressFn& progress) {
-  std::string error;
-  if (!options.IsValid(&error)) Fail("compose", error);
-  TileCacheOptions co;
-  co.max_memory_mb = options.cache_mb;
-  auto cache = std::make_shared<TileCache>(co);
-  ComposeResult result;
+namespace {
 
-  // 1. Place the patches.
+// 1. Every patch that can be placed, in global pixels: its aligned placement, or its link to the
+//    patch before it; the others are left out with the reason.
+std::vector<PlacedPatch> PlacePatches(const Store& store, const std::shared_ptr<TileCache>& cache,
+                                      std::map<int, cv::Matx33d>* to_global, ComposeResult* result) {
   std::vector<PlacedPatch> placed;
-  std::map<int, cv::Matx33d> to_global;
   for (const auto& entry : store.patches()) {
     PatchSidecar s;
     try {
       s = store.ReadSidecar(entry.id);
     } catch (const Error& e) {
-      result.left_out.emplace_back(entry.id, e.what());
+      result->left_out.emplace_back(entry.id, e.what());
       continue;
     }
     cv::Matx33d G;
     if (s.patch_to_global) {
       G = ToMatx(*s.patch_to_global);
-    } else if (s.link && to_global.count(s.link->previous_patch)) {
-      G = to_global[s.link->previous_patch] * ToMatx(s.link->to_previous);
-    } else if (to_global.empty()) {
+    } else if (s.link && to_global->count(s.link->previous_patch)) {
+      G = (*to_global)[s.link->previous_patch] * ToMatx(s.link->to_previous);
+    } else if (to_global->empty()) {
       G = cv::Matx33d::eye();  // the first patch defines the global frame
     } else {
-      result.left_out.emplace_back(entry.id, "not linked to the patches before it (tracking was "
+      result->left_out.emplace_back(entry.id, "not linked to the patches before it (tracking was "
                                              "lost before it started); left out, not guessed");
       continue;
     }
@@ -230,7 +226,7 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
     p.path = (std::filesystem::path(store.dir()) / entry.image).string();
     const std::string problem = PlacementProblem(G, s, p.path, cache, &p.image);
     if (!problem.empty()) {
-      result.left_out.emplace_back(entry.id, problem + "; left out");
+      result->left_out.emplace_back(entry.id, problem + "; left out");
       continue;
     }
     p.to_mosaic = G;  // global for now; the mosaic's offset and scale come next
@@ -250,14 +246,18 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
       }
       p.local_sigma = 0.35 * std::max((*s.frame_size)[0], (*s.frame_size)[1]);
     }
-    to_global[entry.id] = G;
+    (*to_global)[entry.id] = G;
     placed.push_back(p);
   }
-  if (placed.empty()) Fail(store.dir(), "has no patch that can be placed");
+  return placed;
+}
 
-  // 2. The global frame: offset to the union of the patches, scale to fit max_pixels.
+// 2. The mosaic's frame: the patches' union moved to the origin and scaled to fit max_pixels;
+//    the patches' placements move into it. Returns the shift of global pixels (full resolution).
+cv::Matx33d FitMosaicFrame(const Store& store, const ComposeOptions& options, std::vector<PlacedPatch>* placed,
+                           ComposeResult* result) {
   double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
-  for (const auto& p : placed) {
+  for (const auto& p : *placed) {
     const cv::Rect2d b = WarpedBounds(p.to_mosaic, p.size);
     x0 = std::min(x0, b.x), y0 = std::min(y0, b.y);
     x1 = std::max(x1, b.x + b.width), y1 = std::max(y1, b.y + b.height);
@@ -265,16 +265,16 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
   double scale = 1.0;
   const double full = (x1 - x0) * (y1 - y0);
   if (options.max_pixels > 0 && full > options.max_pixels) scale = std::sqrt(options.max_pixels / full);
-  result.scale = scale;
-  result.width = std::max(1LL, static_cast<long long>(std::floor((x1 - x0) * scale)));
-  result.height = std::max(1LL, static_cast<long long>(std::floor((y1 - y0) * scale)));
-  if (result.width > (1LL << 31) - 1 || result.height > (1LL << 31) - 1)
-    Fail(store.dir(), "the patches span " + std::to_string(result.width) + " x " + std::to_string(result.height) +
+  result->scale = scale;
+  result->width = std::max(1LL, static_cast<long long>(std::floor((x1 - x0) * scale)));
+  result->height = std::max(1LL, static_cast<long long>(std::floor((y1 - y0) * scale)));
+  if (result->width > (1LL << 31) - 1 || result->height > (1LL << 31) - 1)
+    Fail(store.dir(), "the patches span " + std::to_string(result->width) + " x " + std::to_string(result->height) +
                           " pixels, beyond a TIFF's 2^31; is a homography degenerate? (a pixel limit, max_pixels, scales it down)");
   // global -> mosaic pixel: shift the union to the origin, then scale about pixel centres.
   const cv::Matx33d O(1, 0, -x0 - 0.5, 0, 1, -y0 - 0.5, 0, 0, 1);
   const cv::Matx33d S(scale, 0, 0.5 * scale - 0.5, 0, scale, 0.5 * scale - 0.5, 0, 0, 1);
-  for (auto& p : placed) {
+  for (auto& p : *placed) {
     p.to_mosaic = S * O * p.to_mosaic;
     p.bounds = WarpedBounds(p.to_mosaic, p.size);
     for (auto& l : p.local) {
@@ -287,78 +287,84 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
       p.local_sigma *= scale;
     }
   }
+  return O;
+}
 
-  // 2b. Exposure across the map: each patch's gain so that overlapping patches agree (read at
-  //     1/16 of full resolution; the gains average 1, so the map keeps its brightness).
-  if (options.exposure && placed.size() > 1) {
-    constexpr double kGainScale = 1.0 / 16;
-    std::vector<cv::Mat> small;
-    std::vector<cv::Matx33d> to_mosaic;
-    for (const auto& p : placed) {
-      const int level = p.image->LevelForScale(kGainScale);
-      const auto& L = p.image->info().levels[static_cast<size_t>(level)];
-      cv::Mat img = p.image->ReadRegion(level, cv::Rect(0, 0, int(L.width), int(L.height)));
-      if (img.channels() != 4) cv::cvtColor(img, img, img.channels() == 3 ? cv::COLOR_BGR2BGRA : cv::COLOR_GRAY2BGRA);
-      cv::resize(img, img, cv::Size(std::max(1, int(std::lround(p.size.width * kGainScale))),
-                                    std::max(1, int(std::lround(p.size.height * kGainScale)))), 0, 0, cv::INTER_AREA);
-      small.push_back(img);
-      to_mosaic.push_back(cv::Matx33d(1.0 / scale, 0, 0, 0, 1.0 / scale, 0, 0, 0, 1) * p.to_mosaic);
-    }
-    const std::vector<double> gains = SolveExposureGains(small, kGainScale, to_mosaic, 0.05);
-    for (size_t k = 0; k < placed.size(); ++k) placed[k].gain = gains[k];
+// 2b. Exposure across the map: each patch's gain so that overlapping patches agree (read at 1/16
+//     of full resolution; the gains average 1, so the map keeps its brightness).
+void MatchPatchExposure(std::vector<PlacedPatch>* placed, double scale) {
+  constexpr double kGainScale = 1.0 / 16;
+  std::vector<cv::Mat> small;
+  std::vector<cv::Matx33d> to_mosaic;
+  for (const auto& p : *placed) {
+    const int level = p.image->LevelForScale(kGainScale);
+    const auto& L = p.image->info().levels[static_cast<size_t>(level)];
+    cv::Mat img = p.image->ReadRegion(level, cv::Rect(0, 0, int(L.width), int(L.height)));
+    if (img.channels() != 4) cv::cvtColor(img, img, img.channels() == 3 ? cv::COLOR_BGR2BGRA : cv::COLOR_GRAY2BGRA);
+    cv::resize(img, img, cv::Size(std::max(1, int(std::lround(p.size.width * kGainScale))),
+                                  std::max(1, int(std::lround(p.size.height * kGainScale)))), 0, 0, cv::INTER_AREA);
+    small.push_back(img);
+    to_mosaic.push_back(cv::Matx33d(1.0 / scale, 0, 0, 0, 1.0 / scale, 0, 0, 0, 1) * p.to_mosaic);
   }
+  const std::vector<double> gains = SolveExposureGains(small, kGainScale, to_mosaic, 0.05);
+  for (size_t k = 0; k < placed->size(); ++k) (*placed)[k].gain = gains[k];
+}
 
-  // 3. Chunk by chunk on all cores, journaled so that an interrupted run resumes.
+// 3. The mosaic, chunk by chunk on all cores, journaled so that an interrupted run resumes.
+//    false: a shard's chunks are written and the finish does the rest.
+bool RenderMosaic(const Store& store, const ComposeOptions& options, const std::vector<PlacedPatch>& placed,
+                  ComposeResult* result, const ProgressFn& progress) {
   PixelLayout layout;
-  layout.width = result.width;
-  layout.height = result.height;
+  layout.width = result->width;
+  layout.height = result->height;
   layout.channels = 4;
-  {
-    const std::string partial = store.MosaicPath() + ".partial";
-    const std::string fingerprint = Fingerprint(placed, result, options);
-    QuadtreeOptions qo;
-    qo.threads = options.threads;
-    qo.chunk_px = options.chunk_px;
-    qo.block_px = std::min(qo.block_px, options.chunk_px);
-    std::string part;
-    std::unique_ptr<FinishLock> lock;
-    const bool sharded = options.shards > 0 || options.finish;
-    if (sharded) {
-      qo.shard = options.shard - 1;
-      qo.stage = options.finish ? QuadtreeOptions::Stage::kFinish : QuadtreeOptions::Stage::kChunks;
-      const long long chunks = QuadtreeChunks(layout.width, layout.height, options.tiff, qo);
-      qo.shards = CheckPlan(partial, fingerprint, options.shards, chunks, /*create=*/!options.finish);
-      if (options.finish) {
-        lock = std::make_unique<FinishLock>(partial);
-        part = "finish";
-      } else {
-        part = "shard-" + std::to_string(options.shard) + "-of-" + std::to_string(options.shards);
-        for (long long c = 0; c < chunks; ++c) result.shard_chunks += ShardOfChunk(c, qo.shards) == qo.shard;
-      }
+  const std::string partial = store.MosaicPath() + ".partial";
+  const std::string fingerprint = Fingerprint(placed, *result, options);
+  QuadtreeOptions qo;
+  qo.threads = options.threads;
+  qo.chunk_px = options.chunk_px;
+  qo.block_px = std::min(qo.block_px, options.chunk_px);
+  std::string part;
+  std::unique_ptr<FinishLock> lock;
+  const bool sharded = options.shards > 0 || options.finish;
+  if (sharded) {
+    qo.shard = options.shard - 1;
+    qo.stage = options.finish ? QuadtreeOptions::Stage::kFinish : QuadtreeOptions::Stage::kChunks;
+    const long long chunks = QuadtreeChunks(layout.width, layout.height, options.tiff, qo);
+    qo.shards = CheckPlan(partial, fingerprint, options.shards, chunks, /*create=*/!options.finish);
+    if (options.finish) {
+      lock = std::make_unique<FinishLock>(partial);
+      part = "finish";
+    } else {
+      part = "shard-" + std::to_string(options.shard) + "-of-" + std::to_string(options.shards);
+      for (long long c = 0; c < chunks; ++c) result->shard_chunks += ShardOfChunk(c, qo.shards) == qo.shard;
     }
-    TileJournal journal(partial, fingerprint, options.restart, part);
-    // Shards' files stay whole until the finish has written the file (a finish that dies is re-run).
-    journal.set_free_while_writing(!sharded);
-    result.discarded = journal.discarded();
-    const PatchBlender blender(placed, scale, options.feather_px, options.bands);
-    const QuadtreeStats q = BuildQuadtreePyramid(
-        store.MosaicPath(), layout, options.tiff, qo, [&](const cv::Rect& r) { return blender.Render(r); },
-        journal, progress);
-    result.chunks = q.chunks;
-    result.chunks_resumed = q.chunks_resumed;
-    result.chunks_rendered = q.chunks_rendered;
-    result.patches_used = static_cast<int>(placed.size());
-    if (sharded && !options.finish) return result;  // the finish does the rest
-    journal.Remove();
-    lock.reset();
-    result.written = true;
   }
-  cache->Invalidate(store.MosaicPath());
+  TileJournal journal(partial, fingerprint, options.restart, part);
+  // Shards' files stay whole until the finish has written the file (a finish that dies is re-run).
+  journal.set_free_while_writing(!sharded);
+  result->discarded = journal.discarded();
+  const PatchBlender blender(placed, result->scale, options.feather_px, options.bands);
+  const QuadtreeStats q = BuildQuadtreePyramid(
+      store.MosaicPath(), layout, options.tiff, qo, [&](const cv::Rect& r) { return blender.Render(r); },
+      journal, progress);
+  result->chunks = q.chunks;
+  result->chunks_resumed = q.chunks_resumed;
+  result->chunks_rendered = q.chunks_rendered;
+  result->patches_used = static_cast<int>(placed.size());
+  if (sharded && !options.finish) return false;  // the finish does the rest
+  journal.Remove();
+  lock.reset();
+  result->written = true;
+  return true;
+}
 
-  // 4. Record where the patches went and the global record of Table I.
+// 4. Where the patches went, in their sidecars, and the global record of Table I.
+void RecordPlacements(Store& store, const std::vector<PlacedPatch>& placed, const std::map<int, cv::Matx33d>& to_global,
+                      const cv::Matx33d& O, double scale, const ComposeResult& result) {
   for (const auto& p : placed) {
     PatchSidecar s = store.ReadSidecar(p.id);
-    s.patch_to_global = ToArray9(O * to_global[p.id]);  // full-resolution global pixels
+    s.patch_to_global = ToArray9(O * to_global.at(p.id));  // full-resolution global pixels
     for (auto& f : s.frames)  // the frames' own placements move with it
       if (f.frame_to_global) f.frame_to_global = ToArray9(O * ToMatx(*f.frame_to_global));
     store.UpdateSidecar(s);
@@ -370,7 +376,26 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
   const cv::Vec3d origin = placed.front().to_mosaic * ToMatx(first.first_homography) * cv::Vec3d(0, 0, 1);
   global.offset = {origin[0] / origin[2], origin[1] / origin[2]};
   store.SetGlobal(global);
+}
+
+}  // namespace
+
+ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const ProgressFn& progress) {
+  std::string error;
+  if (!options.IsValid(&error)) Fail("compose", error);
+  TileCacheOptions co;
+  co.max_memory_mb = options.cache_mb;
+  auto cache = std::make_shared<TileCache>(co);
+  ComposeResult result;
+  std::map<int, cv::Matx33d> to_global;
+  std::vector<PlacedPatch> placed = PlacePatches(store, cache, &to_global, &result);
+  if (placed.empty()) Fail(store.dir(), "has no patch that can be placed");
+  const cv::Matx33d O = FitMosaicFrame(store, options, &placed, &result);
+  if (options.exposure && placed.size() > 1) MatchPatchExposure(&placed, result.scale);
   result.patches_used = static_cast<int>(placed.size());
+  if (!RenderMosaic(store, options, placed, &result, progress)) return result;
+  cache->Invalidate(store.MosaicPath());
+  RecordPlacements(store, placed, to_global, O, result.scale, result);
   return result;
 }
 
