@@ -217,7 +217,8 @@ std::shared_ptr<const ServedImage> TileServer::Impl::Find(const std::string& nam
   return it->second;
 }
 
-void TileServer::Impl::Routes() {
+// What the store holds and what a live run last wrote.
+void TileServer::Impl::ApiRoutes() {
   http.Get("/api/status", [this](const httplib::Request&, httplib::Response& res) {
     // What a live run (`mosaic --live`) last wrote; {"running": false} for a finished store.
     nlohmann::json st = {{"running", false}};
@@ -264,9 +265,10 @@ void TileServer::Impl::Routes() {
     }
     res.set_content(list.dump(1), "application/json");
   });
-  // Georeferenced tiles, TileJSON, WMTS and files first: their paths would also fit the pattern
-  // below.
-  GisRoutes();
+}
+
+// XYZ and Deep Zoom tiles of every image served.
+void TileServer::Impl::TileRoutes() {
   // XYZ: z = 0 is the whole image within one tile; every tile 256 x 256 (the part past the image
   // transparent, or ?background=RRGGBB in JPEG), as XYZ clients expect.
   http.Get(R"(/tiles/([^/]+)/([^/]+)/([^/]+)/([^/.]+)\.([a-z]+))",
@@ -335,6 +337,10 @@ void TileServer::Impl::Routes() {
              Reply(req, res, *s, key, ext, background, [&] { return s->tiles->Tile(int(level), x, y); },
                    "tile outside the image");
            });
+}
+
+// The viewer's own files, from the binary.
+void TileServer::Impl::PageRoutes() {
   // The viewer page, from the binary.
   for (const ViewerAsset& a : ViewerAssets()) {
     const std::string path = a.path;
@@ -347,6 +353,10 @@ void TileServer::Impl::Routes() {
     http.Get("/" + path, serve);
     if (path == "index.html") http.Get("/", serve);
   }
+}
+
+// The live run's view, the overlays, the full-resolution export and the error page.
+void TileServer::Impl::LiveAndExportRoutes() {
   // The live run's open patch and the patches it continues, placed together (server/live_view.h).
   http.Get("/api/live", [this](const httplib::Request&, httplib::Response& res) {
     Refresh();
@@ -441,7 +451,15 @@ void TileServer::Impl::Routes() {
   });
 }
 
-
+void TileServer::Impl::Routes() {
+  ApiRoutes();
+  // Georeferenced tiles, TileJSON, WMTS and files first: their paths would also fit the pattern
+  // below.
+  GisRoutes();
+  TileRoutes();
+  PageRoutes();
+  LiveAndExportRoutes();
+}
 
 TileServer::TileServer(Store store, const TileServerOptions& options)
     : impl_(std::make_unique<Impl>(store)) {

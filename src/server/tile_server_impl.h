@@ -83,7 +83,11 @@ struct TileServer::Impl {
   void RefreshPreview();
   void Refresh();
   std::shared_ptr<const ServedImage> Find(const std::string& name, httplib::Response& res) const;
-  void Routes();     // tiles, Deep Zoom, the viewer, the live API, overlays, export
+  void Routes();     // all of them, in the order they are matched:
+  void ApiRoutes();  // status, images
+  void TileRoutes();  // XYZ, Deep Zoom
+  void PageRoutes();  // the viewer
+  void LiveAndExportRoutes();  // the live view, overlays, export, the error page
   void GisRoutes();  // Web Mercator tiles, TileJSON, WMTS, GDAL WMS descriptions, files with ranges
 };
 
