@@ -206,15 +206,12 @@ void WriteAlignment(Store& store, FrameGraph& g, const GraphSolution& s, const s
   store.ReplaceSidecars(updated, global);
 }
 
-}  // namespace
-
-// 4-6. From the first placement: the adjustment, then loop closures under it (twice: the
-// first straighten the map and bring more neighbours into view). With `trust_chain`, the
+// 4-6. From the first placement `s` (StartSolution): the adjustment, then loop closures under it
+// (twice: the first straighten the map and bring more neighbours into view). With `trust_chain`, the
 // engine's chain decides where groups of frames go: a group that other links pulled away comes
 // back, and those links become the outliers.
-GraphSolution SolveGraph(FrameGraph& g, const std::vector<cv::Matx33d>& G, UnionFind& comp, const AlignOptions& o,
+GraphSolution SolveGraph(FrameGraph& g, GraphSolution s, UnionFind& comp, const AlignOptions& o,
                          const ParallelForOptions& pfo, bool trust_chain, AlignSummary* summary) {
-  GraphSolution s = StartSolution(g, G, comp);
   summary->edges_dropped += AdjustParts(g, s, {}, o, pfo, trust_chain);
   for (int round = 0; round < 2 && o.loops_per_frame > 0; ++round) {
     if (AddLoopClosures(g, s, comp, o, summary, pfo) == 0) break;
@@ -225,6 +222,8 @@ GraphSolution SolveGraph(FrameGraph& g, const std::vector<cv::Matx33d>& G, Union
   if (trust_chain) summary->edges_dropped += AdjustParts(g, s, {}, o, pfo);
   return s;
 }
+
+}  // namespace
 
 AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& progress) {
   std::string error;
@@ -264,8 +263,9 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
   // 4-6. First placement, adjustment, loop closures.
   UnionFind comp(0);
   const std::vector<cv::Matx33d> G = PlaceFirst(g, &comp);
-  summary.rms_before_px = KeptEdgesRms(g, StartSolution(g, G, comp));
-  GraphSolution s = SolveGraph(g, G, comp, o, pfo, /*trust_chain=*/false, &summary);
+  GraphSolution first = StartSolution(g, G, comp);
+  summary.rms_before_px = KeptEdgesRms(g, first);
+  GraphSolution s = SolveGraph(g, std::move(first), comp, o, pfo, /*trust_chain=*/false, &summary);
   report(0.6);
   // A link of the engine's chain within a patch found false hundreds of pixels off is not a
   // noisy link but a group of frames pulled away by links that agree with each other and not
@@ -275,7 +275,7 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
   if (summary.chain_break_px > o.chain_break_px) {
     RemoveLoopClosures(g);  // found again from the chain's placement
     summary.edges_dropped = summary.loop_edges = summary.loop_tried = 0;
-    s = SolveGraph(g, G, comp, o, pfo, /*trust_chain=*/true, &summary);
+    s = SolveGraph(g, StartSolution(g, G, comp), comp, o, pfo, /*trust_chain=*/true, &summary);
   }
   report(0.8);
 

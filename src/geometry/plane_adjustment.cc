@@ -42,6 +42,12 @@ void Rotation(const T* e, T R[9]) {
 }
 
 // A pixel of frame a cast onto the plane and seen by b, against its match in b.
+// Trusted links weigh as much as kTrustedWeight links each: a group held by one link of the
+// chain against several that agree with each other goes where the chain puts it, and those are
+// left far off, to be found false.
+constexpr double kTrustedWeight = 10.0;
+double WeightOf(const PlaneLink& l) { return l.trusted ? kTrustedWeight * l.weight : l.weight; }
+
 struct Transfer {
   Transfer(cv::Point2f pa, cv::Point2f pb, double cx, double cy, double w)
       : pa(pa), pb(pb), cx(cx), cy(cy), w(w) {}
@@ -73,7 +79,7 @@ struct LinkTransfer {
   template <typename T>
   bool operator()(const T* ea, const T* ca, const T* eb, const T* cb, const T* f, T* r) const {
     for (size_t i = 0; i < l->in_a.size(); ++i)
-      if (!Transfer(l->in_a[i], l->in_b[i], cx, cy, l->weight)(ea, ca, eb, cb, f, r + 2 * i)) return false;
+      if (!Transfer(l->in_a[i], l->in_b[i], cx, cy, WeightOf(*l))(ea, ca, eb, cb, f, r + 2 * i)) return false;
     return true;
   }
   const PlaneLink* l;
@@ -164,7 +170,7 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
     }
     for (size_t i = 0; i < l.in_a.size(); ++i) {
       auto* cost = new ceres::AutoDiffCostFunction<Transfer, 2, 3, 3, 3, 3, 1>(
-          new Transfer(l.in_a[i], l.in_b[i], cx, cy, l.weight));
+          new Transfer(l.in_a[i], l.in_b[i], cx, cy, WeightOf(l)));
       problem.AddResidualBlock(cost, l.trusted ? nullptr : loss.get(), angles[size_t(l.a)].data(),
                                centres[size_t(l.a)].data(), angles[size_t(l.b)].data(), centres[size_t(l.b)].data(),
                                focal);
@@ -275,8 +281,6 @@ std::vector<char> Bridges(size_t n, const std::vector<PlaneLink>& links, const s
   return bridge;
 }
 
-constexpr double kTrustedWeight = 10.0;
-
 double LinkRms(const std::vector<PlanePose>& poses, double focal, cv::Size frame, const PlaneLink& l) {
   return PlaneTransferRms(poses, focal, frame, {l});
 }
@@ -297,14 +301,8 @@ PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, c
   result.initial_rms_px = PlaneTransferRms(*poses, *focal, frame, links);
   result.dropped.assign(links.size(), 0);
   const size_t n = poses->size();
-  // Trusted links weigh as much as kTrustedWeight links each: a group held by one link of the
-  // chain against several that agree with each other goes where the chain puts it, and those
-  // are left far off, to be found false below.
-  std::vector<PlaneLink> solved = links;
-  for (auto& l : solved)
-    if (l.trusted) l.weight *= kTrustedWeight;
   for (int round = 0;; ++round) {
-    PlaneAdjustment r = SolveOnce(poses, focal, frame, solved, result.dropped, anchor, held, priors, o);
+    PlaneAdjustment r = SolveOnce(poses, focal, frame, links, result.dropped, anchor, held, priors, o);
     result.ok = r.ok;
     result.message = r.message;
     result.residuals = r.residuals;

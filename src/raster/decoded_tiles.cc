@@ -1,17 +1,34 @@
 #include "raster/decoded_tiles.h"
 
+#include <fcntl.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include <sstream>
 
 namespace rolamos {
 
-uint64_t DecodedTiles::FileId(const std::string& path) {
+FileStamp FileStamp::Of(int fd) {
   struct stat st {};
-  std::string key = path;
-  if (::stat(path.c_str(), &st) == 0)
-    key += "|" + std::to_string(st.st_size) + "|" + std::to_string(st.st_mtim.tv_sec) + "." +
-           std::to_string(st.st_mtim.tv_nsec) + "|" + std::to_string(st.st_ino);
+  FileStamp f;
+  if (::fstat(fd, &st) != 0) return f;
+  f.inode = st.st_ino;
+  f.size = static_cast<unsigned long long>(st.st_size);
+  f.mtime_ns = static_cast<long long>(st.st_mtim.tv_sec) * 1000000000LL + st.st_mtim.tv_nsec;
+  return f;
+}
+
+FileStamp FileStamp::Of(const std::string& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return {};
+  const FileStamp f = Of(fd);
+  ::close(fd);
+  return f;
+}
+
+uint64_t DecodedTiles::FileId(const std::string& path, const FileStamp& stamp) {
+  const std::string key = path + "|" + std::to_string(stamp.size) + "|" + std::to_string(stamp.mtime_ns) + "|" +
+                          std::to_string(stamp.inode);
   std::lock_guard<std::mutex> lock(mutex_);
   auto [it, added] = file_ids_.emplace(key, next_id_);
   if (added) file_paths_[next_id_++] = path;

@@ -1,6 +1,6 @@
 // The decoded tiles TiledImage reads through libtiff, least recently used first out, within an
-// explicit number of bytes. Tiles are keyed by the file as it is on disk (path, size, change
-// time, inode): a file rewritten in place of another is a different file, never served stale.
+// explicit number of bytes. Tiles are keyed by the file as it is on disk (path and FileStamp):
+// a file rewritten in place of another is a different file, never served stale.
 #pragma once
 
 #include <cstdint>
@@ -14,11 +14,20 @@
 
 namespace rolamos {
 
+// A file as it is on disk: a file written in place of another (same name) has another stamp.
+struct FileStamp {
+  unsigned long long inode = 0, size = 0;
+  long long mtime_ns = 0;
+  bool operator==(const FileStamp& o) const { return inode == o.inode && size == o.size && mtime_ns == o.mtime_ns; }
+  static FileStamp Of(int fd);                 // of an open file
+  static FileStamp Of(const std::string& path);  // of the file the name holds now (all zeros: none)
+};
+
 class DecodedTiles {
  public:
   explicit DecodedTiles(size_t max_bytes) : max_bytes_(max_bytes) {}
-  // An id for the file at `path` as it is now (the same for the same file, unchanged).
-  uint64_t FileId(const std::string& path);
+  // An id for the file `stamp` describes, known as `path` (the same for the same file, unchanged).
+  uint64_t FileId(const std::string& path, const FileStamp& stamp);
   // The tile, or an empty pointer.
   std::shared_ptr<const cv::Mat> Find(uint64_t file, int level, int tx, int ty);
   // Keeps `tile`, dropping the least recently used tiles beyond the limit.

@@ -36,12 +36,12 @@ TEST(DecodedTiles, ARewrittenFileIsANewFile) {
   const std::string path = dir / "f.tif";
   std::ofstream(path) << "one";
   DecodedTiles tiles(1 << 20);
-  const uint64_t first = tiles.FileId(path);
-  EXPECT_EQ(tiles.FileId(path), first);
+  const uint64_t first = tiles.FileId(path, FileStamp::Of(path));
+  EXPECT_EQ(tiles.FileId(path, FileStamp::Of(path)), first);
   tiles.Add(first, 0, 0, 0, Tile(1));
   std::ofstream(dir / "g.tif") << "two, longer";
   std::filesystem::rename(dir / "g.tif", path);
-  const uint64_t second = tiles.FileId(path);
+  const uint64_t second = tiles.FileId(path, FileStamp::Of(path));
   EXPECT_NE(second, first);
   EXPECT_FALSE(tiles.Find(second, 0, 0, 0));
   EXPECT_EQ(tiles.files(), 2u);

@@ -1,9 +1,5 @@
 #include "raster/tiff_tile_reader.h"
 
-#include <fcntl.h>
-#include <sys/stat.h>
-#include <unistd.h>
-
 #include "rolamos/error.hpp"
 
 namespace rolamos {
@@ -22,37 +18,25 @@ std::unique_ptr<TiffTileReader> TiffTileReader::TryOpen(const std::string& path,
     r->samples_ = d.samples;
     r->bits_ = d.bits;
     r->levels_.push_back({dir, int(d.tile_width), int(d.tile_height), d.width, d.height, ycbcr_jpeg});
+    // A codec libtiff was built without: OpenImageIO's path reports it.
+    if (!TIFFIsCODECConfigured(d.compression)) return nullptr;
   }
   if (r->levels_.empty()) return nullptr;
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) return nullptr;
-  r->identity_ = IdentityOf(fd);
-  ::close(fd);
   // Held from now on: reads go on if the file is deleted or replaced later.
-  r->idle_.push_back(r->OpenHandle());
+  auto first = std::make_unique<Handle>();
+  first->file = TiffFile::Open(path, "r");
+  r->stamp_ = FileStamp::Of(TIFFFileno(first->file->get()));
+  r->idle_.push_back(std::move(first));
   r->open_ = 1;
-  // A codec libtiff was built without: OpenImageIO's path reports it.
-  for (int dir : s.levels)
-    if (!TIFFIsCODECConfigured(s.directories[size_t(dir)].compression)) return nullptr;
   return r;
 }
 
 TiffTileReader::~TiffTileReader() = default;
 
-TiffTileReader::Identity TiffTileReader::IdentityOf(int fd) {
-  struct stat st {};
-  Identity id;
-  if (::fstat(fd, &st) != 0) return id;
-  id.inode = st.st_ino;
-  id.size = static_cast<unsigned long long>(st.st_size);
-  id.mtime_ns = static_cast<long long>(st.st_mtim.tv_sec) * 1000000000LL + st.st_mtim.tv_nsec;
-  return id;
-}
-
 std::unique_ptr<TiffTileReader::Handle> TiffTileReader::OpenHandle() const {
   auto h = std::make_unique<Handle>();
   h->file = TiffFile::Open(path_, "r");
-  if (!(IdentityOf(TIFFFileno(h->file->get())) == identity_))
+  if (!(FileStamp::Of(TIFFFileno(h->file->get())) == stamp_))
     Fail(path_, "was replaced or changed since it was opened: open it again");
   return h;
 }

@@ -12,6 +12,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "raster/decoded_tiles.h"
 #include "raster/tiff_file.h"
 #include "raster/tiff_inspect.h"
 
@@ -28,6 +29,7 @@ class TiffTileReader {
   // channel order; 8 or 16-bit. A tile the file does not hold (sparse) is zeros. Throws Error
   // naming the file, level and tile when libtiff cannot decode it. Any thread.
   cv::Mat DecodeTile(int level, int tx, int ty) const;
+  const FileStamp& stamp() const { return stamp_; }
   int tile_width(int level) const { return levels_[size_t(level)].tile_width; }
   int tile_height(int level) const { return levels_[size_t(level)].tile_height; }
 
@@ -61,14 +63,9 @@ class TiffTileReader {
   };
 
   std::string path_;
-  // The file as it was opened: a handle opened later on a file replaced meanwhile is refused.
-  struct Identity {
-    unsigned long long inode = 0, size = 0;
-    long long mtime_ns = 0;
-    bool operator==(const Identity& o) const { return inode == o.inode && size == o.size && mtime_ns == o.mtime_ns; }
-  };
-  static Identity IdentityOf(int fd);
-  Identity identity_;
+  // The file as its first handle opened it: a handle opened later on a file replaced meanwhile is
+  // refused, and the cache keys its tiles by it.
+  FileStamp stamp_;
   int samples_ = 0, bits_ = 8;
   std::vector<Level> levels_;
   mutable std::mutex mutex_;

@@ -107,7 +107,7 @@ TiledImage TiledImage::Open(const std::string& path, std::shared_ptr<TileCache> 
     impl->tiff = TiffTileReader::TryOpen(impl->name.string(), s);
     int mip_levels = 1;
     if (impl->tiff) {
-      impl->file_id = cache->tiles_->FileId(impl->name.string());
+      impl->file_id = cache->tiles_->FileId(impl->name.string(), impl->tiff->stamp());
     } else {
       ic->get_image_info(impl->name, 0, 0, OIIO::ustring("miplevels"), OIIO::TypeInt, &mip_levels);
       const std::string open_error = ic->geterror();
