@@ -3,11 +3,12 @@
 
 1. Random 512 x 512 window reads per second from Python: rolamos.open_image(...).read against
    rasterio (GDAL) on the same pyramidal tiled BigTIFF (a `rolamos demo` store's patch, JPEG
-   tiles), cold (a fresh reader per run, windows anywhere) and warm (the same windows again).
+   tiles, and the same pixels converted to WebP and zstd tiles), cold (a fresh reader per run, windows anywhere) and warm (the same windows again).
 2. Mosaicker.push overhead: the same frames mapped by pushing NumPy arrays from Python against
    `rolamos mosaic` on the folder (the C++ engine alone), frames/s.
 
   PYTHONPATH=build/python /usr/bin/python3 bench/run_python.py [--runs 3] [--size 16384] [--windows 500]
+      [--compressions jpeg,webp,zstd] [--no-engine]
 """
 import argparse
 import os
@@ -84,25 +85,36 @@ def main():
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--size", type=int, default=16384)
     ap.add_argument("--windows", type=int, default=500)
+    ap.add_argument("--compressions", default="jpeg,webp,zstd", help="tile codecs the reads are measured on")
+    ap.add_argument("--no-engine", action="store_true", help="the reads only")
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "out", "python"))
     a = ap.parse_args()
     os.makedirs(a.out, exist_ok=True)
     demo = os.path.join(a.out, f"demo{a.size}.rolamos")
     if not os.path.exists(demo):
         subprocess.run([CLI, "demo", "-o", demo, "--size", str(a.size)], check=True, capture_output=True)
-    path = rolamos.Store(demo).patches[0].image
-    rows = {"rolamos": [], "rasterio": []}
-    for run in range(a.runs):
-        spots = windows(a.size, a.size, a.windows, seed=run)
-        subprocess.run(["sync"])
-        rows["rasterio"].append(reads_rasterio(path, spots))
-        rows["rolamos"].append(reads_rolamos(path, spots))
-    print(f"| reader | cold 512x512 windows/s | warm windows/s |  ({a.windows} random windows of a {a.size}^2 JPEG "
-          f"BigTIFF, median of {a.runs}, 256 MB caches)")
-    print("|---|---|---|")
-    for name, r in rows.items():
-        print(f"| {name} | {statistics.median(c for c, _ in r):.0f} | {statistics.median(w for _, w in r):.0f} |")
+    jpeg = rolamos.Store(demo).patches[0].image
+    print(f"| tiles | reader | cold 512x512 windows/s | warm windows/s |  ({a.windows} random windows of a "
+          f"{a.size}^2 BigTIFF, median of {a.runs}, 256 MB caches)")
+    print("|---|---|---|---|")
+    for compression in a.compressions.split(","):
+        path = jpeg
+        if compression != "jpeg":  # the same pixels in the store's other tile codecs
+            path = os.path.join(a.out, f"demo{a.size}-{compression}.tif")
+            if not os.path.exists(path):
+                subprocess.run([CLI, "convert", jpeg, "-o", path, "--compression", compression, "-q"], check=True)
+        rows = {"rolamos": [], "rasterio": []}
+        for run in range(a.runs):
+            spots = windows(a.size, a.size, a.windows, seed=run)
+            subprocess.run(["sync"])
+            rows["rasterio"].append(reads_rasterio(path, spots))
+            rows["rolamos"].append(reads_rolamos(path, spots))
+        for name, r in rows.items():
+            print(f"| {compression} | {name} | {statistics.median(c for c, _ in r):.0f} | "
+                  f"{statistics.median(w for _, w in r):.0f} |", flush=True)
 
+    if a.no_engine:
+        return
     survey = os.path.join(a.out, "survey")
     if not os.path.exists(os.path.join(survey, "ground_truth.json")):
         rolamos.synth(survey, frames=120, width=800, height=600, fov=60, lanes=4, overlap=0.7, seed=2)
