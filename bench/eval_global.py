@@ -11,8 +11,10 @@ import numpy as np
 
 survey, store = sys.argv[1], sys.argv[2]
 online = "--online" in sys.argv
-gt = {os.path.basename(f["file"]): np.array(f["frame_to_world"]).reshape(3, 3)
-      for f in json.load(open(os.path.join(survey, "ground_truth.json")))["frames"]}
+truth = json.load(open(os.path.join(survey, "ground_truth.json")))["frames"]
+gt = {os.path.basename(f["file"]): np.array(f["frame_to_world"]).reshape(3, 3) for f in truth}
+# A video's frames are named video.mp4#N: N is the survey's frame index.
+gt.update({"#" + str(f["index"]): np.array(f["frame_to_world"]).reshape(3, 3) for f in truth})
 manifest = json.load(open(os.path.join(store, "store.json")))
 ours, theirs = [], []
 w = h = None
@@ -23,7 +25,8 @@ for p in manifest["patches"]:
     for f in s["frames"]:
         H = np.array(f["frame_to_global"]).reshape(3, 3) if ("frame_to_global" in f and not online) else \
             (np.array(s.get("patch_to_global_online", s["patch_to_global"])).reshape(3, 3) @ np.array(f["frame_to_patch"]).reshape(3, 3))
-        T = gt[os.path.basename(f["source"])]
+        name = os.path.basename(f["source"])
+        T = gt["#" + name.split("#")[1]] if "#" in name else gt[name]
         for x in (0, (w - 1) / 2, w - 1):
             for y in (0, (h - 1) / 2, h - 1):
                 a, b = H @ [x, y, 1], T @ [x, y, 1]

@@ -206,23 +206,6 @@ void WriteAlignment(Store& store, FrameGraph& g, const GraphSolution& s, const s
   store.ReplaceSidecars(updated, global);
 }
 
-// 4-6. From the first placement `s` (StartSolution): the adjustment, then loop closures under it
-// (twice: the first straighten the map and bring more neighbours into view). With `trust_chain`, the
-// engine's chain decides where groups of frames go: a group that other links pulled away comes
-// back, and those links become the outliers.
-GraphSolution SolveGraph(FrameGraph& g, GraphSolution s, UnionFind& comp, const AlignOptions& o,
-                         const ParallelForOptions& pfo, bool trust_chain, AlignSummary* summary) {
-  summary->edges_dropped += AdjustParts(g, s, {}, o, pfo, trust_chain);
-  for (int round = 0; round < 2 && o.loops_per_frame > 0; ++round) {
-    if (AddLoopClosures(g, s, comp, o, summary, pfo) == 0) break;
-    summary->edges_dropped += AdjustParts(g, s, {}, o, pfo, trust_chain);
-  }
-  // Then every link, the chain's too, judged on its residual from there: the loop closures
-  // found under the chain's placement undo its drift.
-  if (trust_chain) summary->edges_dropped += AdjustParts(g, s, {}, o, pfo);
-  return s;
-}
-
 }  // namespace
 
 AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& progress) {

@@ -4,6 +4,7 @@
 #include <atomic>
 #include <cmath>
 #include <unordered_map>
+#include <functional>
 
 #include "engine/registration.h"
 #include "util/homography.h"
@@ -26,6 +27,18 @@ PlaneLink LinkOf(const GraphEdge& e, int a, int b) {
 
 cv::Matx33d NodeToPlane(const FrameGraph& g, const GraphSolution& s, int i) { return FrameToPlane(s.poses[size_t(i)], g.K); }
 
+void ScaleToTypicalFrame(const FrameGraph& g, GraphSolution& s) {
+  const double reference = ReferencePose(g.K).centre[2];
+  for (const auto& [root, list] : s.members) {
+    std::vector<double> altitude;
+    for (int i : list) altitude.push_back(s.poses[size_t(i)].centre[2]);
+    const double typical = Median(altitude);
+    if (!(typical < 0)) continue;
+    const double k = reference / typical;
+    for (int i : list) s.poses[size_t(i)].centre *= k;
+  }
+}
+
 GraphSolution StartSolution(const FrameGraph& g, const std::vector<cv::Matx33d>& G, UnionFind& comp) {
   GraphSolution s;
   const int N = g.size();
@@ -41,21 +54,25 @@ GraphSolution StartSolution(const FrameGraph& g, const std::vector<cv::Matx33d>&
   s.poses.resize(static_cast<size_t>(N));
   for (int i = 0; i < N; ++i)
     s.poses[size_t(i)] = comp.Find(i) == i ? ReferencePose(g.K) : LevelPoseFromHomography(G[size_t(i)], g.K, g.frame);
+  ScaleToTypicalFrame(g, s);
   s.dropped.assign(g.edges.size(), 0);
   return s;
 }
 
 int AdjustParts(const FrameGraph& g, GraphSolution& s, const std::vector<GroundPrior>& priors, const AlignOptions& o,
-                const ParallelForOptions& pfo, bool trust_chain) {
+                const ParallelForOptions& pfo, AdjustMode mode) {
   PlaneAdjustmentOptions po;
   po.loss = "cauchy";
-  po.loss_px = o.loss_px;
+  po.loss_px = mode == AdjustMode::kWide ? 10 * o.loss_px : o.loss_px;
   po.per_link = true;
-  po.drop_link_px = 3 * o.loss_px;
+  po.drop_link_px = mode == AdjustMode::kJudge ? 3 * o.loss_px : 0;
+  const bool trust_chain = mode == AdjustMode::kTrustChain;
   po.max_iterations = 200;
   s.dropped.resize(g.edges.size(), 0);
   std::vector<std::pair<int, std::vector<int>>> parts(s.members.begin(), s.members.end());
   std::atomic<int> dropped_count{0};
+  // Parts in parallel; one part (the usual survey) gets every thread inside its solver.
+  const int solver_threads = parts.size() == 1 ? ParallelThreads(pfo.threads) : 1;
   ParallelFor(static_cast<long long>(parts.size()), [&](long long c, int) {
     const auto& [root, list] = parts[size_t(c)];
     if (list.size() < 2) return;
@@ -82,7 +99,7 @@ int AdjustParts(const FrameGraph& g, GraphSolution& s, const std::vector<GroundP
         mine.push_back(q);
       }
     PlaneAdjustmentOptions opt = po;
-    opt.threads = 1;
+    opt.threads = solver_threads;
     double f = g.focal;
     const PlaneAdjustment r = AdjustPlanePoses(&part, &f, g.frame, links, local[s.anchor.at(root)], {},
                                                mine.size() >= 2 ? mine : std::vector<GroundPrior>{}, opt);
@@ -121,31 +138,43 @@ int AddLoopClosures(FrameGraph& g, GraphSolution& s, UnionFind& comp, const Alig
   const int N = g.size();
   const cv::Size frame = g.frame;
   std::vector<cv::Matx33d> P(static_cast<size_t>(N));
-  std::vector<cv::Point2d> centre(static_cast<size_t>(N));
+  for (int i = 0; i < N; ++i) P[size_t(i)] = NodeToPlane(g, s, i);
+  // Pairs whose footprints' bounds share a cell of a grid as fine as the median footprint: a
+  // part of the map drawn at another scale (a drifted chain) is searched as well as the rest.
+  std::vector<cv::Rect2d> bounds(static_cast<size_t>(N));
+  std::vector<double> sizes;
   for (int i = 0; i < N; ++i) {
-    P[size_t(i)] = NodeToPlane(g, s, i);
-    centre[size_t(i)] = ApplyHomography(P[size_t(i)], {(frame.width - 1) / 2.0, (frame.height - 1) / 2.0});
+    bounds[size_t(i)] = WarpedBounds(P[size_t(i)], frame);
+    sizes.push_back(std::max(bounds[size_t(i)].width, bounds[size_t(i)].height));
   }
-  // Frames a cell apart at most: a grid of one frame's diagonal.
-  const double cell = std::hypot(frame.width, frame.height);
-  auto key = [&](int cx, int cy) { return (int64_t(cx) << 32) ^ uint32_t(int32_t(cy)); };
+  const double cell = std::max(1.0, Median(sizes));
+  auto key = [&](long long cx, long long cy) { return (cx << 32) ^ static_cast<long long>(uint32_t(int32_t(cy))); };
+  auto cells = [&](int i, const std::function<void(int64_t)>& f) {
+    const cv::Rect2d& r = bounds[size_t(i)];
+    if (!std::isfinite(r.x) || !std::isfinite(r.y) || !std::isfinite(r.width) || !std::isfinite(r.height)) return;
+    const long long x0 = (long long)std::floor(r.x / cell), x1 = (long long)std::floor((r.x + r.width) / cell);
+    const long long y0 = (long long)std::floor(r.y / cell), y1 = (long long)std::floor((r.y + r.height) / cell);
+    if ((x1 - x0 + 1) * (y1 - y0 + 1) > 256) return;  // a footprint blown up by a wild placement: not searched
+    for (long long cy = y0; cy <= y1; ++cy)
+      for (long long cx = x0; cx <= x1; ++cx) f(key(cx, cy));
+  };
   std::unordered_map<int64_t, std::vector<int>> grid;
-  for (int i = 0; i < N; ++i)
-    grid[key(int(std::floor(centre[size_t(i)].x / cell)), int(std::floor(centre[size_t(i)].y / cell)))].push_back(i);
+  for (int i = 0; i < N; ++i) cells(i, [&](int64_t k) { grid[k].push_back(i); });
   std::vector<std::pair<int, int>> candidates;
   for (int i = 0; i < N; ++i) {
+    std::vector<int> seen;
+    cells(i, [&](int64_t k) {
+      auto it = grid.find(k);
+      if (it != grid.end()) seen.insert(seen.end(), it->second.begin(), it->second.end());
+    });
+    std::sort(seen.begin(), seen.end());
+    seen.erase(std::unique(seen.begin(), seen.end()), seen.end());
     std::vector<std::pair<double, int>> near;
-    const int cx = int(std::floor(centre[size_t(i)].x / cell)), cy = int(std::floor(centre[size_t(i)].y / cell));
-    for (int dy = -1; dy <= 1; ++dy)
-      for (int dx = -1; dx <= 1; ++dx) {
-        auto it = grid.find(key(cx + dx, cy + dy));
-        if (it == grid.end()) continue;
-        for (int j : it->second) {
-          if (j <= i || comp.Find(i) != comp.Find(j) || g.NearInSequence(i, j, o.min_index_gap) || g.Linked(i, j)) continue;
-          const double overlap = FootprintOverlap(P[size_t(i)], P[size_t(j)], frame);
-          if (overlap >= o.loop_overlap) near.emplace_back(overlap, j);
-        }
-      }
+    for (int j : seen) {
+      if (j <= i || comp.Find(i) != comp.Find(j) || g.NearInSequence(i, j, o.min_index_gap) || g.Linked(i, j)) continue;
+      const double overlap = FootprintOverlap(P[size_t(i)], P[size_t(j)], frame);
+      if (overlap >= o.loop_overlap) near.emplace_back(overlap, j);
+    }
     std::sort(near.rbegin(), near.rend());
     for (size_t k = 0; k < near.size() && k < size_t(o.loops_per_frame); ++k) candidates.emplace_back(i, near[k].second);
   }
@@ -173,6 +202,43 @@ int AddLoopClosures(FrameGraph& g, GraphSolution& s, UnionFind& comp, const Alig
     }
   summary->loop_edges += added;
   return added;
+}
+
+// Loop closures under the solution, each round followed by an adjustment (`mode`): the first
+// straighten the map and bring more neighbours into view. Rounds go on while a round finds more
+// than a hundredth of the loop closures so far (a region held by its chain alone gets its
+// closures once its neighbours have moved to it), at most `kMaxLoopRounds`.
+void CloseLoops(FrameGraph& g, GraphSolution& s, UnionFind& comp, const AlignOptions& o, const ParallelForOptions& pfo,
+                AdjustMode mode, AlignSummary* summary) {
+  constexpr int kMaxLoopRounds = 4;
+  for (int round = 0; round < kMaxLoopRounds && o.loops_per_frame > 0; ++round) {
+    const int added = AddLoopClosures(g, s, comp, o, summary, pfo);
+    if (added == 0) break;
+    summary->edges_dropped += AdjustParts(g, s, {}, o, pfo, mode);
+    if (round > 0 && added * 100 < summary->loop_edges) break;
+  }
+}
+
+// 4-6. From the first placement `s` (StartSolution): the adjustment, then loop closures under it.
+// With `trust_chain`, the engine's chain decides where groups of frames go: a group that other
+// links pulled away comes back, and those links become the outliers.
+GraphSolution SolveGraph(FrameGraph& g, GraphSolution s, UnionFind& comp, const AlignOptions& o,
+                         const ParallelForOptions& pfo, bool trust_chain, AlignSummary* summary) {
+  const AdjustMode mode = trust_chain ? AdjustMode::kTrustChain : AdjustMode::kJudge;
+  summary->edges_dropped += AdjustParts(g, s, {}, o, pfo, mode);
+  CloseLoops(g, s, comp, o, pfo, mode, summary);
+  if (!trust_chain) {
+    ScaleToTypicalFrame(g, s);
+    return s;
+  }
+  // Then every link, the chain's too, judged from there: first with a wide loss, so that the
+  // loop closures undo the chain's drift (tens of pixels at a lane's end) before any is judged
+  // on its residual, then as usual; loop closures the straightened map brings into view last.
+  AdjustParts(g, s, {}, o, pfo, AdjustMode::kWide);
+  summary->edges_dropped += AdjustParts(g, s, {}, o, pfo, AdjustMode::kJudge);
+  CloseLoops(g, s, comp, o, pfo, AdjustMode::kJudge, summary);
+  ScaleToTypicalFrame(g, s);
+  return s;
 }
 
 void RemoveLoopClosures(FrameGraph& g) {

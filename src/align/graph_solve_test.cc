@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include "geometry/plane_camera.h"
+#include "util/homography.h"
 
 namespace rolamos {
 namespace {
@@ -73,6 +74,127 @@ TEST(GraphSolve, RemoveLoopClosuresFreesTheirPairs) {
   EXPECT_FALSE(l.g.Linked(0, 2));
   EXPECT_TRUE(l.g.Linked(0, 1));
   EXPECT_TRUE(l.g.Linked(1, 2));
+}
+
+// A map whose gauge frame sat at a fifth of the others' altitude (a chain that drifted in scale)
+// is drawn at the scale of its typical frame.
+TEST(GraphSolve, TheMapIsDrawnAtTheScaleOfItsTypicalFrame) {
+  Line l;
+  GraphSolution s;
+  s.poses = l.truth;
+  for (auto& p : s.poses) p.centre *= 5.0;  // every frame five times higher than its gauge says
+  s.members[0] = {0, 1, 2};
+  ScaleToTypicalFrame(l.g, s);
+  for (size_t i = 0; i < 3; ++i) {
+    const cv::Rect2d b = WarpedBounds(FrameToPlane(s.poses[i], l.g.K), l.g.frame);
+    EXPECT_NEAR(b.width, l.g.frame.width, 1e-6);
+    EXPECT_NEAR(b.height, l.g.frame.height, 1e-6);
+  }
+  EXPECT_NEAR(s.poses[2].centre[0] - s.poses[0].centre[0], 300.0, 1e-6);  // the layout kept
+}
+
+// Loop closures are looked for among frames whose footprints meet, at whatever scale the
+// solution draws them (five times the frames' own: a grid of one frame's pixels missed them).
+TEST(GraphSolve, LoopClosuresAreSoughtAtTheScaleTheMapIsDrawnAt) {
+  Line l;
+  GraphSolution s;
+  s.poses = l.truth;
+  for (auto& p : s.poses) p.centre *= 5.0;
+  s.members[0] = {0, 1, 2};
+  s.dropped.clear();
+  UnionFind comp(3);
+  comp.Join(0, 1);
+  comp.Join(1, 2);
+  AlignOptions o;
+  AlignSummary summary;
+  AddLoopClosures(l.g, s, comp, o, &summary, {});
+  // Frames 0 and 2 (1,500 map pixels apart, overlapping by a quarter) and 1 and 2; 0 and 1 are
+  // neighbours in one patch, linked by the chain.
+  EXPECT_EQ(summary.loop_tried, 2);
+}
+
+// Two lanes of 16 frames joined at one end (the turn), 33 % side overlap. The engine's chain along
+// them drifts (each link turned 0.25 degrees: the far ends of the lanes 100 px apart where the
+// truth has them side by side); loop closures between the lanes are true.
+struct DriftingLanes {
+  static constexpr int kLane = 16;
+  FrameGraph g;
+  std::vector<PlanePose> truth, chain;
+  DriftingLanes() {
+    g.frame = cv::Size(400, 300);
+    g.focal = 400;
+    g.K = CameraMatrix(g.focal, g.frame);
+    for (int i = 0; i < 2 * kLane; ++i) {
+      GraphNode n;
+      n.patch = 1 + i / 4;
+      n.index = i;
+      g.nodes.push_back(n);
+      PlanePose p = ReferencePose(g.K);
+      const int along = i < kLane ? i : 2 * kLane - 1 - i;
+      p.centre[0] += 100.0 * along;
+      p.centre[1] += i < kLane ? 0 : 200;
+      truth.push_back(p);
+    }
+    // The chain's placement: every step turned a little more.
+    chain.push_back(truth[0]);
+    for (int i = 1; i < 2 * kLane; ++i) {
+      const double turn = 0.25 * CV_PI / 180 * i;
+      const cv::Vec3d step = truth[size_t(i)].centre - truth[size_t(i - 1)].centre;
+      PlanePose p = truth[size_t(i)];
+      p.centre = chain.back().centre + cv::Vec3d(std::cos(turn) * step[0] - std::sin(turn) * step[1],
+                                                 std::sin(turn) * step[0] + std::cos(turn) * step[1], step[2]);
+      p.yaw = truth[size_t(i)].yaw + turn;
+      chain.push_back(p);
+    }
+    for (int i = 1; i < 2 * kLane; ++i) Add(i - 1, i, kOnline, chain);
+    for (int i = 0; i < kLane - 2; ++i) Add(i, 2 * kLane - 1 - i, kLoop, truth);
+  }
+  void Add(int a, int b, EdgeKind kind, const std::vector<PlanePose>& poses) {
+    GraphEdge e;
+    e.a = a;
+    e.b = b;
+    e.kind = kind;
+    const cv::Matx33d H = PlaneToFrame(poses[size_t(b)], g.K) * FrameToPlane(poses[size_t(a)], g.K);
+    for (int y = 20; y < 300; y += 40)
+      for (int x = 20; x < 400; x += 40) {
+        const cv::Vec3d q = H * cv::Vec3d(x, y, 1);
+        const cv::Point2f in_b(float(q[0] / q[2]), float(q[1] / q[2]));
+        if (in_b.x < 0 || in_b.y < 0 || in_b.x >= 400 || in_b.y >= 300) continue;
+        e.in_a.emplace_back(float(x), float(y));
+        e.in_b.push_back(in_b);
+      }
+    g.edges.push_back(e);
+    g.AddLinked(a, b);
+  }
+  // How far apart the solution puts the far ends of the two lanes, against the truth (px).
+  double FarEndError(const GraphSolution& s) const {
+    const cv::Vec3d solved = s.poses[0].centre - s.poses[size_t(2 * kLane - 1)].centre;
+    const cv::Vec3d real = truth[0].centre - truth[size_t(2 * kLane - 1)].centre;
+    return std::hypot(solved[0] - real[0], solved[1] - real[1]);
+  }
+};
+
+// Solved with the chain first, the loop closures that disagree with the chain's drift by tens of
+// pixels are true and stay: the lanes come back side by side. (Judged against the drifted chain
+// they were dropped for good, and the lanes stayed splayed.)
+TEST(GraphSolve, AChainFirstSolveKeepsTheLoopClosuresTheChainsDriftContradicts) {
+  DriftingLanes l;
+  UnionFind comp(l.g.nodes.size());
+  for (const auto& e : l.g.edges) comp.Join(e.a, e.b);
+  std::vector<cv::Matx33d> G;
+  for (const auto& p : l.chain) G.push_back(FrameToPlane(p, l.g.K) * FrameToPlane(l.chain[0], l.g.K).inv());
+  AlignOptions o;
+  AlignSummary summary;
+  const GraphSolution start = StartSolution(l.g, G, comp);
+  GraphSolution chain_only = start;
+  chain_only.poses = l.chain;
+  ASSERT_GT(l.FarEndError(chain_only), 60.0);  // the drift the test is about
+  const GraphSolution s = SolveGraph(l.g, start, comp, o, {}, /*trust_chain=*/true, &summary);
+  EXPECT_EQ(summary.edges_dropped, 0);
+  for (char d : s.dropped) EXPECT_FALSE(d);
+  // The chain's links are biased by construction: the solution shares out their disagreement.
+  EXPECT_LT(l.FarEndError(s), 0.1 * l.FarEndError(chain_only));
+  EXPECT_LT(KeptEdgesRms(l.g, s), 1.0);
 }
 
 }  // namespace
