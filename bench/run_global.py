@@ -7,7 +7,7 @@ best-fit homography for the whole map), time and peak RSS of each step. Peers on
 survey: COLMAP 3.8 (CPU SIFT, sequential matcher, mapper; its camera poses projected onto the
 seafloor plane fitted to its points) and cv::Stitcher SCANS.
 
-  bench/run_global.py [--kinds random-300,lawn-1000,...] [--peers] [--out bench/out/global]
+  bench/run_global.py [--kinds random-300,lawn-1000,...] [--peers] [--navigation SIGMA_M] [--out bench/out/global]
 """
 import argparse, glob, json, os, shutil, subprocess, sys
 
@@ -116,6 +116,9 @@ def main():
     ap.add_argument("--kinds", default="random-300,lawn-1000,lawn-turns-1000")
     ap.add_argument("--peers", action="store_true", help="COLMAP and cv::Stitcher on the 300-frame survey")
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "out", "global"))
+    ap.add_argument("--navigation", type=float, default=0, metavar="SIGMA_M",
+                    help="also align each survey with navigation made from its ground truth, each centre moved by "
+                    "Gaussian noise of SIGMA_M metres (bench/nav_from_truth.py: 1 cm a world pixel)")
     ap.add_argument("--align-before", default="", help="another rolamos whose align runs on a copy of the same "
                     "mosaicked store, in the same run (a before/after of align alone)")
     a = ap.parse_args()
@@ -140,6 +143,20 @@ def main():
                      f"{tc:.0f} / {mc:.0f} | {tm + ta + tc:.0f} | {parts} |")
         print(lines[-1], flush=True)
         print("    " + "\n    ".join(r.stdout.strip().splitlines()[-8:-1]), flush=True)
+        if a.navigation > 0:
+            nav_store, csv = store + ".nav", os.path.join(a.out, kind + ".nav.csv")
+            shutil.rmtree(nav_store, ignore_errors=True)
+            subprocess.run(["cp", "-al", store, nav_store], check=True)
+            subprocess.run([PY, os.path.join(ROOT, "bench", "nav_from_truth.py"), survey, csv, "--sigma",
+                            str(a.navigation)], check=True)
+            rn, tn, mn = timed([CLI, "align", nav_store, "-q", "--navigation", csv, "--navigation-sigma",
+                                str(a.navigation)], check=True)
+            en = json.loads(subprocess.run([PY, os.path.join(ROOT, "bench", "eval_global.py"), survey, nav_store],
+                                           capture_output=True, text=True, check=True).stdout)
+            lines.append(f"| {kind}, aligned with navigation ({a.navigation:g} m noise) | | "
+                         f"{en['rms_px']:.2f} ({en['p95_px']:.2f}, {en['max_px']:.1f}) | | {tn:.0f} / {mn:.0f} | | | |")
+            print(lines[-1], flush=True)
+            print("    " + "\n    ".join(rn.stdout.strip().splitlines()[-8:-1]), flush=True)
         if a.align_before:
             before = store + ".before"
             shutil.rmtree(before, ignore_errors=True)
