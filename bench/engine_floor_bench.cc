@@ -56,8 +56,14 @@ std::string ReadBytes(const std::string& path) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc < 2) {
-    std::fprintf(stderr, "usage: engine_floor_bench FRAMES_DIR [--frames N] [--window W --levels L --points P --track-pixels N --normalize-sigma S --iterations N --min-step PX]\n");
+  const char* usage = "usage: engine_floor_bench FRAMES_DIR [--frames N] [--window W --levels L --points P --track-pixels N --normalize-sigma S --iterations N --min-step PX]\n";
+  if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
+    std::fprintf(stderr, "%s", usage);
+    return argc < 2 ? 2 : 0;
+  }
+  std::error_code ec;
+  if (!fs::is_directory(argv[1], ec)) {
+    std::fprintf(stderr, "engine_floor_bench: %s is not a folder of frames\n%s", argv[1], usage);
     return 2;
   }
   int limit = 30;

@@ -8,6 +8,27 @@
 namespace rolamos {
 namespace {
 
+// An edge a -> b measured where `poses` put a grid of a's pixels (every `step` px from `first`)
+// in b, those that land in b.
+void AddMeasuredEdge(FrameGraph& g, const std::vector<PlanePose>& poses, int a, int b, EdgeKind kind,
+                     cv::Point first, cv::Size step) {
+  GraphEdge e;
+  e.a = a;
+  e.b = b;
+  e.kind = kind;
+  const cv::Matx33d H = PlaneToFrame(poses[size_t(b)], g.K) * FrameToPlane(poses[size_t(a)], g.K);
+  for (int y = first.y; y < g.frame.height; y += step.height)
+    for (int x = first.x; x < g.frame.width; x += step.width) {
+      const cv::Vec3d q = H * cv::Vec3d(x, y, 1);
+      const cv::Point2f in_b(float(q[0] / q[2]), float(q[1] / q[2]));
+      if (in_b.x < 0 || in_b.y < 0 || in_b.x >= g.frame.width || in_b.y >= g.frame.height) continue;
+      e.in_a.emplace_back(float(x), float(y));
+      e.in_b.push_back(in_b);
+    }
+  g.edges.push_back(e);
+  g.AddLinked(a, b);
+}
+
 // Three frames 150 px apart; edges from where `truth` puts a grid of a's pixels in b.
 struct Line {
   FrameGraph g;
@@ -26,21 +47,7 @@ struct Line {
       truth.push_back(p);
     }
   }
-  void Add(int a, int b, EdgeKind kind) {
-    GraphEdge e;
-    e.a = a;
-    e.b = b;
-    e.kind = kind;
-    const cv::Matx33d H = PlaneToFrame(truth[size_t(b)], g.K) * FrameToPlane(truth[size_t(a)], g.K);
-    for (int y = 50; y < 300; y += 100)
-      for (int x = 200; x < 400; x += 60) {
-        const cv::Vec3d q = H * cv::Vec3d(x, y, 1);
-        e.in_a.emplace_back(float(x), float(y));
-        e.in_b.emplace_back(float(q[0] / q[2]), float(q[1] / q[2]));
-      }
-    g.edges.push_back(e);
-    g.AddLinked(a, b);
-  }
+  void Add(int a, int b, EdgeKind kind) { AddMeasuredEdge(g, truth, a, b, kind, {200, 50}, {60, 100}); }
 };
 
 // Only a dropped engine link within one patch counts, by how far off the solution leaves it.
@@ -150,21 +157,7 @@ struct DriftingLanes {
     for (int i = 0; i < kLane - 2; ++i) Add(i, 2 * kLane - 1 - i, kLoop, truth);
   }
   void Add(int a, int b, EdgeKind kind, const std::vector<PlanePose>& poses) {
-    GraphEdge e;
-    e.a = a;
-    e.b = b;
-    e.kind = kind;
-    const cv::Matx33d H = PlaneToFrame(poses[size_t(b)], g.K) * FrameToPlane(poses[size_t(a)], g.K);
-    for (int y = 20; y < 300; y += 40)
-      for (int x = 20; x < 400; x += 40) {
-        const cv::Vec3d q = H * cv::Vec3d(x, y, 1);
-        const cv::Point2f in_b(float(q[0] / q[2]), float(q[1] / q[2]));
-        if (in_b.x < 0 || in_b.y < 0 || in_b.x >= 400 || in_b.y >= 300) continue;
-        e.in_a.emplace_back(float(x), float(y));
-        e.in_b.push_back(in_b);
-      }
-    g.edges.push_back(e);
-    g.AddLinked(a, b);
+    AddMeasuredEdge(g, poses, a, b, kind, {20, 20}, {40, 40});
   }
   // How far apart the solution puts the far ends of the two lanes, against the truth (px).
   double FarEndError(const GraphSolution& s) const {
