@@ -3,8 +3,8 @@
 #include <algorithm>
 #include <atomic>
 #include <cmath>
-#include <unordered_map>
 #include <functional>
+#include <unordered_map>
 
 #include "engine/registration.h"
 #include "util/homography.h"
@@ -227,16 +227,14 @@ GraphSolution SolveGraph(FrameGraph& g, GraphSolution s, UnionFind& comp, const 
   const AdjustMode mode = trust_chain ? AdjustMode::kTrustChain : AdjustMode::kJudge;
   summary->edges_dropped += AdjustParts(g, s, {}, o, pfo, mode);
   CloseLoops(g, s, comp, o, pfo, mode, summary);
-  if (!trust_chain) {
-    ScaleToTypicalFrame(g, s);
-    return s;
+  if (trust_chain) {
+    // Then every link, the chain's too, judged from there: first with a wide loss, so that the
+    // loop closures undo the chain's drift (tens of pixels at a lane's end) before any is judged
+    // on its residual, then as usual; loop closures the straightened map brings into view last.
+    AdjustParts(g, s, {}, o, pfo, AdjustMode::kWide);
+    summary->edges_dropped += AdjustParts(g, s, {}, o, pfo, AdjustMode::kJudge);
+    CloseLoops(g, s, comp, o, pfo, AdjustMode::kJudge, summary);
   }
-  // Then every link, the chain's too, judged from there: first with a wide loss, so that the
-  // loop closures undo the chain's drift (tens of pixels at a lane's end) before any is judged
-  // on its residual, then as usual; loop closures the straightened map brings into view last.
-  AdjustParts(g, s, {}, o, pfo, AdjustMode::kWide);
-  summary->edges_dropped += AdjustParts(g, s, {}, o, pfo, AdjustMode::kJudge);
-  CloseLoops(g, s, comp, o, pfo, AdjustMode::kJudge, summary);
   ScaleToTypicalFrame(g, s);
   return s;
 }
