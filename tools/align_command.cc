@@ -80,6 +80,9 @@ void AddAlignCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--min-gap", s->options.min_index_gap, "frames of one patch closer in the sequence are not loop pairs")
       ->capture_default_str();
   cmd->add_option("--min-inliers", s->options.min_inliers, "RANSAC inliers an edge needs")->capture_default_str();
+  cmd->add_option("--pairs-per-edge", s->options.pairs_per_edge,
+                  "matched pixels per edge in the solve: more are a truer map, for memory and time")
+      ->capture_default_str();
   cmd->add_option("--loss", s->options.loss_px, "edge RMS (px) beyond which an edge is discounted (Cauchy)")
       ->capture_default_str();
   cmd->add_option("--navigation", s->navigation,

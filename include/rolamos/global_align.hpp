@@ -38,7 +38,11 @@ struct AlignOptions {
   double loop_overlap = 0.2;     // footprint overlap that makes two frames spatial neighbours
   int min_index_gap = 8;         // frames of one patch closer in the sequence are chain neighbours
   int min_inliers = 25;          // an edge needs this many RANSAC inliers
-  int pairs_per_edge = 24;       // matched pixels kept per edge in the optimisation
+  // Matched pixels kept per edge in the optimisation, spread over the overlap. The map's
+  // low-frequency shape (a bow across 80 lanes) is what the pairs' noise adds up to: on a
+  // 10,000-frame survey 24 pairs gave 1.26 px global RMS, 96 gave 0.49, at 10.5 MB and ~10 s of
+  // solving per pair (bench/RESULTS.md, 2026-11-26 (4)).
+  int pairs_per_edge = 48;
   double loss_px = 1.0;          // Cauchy knee: an edge whose RMS passes this is discounted
   // Per-frame navigation (ReadNavigationCsv): each camera centre pulled towards it.
   std::map<std::string, FrameNavigation> navigation;
