@@ -40,8 +40,8 @@ struct AlignOptions {
   int min_inliers = 25;          // an edge needs this many RANSAC inliers
   // Matched pixels kept per edge in the optimisation, spread over the overlap. The map's
   // low-frequency shape (a bow across 80 lanes) is what the pairs' noise adds up to: on a
-  // 10,000-frame survey 24 pairs gave 1.26 px global RMS, 96 gave 0.49, at 10.5 MB and ~10 s of
-  // solving per pair (bench/RESULTS.md, 2026-11-26 (4)).
+  // 10,000-frame survey 24 pairs gave 1.26 px global RMS at a 1,385 MiB peak, 48 gave 0.57 at
+  // 1,954 MiB, 96 gave 0.49 at 2,124 MiB (bench/RESULTS.md, 2026-11-26 (4)).
   int pairs_per_edge = 48;
   double loss_px = 1.0;          // Cauchy knee: an edge whose RMS passes this is discounted
   // Per-frame navigation (ReadNavigationCsv): each camera centre pulled towards it.
