@@ -195,6 +195,7 @@ py::dict Align(const py::object& store, const py::object& navigation, double foc
         .Integer("loops_per_frame", &AlignOptions::loops_per_frame).Number("loop_overlap", &AlignOptions::loop_overlap)
         .Integer("min_inliers", &AlignOptions::min_inliers).Number("loss_px", &AlignOptions::loss_px)
         .Integer("pairs_per_edge", &AlignOptions::pairs_per_edge)
+        .Integer("points_per_edge", &AlignOptions::points_per_edge)
         .Number("navigation_sigma", &AlignOptions::navigation_sigma_m).Integer("threads", &AlignOptions::threads);
     return t;
   }();
@@ -342,7 +343,7 @@ void BindSteps(py::module_& m) {
   m.def("align", &Align, py::arg("store"), py::kw_only(), py::arg("navigation") = py::none(), py::arg("focal") = 0.0,
         py::arg("crs") = "", py::arg("progress") = py::none(),
         "The global map over every frame (rolamos align); compose then draws it. Options: frames, "
-        "retrieval_candidates, loops_per_frame, loop_overlap, min_inliers, loss_px, pairs_per_edge, navigation_sigma, "
+        "retrieval_candidates, loops_per_frame, loop_overlap, min_inliers, loss_px, pairs_per_edge, points_per_edge, navigation_sigma, "
         "threads.");
   m.def("merge", &Merge, py::arg("stores"), py::arg("output"), py::kw_only(), py::arg("progress") = py::none(),
         "Several stores (dives) as one new store (rolamos merge); align it to find where they meet.");

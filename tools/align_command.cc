@@ -81,7 +81,10 @@ void AddAlignCommand(CLI::App& app, Runner* run) {
       ->capture_default_str();
   cmd->add_option("--min-inliers", s->options.min_inliers, "RANSAC inliers an edge needs")->capture_default_str();
   cmd->add_option("--pairs-per-edge", s->options.pairs_per_edge,
-                  "matched pixels per edge in the solve: more are a truer map, for memory and time")
+                  "matched pixels an edge's homography is fitted to: more are a truer map, for time")
+      ->capture_default_str();
+  cmd->add_option("--points-per-edge", s->options.points_per_edge,
+                  "points at which the solve holds each edge's homography (0 = every pair): memory grows with them")
       ->capture_default_str();
   cmd->add_option("--loss", s->options.loss_px, "edge RMS (px) beyond which an edge is discounted (Cauchy)")
       ->capture_default_str();

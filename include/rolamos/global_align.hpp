@@ -38,11 +38,14 @@ struct AlignOptions {
   double loop_overlap = 0.2;     // footprint overlap that makes two frames spatial neighbours
   int min_index_gap = 8;         // frames of one patch closer in the sequence are chain neighbours
   int min_inliers = 25;          // an edge needs this many RANSAC inliers
-  // Matched pixels kept per edge in the optimisation, spread over the overlap. The map's
-  // low-frequency shape (a bow across 80 lanes) is what the pairs' noise adds up to: on a
-  // 10,000-frame survey 24 pairs gave 1.26 px global RMS at a 1,385 MiB peak, 48 gave 0.57 at
-  // 1,954 MiB, 96 gave 0.49 at 2,124 MiB (bench/RESULTS.md, 2026-11-26 (4)).
+  // Matched pixels kept per edge, spread over the overlap: the edge's measurement is the
+  // homography they fit. The map's low-frequency shape (a bow across 80 lanes) is what the
+  // pairs' noise adds up to, so more pairs are a truer map (bench/RESULTS.md, 2026-11-26 (4)).
   int pairs_per_edge = 48;
+  // Points at which the solve compares each edge's homography with the map (a grid over its
+  // pairs, each point weighing as the pairs it stands for; at least 9). The solver's memory grows
+  // with these, not with the pairs: 0 = no compression, every kept pair in the solve.
+  int points_per_edge = 9;
   double loss_px = 1.0;          // Cauchy knee: an edge whose RMS passes this is discounted
   // Per-frame navigation (ReadNavigationCsv): each camera centre pulled towards it.
   std::map<std::string, FrameNavigation> navigation;

@@ -42,7 +42,7 @@ std::vector<PatchEdge> StrongestBetweenPatches(const FrameGraph& g, const std::v
     pe.q = b.patch;
     pe.p_to_q = cv::Matx33d(T(0, 0), T(0, 1), T(0, 2), T(1, 0), T(1, 1), T(1, 2), 0, 0, 1);
     pe.kind = e.kind;
-    pe.inliers = e.in_a.size();
+    pe.inliers = e.Matches();
     auto key = std::make_pair(std::min(pe.p, pe.q), std::max(pe.p, pe.q));
     if (pe.p > pe.q) {
       std::swap(pe.p, pe.q);

@@ -111,18 +111,15 @@ std::vector<double> GraphUncertainty(int n, const std::vector<std::pair<int, int
 
 namespace {
 
-// Each kept edge's matched pixels through the solution: their errors, pixels of frame b.
-std::vector<double> EdgeErrors(const FrameGraph& g, const GraphSolution& s, const GraphEdge& e) {
-  const cv::Matx33d a_to_b = NodeToPlane(g, s, e.b).inv() * NodeToPlane(g, s, e.a);
-  std::vector<double> d;
-  for (size_t k = 0; k < e.in_a.size(); ++k) d.push_back(cv::norm(ApplyHomography(a_to_b, e.in_a[k]) - cv::Point2d(e.in_b[k])));
-  return d;
+// An edge's matched pixels through the solution.
+EdgeError ErrorOf(const FrameGraph& g, const GraphSolution& s, const GraphEdge& e) {
+  return EdgeTransferError(e, NodeToPlane(g, s, e.b).inv() * NodeToPlane(g, s, e.a));
 }
 
-double Rms(const std::vector<double>& d) {
-  double s = 0;
-  for (double v : d) s += v * v;
-  return d.empty() ? 0 : std::sqrt(s / double(d.size()));
+double ResidualOf(const FrameGraph& g, const GraphSolution& s, const std::vector<size_t>& edges) {
+  EdgeError all;
+  for (size_t k : edges) all.Add(ErrorOf(g, s, g.edges[k]));
+  return all.Rms();
 }
 
 // A frame placed again from its own edges, its neighbours held: the homography that takes its
@@ -138,16 +135,13 @@ bool PlaceAgain(const FrameGraph& g, GraphSolution& s, int i, const std::vector<
       plane.push_back(cv::Point2f(ApplyHomography(other, a ? e.in_b[p] : e.in_a[p])));
     }
   }
-  if (mine.size() < 8) return false;
+  if (mine.size() < 5) return false;
   std::vector<uchar> inlier;
   const cv::Mat H = cv::findHomography(mine, plane, cv::RANSAC, 3.0, inlier);
   if (H.empty()) return false;
   const PlanePose before = s.poses[size_t(i)];
   s.poses[size_t(i)] = LevelPoseFromHomography(cv::Matx33d(H), g.K, g.frame);
-  std::vector<double> d;
-  for (size_t k : edges)
-    for (double v : EdgeErrors(g, s, g.edges[k])) d.push_back(v);
-  const double after = Rms(d);
+  const double after = ResidualOf(g, s, edges);
   if (!(after < *residual)) {
     s.poses[size_t(i)] = before;
     return false;
@@ -168,12 +162,7 @@ std::vector<FrameConfidence> AssessFrames(const FrameGraph& g, GraphSolution& s,
     edges_of[size_t(g.edges[k].a)].push_back(k);
     edges_of[size_t(g.edges[k].b)].push_back(k);
   }
-  auto residual_of = [&](int i) {
-    std::vector<double> d;
-    for (size_t k : edges_of[size_t(i)])
-      for (double v : EdgeErrors(g, s, g.edges[k])) d.push_back(v);
-    return Rms(d);
-  };
+  auto residual_of = [&](int i) { return ResidualOf(g, s, edges_of[size_t(i)]); };
   std::vector<double> all;
   for (int i = 0; i < n; ++i) {
     out[size_t(i)].edges = static_cast<int>(edges_of[size_t(i)].size());
@@ -201,7 +190,7 @@ std::vector<FrameConfidence> AssessFrames(const FrameGraph& g, GraphSolution& s,
   for (size_t k = 0; k < g.edges.size(); ++k) {
     if (k < s.dropped.size() && s.dropped[k]) continue;
     pairs.push_back({g.edges[k].a, g.edges[k].b});
-    pair_residual.push_back(Rms(EdgeErrors(g, s, g.edges[k])));
+    pair_residual.push_back(ErrorOf(g, s, g.edges[k]).Rms());
   }
   std::vector<cv::Point2d> centre(static_cast<size_t>(n));
   for (int i = 0; i < n; ++i)

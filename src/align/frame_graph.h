@@ -3,6 +3,7 @@
 // later, loop closures, each verified by a RANSAC homography.
 #pragma once
 
+#include <cmath>
 #include <map>
 #include <set>
 #include <string>
@@ -34,7 +35,25 @@ struct GraphEdge {
   int a = 0, b = 0;
   std::vector<cv::Point2f> in_a, in_b;
   EdgeKind kind = kOnline;
+  // Once compressed (CompressEdge): a few points of the homography the matched pairs fit, each
+  // weighing as the pairs it stands for (weight^2 of them; empty: 1 each), and the pairs' RMS
+  // scatter about that fit, frame pixels.
+  std::vector<float> weight;
+  float scatter_px = 0;
+  int matches = 0;  // matched pairs the edge was measured from (0: in_a.size())
+
+  int Matches() const { return matches > 0 ? matches : static_cast<int>(in_a.size()); }
 };
+
+// How far the map puts an edge's matched pairs from each other, through `a_to_b` (frame a ->
+// frame b): the sum of their squared errors (pixels of b) over `count` pairs, the compressed
+// edge's scatter included.
+struct EdgeError {
+  double sum_sq = 0, count = 0;
+  void Add(const EdgeError& e) { sum_sq += e.sum_sq, count += e.count; }
+  double Rms() const { return count > 0 ? std::sqrt(sum_sq / count) : 0.0; }
+};
+EdgeError EdgeTransferError(const GraphEdge& e, const cv::Matx33d& a_to_b);
 
 // Union-find over frames.
 struct UnionFind {
@@ -82,6 +101,16 @@ void AddRetrievalEdges(FrameGraph& g, const AlignOptions& o, AlignSummary* summa
 
 // At most `n` pairs spread over frame a (Thin's grid), as the optimisation wants them.
 GraphEdge ThinEdge(GraphEdge e, int n, cv::Size frame);
+
+// The edge's pairs replaced by the homography they fit (least squares), sampled at the centres of
+// at most `points` cells of a grid over them, each weighing as the pairs of its cell and spread
+// so that their second moments are the pairs': the solve then holds a few rows per edge rather
+// than a row pair per matched pair, with the same pull. Kept as it is when it has too few pairs.
+GraphEdge CompressEdge(GraphEdge e, int points);
+
+// What align does with every edge it finds: thinned to pairs_per_edge, compressed to
+// points_per_edge.
+GraphEdge MeasureEdge(GraphEdge e, const AlignOptions& o, cv::Size frame);
 
 // Two frames that see the same ground, for real: matches one RANSAC homography explains, a motion
 // a camera over the seafloor can make, enough inliers covering some of the frame. `guess`

@@ -20,6 +20,7 @@ PlaneLink LinkOf(const GraphEdge& e, int a, int b) {
   l.b = b;
   l.in_a = e.in_a;
   l.in_b = e.in_b;
+  l.pair_weight = e.weight;
   return l;
 }
 
@@ -125,12 +126,13 @@ double WorstDroppedChainLink(const FrameGraph& g, const GraphSolution& s) {
 }
 
 double KeptEdgesRms(const FrameGraph& g, const GraphSolution& s) {
-  std::vector<PlaneLink> all;
+  EdgeError all;
   for (size_t k = 0; k < g.edges.size(); ++k) {
     if (k < s.dropped.size() && s.dropped[k]) continue;
-    all.push_back(LinkOf(g.edges[k], g.edges[k].a, g.edges[k].b));
+    const GraphEdge& e = g.edges[k];
+    all.Add(EdgeTransferError(e, NodeToPlane(g, s, e.b).inv() * NodeToPlane(g, s, e.a)));
   }
-  return PlaneTransferRms(s.poses, g.focal, g.frame, all);
+  return all.Rms();
 }
 
 int AddLoopClosures(FrameGraph& g, GraphSolution& s, UnionFind& comp, const AlignOptions& o, AlignSummary* summary,
@@ -189,7 +191,7 @@ int AddLoopClosures(FrameGraph& g, GraphSolution& s, UnionFind& comp, const Alig
     e.a = i;
     e.b = j;
     e.kind = kLoop;
-    found[size_t(k)] = ThinEdge(std::move(e), o.pairs_per_edge, frame);
+    found[size_t(k)] = MeasureEdge(std::move(e), o, frame);
     ok[size_t(k)] = 1;
   }, pfo);
   int added = 0;

@@ -1,5 +1,7 @@
 #include "align/graph_solve.h"
 
+#include <functional>
+
 #include <gtest/gtest.h>
 #include <opencv2/calib3d.hpp>
 
@@ -193,38 +195,39 @@ TEST(GraphSolve, AChainFirstSolveKeepsTheLoopClosuresTheChainsDriftContradicts) 
 }
 
 // Four lanes of twelve frames, each frame linked to its neighbours along and across the lanes by
-// every 8th pixel's match, measured with 0.5 px of noise. The map's shape is what the pairs'
-// noise adds up to, so the edges thinned to 60 pairs (ThinEdge, as align does with
-// AlignOptions::pairs_per_edge) place it closer to the truth than the same edges thinned to 6.
-TEST(GraphSolve, MorePairsPerEdgeGiveATruerMap) {
-  constexpr int kLanes = 4, kPerLane = 12;
+// every 8th pixel's match, measured with 0.5 px of noise: the map's shape is what the pairs'
+// noise adds up to.
+struct NoisyLanes {
+  static constexpr int kLanes = 4, kPerLane = 12;
   FrameGraph full;
-  full.frame = cv::Size(400, 300);
-  full.focal = 400;
-  full.K = CameraMatrix(full.focal, full.frame);
   std::vector<PlanePose> truth;
-  for (int i = 0; i < kLanes * kPerLane; ++i) {
-    GraphNode n;
-    n.patch = 1 + i / kPerLane;
-    n.index = i;
-    full.nodes.push_back(n);
-    PlanePose p = ReferencePose(full.K);
-    p.centre[0] += 120.0 * (i % kPerLane);
-    p.centre[1] += 180.0 * (i / kPerLane);
-    truth.push_back(p);
-  }
-  cv::RNG rng(7);
-  for (int a = 0; a < full.size(); ++a)
-    for (int b = a + 1; b < full.size(); ++b) {
-      const cv::Vec3d d = truth[size_t(b)].centre - truth[size_t(a)].centre;
-      if (std::abs(d[0]) > 250 || std::abs(d[1]) > 200) continue;
-      const size_t before = full.edges.size();
-      AddMeasuredEdge(full, truth, a, b, d[1] == 0 ? kOnline : kLoop, {4, 4}, {8, 8});
-      for (auto& q : full.edges[before].in_b) q += cv::Point2f(float(rng.gaussian(0.5)), float(rng.gaussian(0.5)));
+  NoisyLanes() {
+    full.frame = cv::Size(400, 300);
+    full.focal = 400;
+    full.K = CameraMatrix(full.focal, full.frame);
+    for (int i = 0; i < kLanes * kPerLane; ++i) {
+      GraphNode n;
+      n.patch = 1 + i / kPerLane;
+      n.index = i;
+      full.nodes.push_back(n);
+      PlanePose p = ReferencePose(full.K);
+      p.centre[0] += 120.0 * (i % kPerLane);
+      p.centre[1] += 180.0 * (i / kPerLane);
+      truth.push_back(p);
     }
+    cv::RNG rng(7);
+    for (int a = 0; a < full.size(); ++a)
+      for (int b = a + 1; b < full.size(); ++b) {
+        const cv::Vec3d d = truth[size_t(b)].centre - truth[size_t(a)].centre;
+        if (std::abs(d[0]) > 250 || std::abs(d[1]) > 200) continue;
+        const size_t before = full.edges.size();
+        AddMeasuredEdge(full, truth, a, b, d[1] == 0 ? kOnline : kLoop, {4, 4}, {8, 8});
+        for (auto& q : full.edges[before].in_b) q += cv::Point2f(float(rng.gaussian(0.5)), float(rng.gaussian(0.5)));
+      }
+  }
   // The error of a solution: frame corners on its plane against the truth's, after the
   // homography that fits them best (the gauge).
-  auto error = [&](const GraphSolution& s) {
+  double Error(const GraphSolution& s) const {
     std::vector<cv::Point2f> ours, real;
     for (size_t i = 0; i < truth.size(); ++i)
       for (const cv::Point2d c : {cv::Point2d(0, 0), cv::Point2d(399, 0), cv::Point2d(0, 299), cv::Point2d(399, 299)}) {
@@ -238,10 +241,11 @@ TEST(GraphSolve, MorePairsPerEdgeGiveATruerMap) {
       sum += e.dot(e);
     }
     return std::sqrt(sum / double(ours.size()));
-  };
-  auto solve = [&](int pairs) {
+  }
+  // The map from the edges as `measure` leaves them, from the true placement; its error.
+  double Solve(const std::function<GraphEdge(GraphEdge)>& measure, FrameGraph* solved = nullptr) const {
     FrameGraph g = full;
-    for (auto& e : g.edges) e = ThinEdge(std::move(e), pairs, g.frame);
+    for (auto& e : g.edges) e = measure(std::move(e));
     UnionFind comp(g.nodes.size());
     for (const auto& e : g.edges) comp.Join(e.a, e.b);
     std::vector<cv::Matx33d> G;
@@ -251,14 +255,87 @@ TEST(GraphSolve, MorePairsPerEdgeGiveATruerMap) {
     AlignSummary summary;
     const GraphSolution s = SolveGraph(g, StartSolution(g, G, comp), comp, o, {}, /*trust_chain=*/false, &summary);
     EXPECT_EQ(summary.edges_dropped, 0);
+    if (solved) *solved = g;
+    return Error(s);
+  }
+};
+
+// The edges thinned to 60 pairs (ThinEdge, as align does with AlignOptions::pairs_per_edge) place
+// the map closer to the truth than the same edges thinned to 6.
+TEST(GraphSolve, MorePairsPerEdgeGiveATruerMap) {
+  const NoisyLanes lanes;
+  auto thinned = [&](int pairs) {
+    FrameGraph g;
+    const double px = lanes.Solve([&](GraphEdge e) { return ThinEdge(std::move(e), pairs, lanes.full.frame); }, &g);
     for (const auto& e : g.edges) EXPECT_LE(static_cast<int>(e.in_a.size()), pairs);
-    return error(s);
+    return px;
   };
-  const double few = solve(6), many = solve(60);
+  const double few = thinned(6), many = thinned(60);
   RecordProperty("px_with_6_pairs", std::to_string(few));
   RecordProperty("px_with_60_pairs", std::to_string(many));
   EXPECT_GT(few, 0.02);  // the noise shows
   EXPECT_LT(many, 0.6 * few) << "6 pairs: " << few << " px, 60 pairs: " << many << " px";
+}
+
+// An edge compressed to the homography its 60 pairs fit, held at 9 weighted points, pulls the
+// map as its 60 pairs do: the map is as true, from a seventh of the solver's rows; and what the
+// solve reports of the edges (their residual over the matched pairs) still counts the pairs' noise.
+TEST(GraphSolve, CompressedEdgesHoldTheMapAsTheirPairsDo) {
+  const NoisyLanes lanes;
+  const cv::Size frame = lanes.full.frame;
+  const double pairs = lanes.Solve([&](GraphEdge e) { return ThinEdge(std::move(e), 60, frame); });
+  const double few = lanes.Solve([&](GraphEdge e) { return ThinEdge(std::move(e), 9, frame); });
+  FrameGraph g;
+  const double compressed = lanes.Solve([&](GraphEdge e) { return CompressEdge(ThinEdge(std::move(e), 60, frame), 9); }, &g);
+  RecordProperty("px_with_60_pairs", std::to_string(pairs));
+  RecordProperty("px_compressed_to_9_points", std::to_string(compressed));
+  RecordProperty("px_with_9_pairs", std::to_string(few));
+  EXPECT_LT(compressed, 1.15 * pairs) << "60 pairs: " << pairs << " px, compressed: " << compressed << " px";
+  EXPECT_LT(compressed, 0.75 * few) << "9 pairs: " << few << " px, compressed: " << compressed << " px";
+  int compressed_edges = 0;
+  for (const auto& e : g.edges) {
+    EXPECT_LE(e.in_a.size(), 9u);
+    if (e.weight.empty()) continue;
+    ++compressed_edges;
+    double count = 0;
+    for (float w : e.weight) count += double(w) * w;
+    EXPECT_NEAR(count, e.Matches(), 1e-3);
+    // 0.5 px of noise in x and in y: 0.71 px a pair, less what the fit's 8 parameters take up.
+    EXPECT_GT(e.scatter_px, 0.45);
+    EXPECT_LT(e.scatter_px, 0.95);
+  }
+  EXPECT_GT(compressed_edges, int(g.edges.size()) / 2);
+}
+
+// A compressed edge's points lie on the homography its pairs fit, and stand for all of them.
+TEST(FrameGraph, CompressEdgeSamplesTheHomographyItsPairsFit) {
+  const cv::Matx33d H(0.98, -0.05, 120, 0.04, 1.01, -30, 1e-5, -2e-5, 1);
+  GraphEdge e;
+  for (int y = 10; y < 300; y += 17)
+    for (int x = 5; x < 250; x += 13) {
+      e.in_a.emplace_back(float(x), float(y));
+      e.in_b.emplace_back(ApplyHomography(H, cv::Point2d(x, y)));
+    }
+  const int n = static_cast<int>(e.in_a.size());
+  const GraphEdge c = CompressEdge(e, 9);
+  ASSERT_EQ(c.in_a.size(), 9u);
+  ASSERT_EQ(c.weight.size(), 9u);
+  EXPECT_EQ(c.Matches(), n);
+  EXPECT_LT(c.scatter_px, 1e-3);
+  for (size_t k = 0; k < c.in_a.size(); ++k)
+    EXPECT_LT(cv::norm(ApplyHomography(H, cv::Point2d(c.in_a[k])) - cv::Point2d(c.in_b[k])), 1e-2);
+  // Its error through a placement is the pairs' error: here H moved by 2 px in x.
+  const cv::Matx33d moved = cv::Matx33d(1, 0, 2, 0, 1, 0, 0, 0, 1) * H;
+  EXPECT_NEAR(EdgeTransferError(c, moved).Rms(), EdgeTransferError(e, moved).Rms(), 0.05);
+  EXPECT_NEAR(EdgeTransferError(c, moved).count, n, 1e-3);
+  // Too few pairs to stand for: kept as they are.
+  GraphEdge small;
+  small.in_a.assign(e.in_a.begin(), e.in_a.begin() + 8);
+  small.in_b.assign(e.in_b.begin(), e.in_b.begin() + 8);
+  EXPECT_TRUE(CompressEdge(small, 9).weight.empty());
+  EXPECT_EQ(CompressEdge(small, 9).in_a.size(), 8u);
+  // No compression asked for.
+  EXPECT_EQ(CompressEdge(e, 0).in_a.size(), e.in_a.size());
 }
 
 }  // namespace

@@ -73,13 +73,24 @@ struct Transfer {
   double cx, cy, w;
 };
 
+double PairWeight(const PlaneLink& l, size_t i) { return i < l.pair_weight.size() ? l.pair_weight[i] : 1.0; }
+
+// How many matched pairs a link stands for: the sum of its pairs' squared weights.
+double PairCount(const PlaneLink& l) {
+  if (l.pair_weight.empty()) return double(l.in_a.size());
+  double n = 0;
+  for (size_t i = 0; i < l.in_a.size(); ++i) n += PairWeight(l, i) * PairWeight(l, i);
+  return n;
+}
+
 // Every pixel of a link at once (2 n residuals).
 struct LinkTransfer {
   LinkTransfer(const PlaneLink* l, double cx, double cy) : l(l), cx(cx), cy(cy) {}
   template <typename T>
   bool operator()(const T* ea, const T* ca, const T* eb, const T* cb, const T* f, T* r) const {
     for (size_t i = 0; i < l->in_a.size(); ++i)
-      if (!Transfer(l->in_a[i], l->in_b[i], cx, cy, WeightOf(*l))(ea, ca, eb, cb, f, r + 2 * i)) return false;
+      if (!Transfer(l->in_a[i], l->in_b[i], cx, cy, WeightOf(*l) * PairWeight(*l, i))(ea, ca, eb, cb, f, r + 2 * i))
+        return false;
     return true;
   }
   const PlaneLink* l;
@@ -111,17 +122,17 @@ struct GroundResidual {
 double PlaneTransferRms(const std::vector<PlanePose>& poses, double focal, cv::Size frame,
                         const std::vector<PlaneLink>& links) {
   const cv::Matx33d K = CameraMatrix(focal, frame);
-  double sum = 0;
-  size_t n = 0;
+  double sum = 0, n = 0;
   for (const auto& l : links) {
     const cv::Matx33d H = PlaneToFrame(poses[size_t(l.b)], K) * FrameToPlane(poses[size_t(l.a)], K);
     for (size_t i = 0; i < l.in_a.size(); ++i) {
       const cv::Vec3d q = H * cv::Vec3d(l.in_a[i].x, l.in_a[i].y, 1);
-      sum += std::pow(q[0] / q[2] - l.in_b[i].x, 2) + std::pow(q[1] / q[2] - l.in_b[i].y, 2);
-      ++n;
+      const double w2 = PairWeight(l, i) * PairWeight(l, i);
+      sum += w2 * (std::pow(q[0] / q[2] - l.in_b[i].x, 2) + std::pow(q[1] / q[2] - l.in_b[i].y, 2));
+      n += w2;
     }
   }
-  return n ? std::sqrt(sum / double(n)) : 0.0;
+  return n > 0 ? std::sqrt(sum / n) : 0.0;
 }
 
 namespace {
@@ -154,8 +165,8 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
     if (o.per_link && !l.in_a.empty()) {
       auto* cost = new ceres::AutoDiffCostFunction<LinkTransfer, ceres::DYNAMIC, 3, 3, 3, 3, 1>(
           new LinkTransfer(&l, cx, cy), 2 * static_cast<int>(l.in_a.size()));
-      // The knee where the link's RMS reaches loss_px.
-      const double a = o.loss_px * std::sqrt(double(l.in_a.size()));
+      // The knee where the link's RMS (over the pairs it stands for) reaches loss_px.
+      const double a = o.loss_px * std::sqrt(PairCount(l));
       // A trusted link is not discounted: its pull grows with how far off it is.
       ceres::LossFunction* link_loss =
           l.trusted ? nullptr
@@ -170,7 +181,7 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
     }
     for (size_t i = 0; i < l.in_a.size(); ++i) {
       auto* cost = new ceres::AutoDiffCostFunction<Transfer, 2, 3, 3, 3, 3, 1>(
-          new Transfer(l.in_a[i], l.in_b[i], cx, cy, WeightOf(l)));
+          new Transfer(l.in_a[i], l.in_b[i], cx, cy, WeightOf(l) * PairWeight(l, i)));
       problem.AddResidualBlock(cost, l.trusted ? nullptr : loss.get(), angles[size_t(l.a)].data(),
                                centres[size_t(l.a)].data(), angles[size_t(l.b)].data(), centres[size_t(l.b)].data(),
                                focal);

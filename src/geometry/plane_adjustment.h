@@ -21,6 +21,9 @@ struct PlaneLink {
   int a = 0, b = 0;
   std::vector<cv::Point2f> in_a, in_b;
   double weight = 1.0;  // multiplies every residual of the link
+  // Per pair (empty: 1 each): multiplies that pair's residuals. A pair of weight w stands for w^2
+  // matched pairs (an edge's homography sampled at a few points, each for the pairs about it).
+  std::vector<float> pair_weight;
   // A link the others must agree with (the engine's chain of consecutive frames, verified as it
   // was made): never dropped, not discounted by the robust loss, and ten times the weight, so
   // that a group of frames other links pulled away is pulled back by it and those links become
@@ -76,7 +79,8 @@ PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, c
                                  const std::vector<char>& held, const std::vector<GroundPrior>& priors,
                                  const PlaneAdjustmentOptions& options);
 
-// RMS transfer error of the links under the poses (frame pixels), as the adjustment measures it.
+// RMS transfer error of the links under the poses (frame pixels), as the adjustment measures it:
+// each pair counted pair_weight^2 times.
 double PlaneTransferRms(const std::vector<PlanePose>& poses, double focal, cv::Size frame,
                         const std::vector<PlaneLink>& links);
 

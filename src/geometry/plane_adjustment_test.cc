@@ -96,5 +96,22 @@ TEST(PlaneAdjustment, TrustedChainPullsAGroupBackFromLinksThatAgreeWithEachOther
   }
 }
 
+// A pair of weight w counts as w^2 pairs, in the transfer error as in the solve: a link whose
+// pair of weight 3 is 2 px off and whose other pair is exact has an RMS of sqrt(9 * 4 / 10).
+TEST(PlaneAdjustment, PairWeightsCountAsThatManyPairs) {
+  const PlanePose a = ReferencePose(CameraMatrix(kFocal, kFrame));
+  PlanePose b = a;
+  b.centre[0] += 100;
+  PlaneLink l = LinkBetween(0, 1, a, b);
+  ASSERT_GE(l.in_a.size(), 2u);
+  l.in_a.resize(2);
+  l.in_b.resize(2);
+  l.in_b[1].x += 2;
+  const std::vector<PlanePose> poses{a, b};
+  EXPECT_NEAR(PlaneTransferRms(poses, kFocal, kFrame, {l}), std::sqrt(4.0 / 2), 1e-3);
+  l.pair_weight = {1.0f, 3.0f};
+  EXPECT_NEAR(PlaneTransferRms(poses, kFocal, kFrame, {l}), std::sqrt(9 * 4.0 / 10), 1e-3);
+}
+
 }  // namespace
 }  // namespace rolamos
