@@ -226,6 +226,13 @@ py::dict Align(const py::object& store, const py::object& navigation, double foc
   d["rms_before_px"] = r.rms_before_px;
   d["rms_after_px"] = r.rms_after_px;
   d["seconds"] = r.seconds;
+  py::dict stages, peaks;
+  for (const auto& st : r.stages) {
+    stages[py::str(st.name)] = st.seconds;
+    peaks[py::str(st.name)] = st.peak_mib;
+  }
+  d["stage_seconds"] = stages;
+  d["stage_peak_mib"] = peaks;
   return d;
 }
 

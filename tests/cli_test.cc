@@ -193,6 +193,8 @@ TEST(Cli, MosaicAlignComposeAndAnAlignKilledMidway) {
   r = test::RunCli("align -q " + store);
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_NE(r.output.find("40 frames in 1 part"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("stages: graph "), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find(" MiB (reached in "), std::string::npos) << r.output;
   r = test::RunCli("compose -q " + store + " --compression zstd");
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_EQ(r.output.find("left out"), std::string::npos) << r.output;

@@ -1,4 +1,5 @@
 #include <cstdio>
+#include <string>
 
 #include "command.h"
 #include "rolamos/global_align.hpp"
@@ -14,6 +15,20 @@ struct AlignSwitches {
   NavigationCamera camera;
   bool quiet = false;
 };
+
+// "12.3 s" per stage, and where the peak was reached (the first stage that ended at it): which
+// stage to look at when memory is short.
+static std::string StageLine(const AlignSummary& r) {
+  std::string line, peak_at;
+  char buf[64];
+  for (const auto& st : r.stages) {
+    std::snprintf(buf, sizeof buf, "%.1f s", st.seconds);
+    line += (line.empty() ? "" : ", ") + st.name + " " + buf;
+    if (peak_at.empty() && st.peak_mib >= r.stages.back().peak_mib) peak_at = st.name;
+  }
+  std::snprintf(buf, sizeof buf, "%.0f MiB", r.stages.empty() ? 0.0 : r.stages.back().peak_mib);
+  return "stages: " + line + "; peak memory " + buf + " (reached in " + peak_at + ")";
+}
 
 static int RunAlign(const AlignSwitches& s) {
   AlignOptions o = s.options;
@@ -55,6 +70,7 @@ static int RunAlign(const AlignSwitches& s) {
                   d.doubtful_frames ? (", " + std::to_string(d.doubtful_frames) + " far off their own edges").c_str() : "");
     }
   }
+  if (!r.stages.empty()) std::printf("%s\n", StageLine(r).c_str());
   std::string parts;
   for (size_t c = 0; c < r.component_frames.size() && c < 8; ++c)
     parts += (c ? ", " : "") + std::to_string(r.component_frames[c]);

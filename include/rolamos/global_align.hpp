@@ -109,6 +109,13 @@ struct AlignSummary {
   double navigation_before_m = 0;  // median distance of frame centres from their navigation
   double navigation_after_m = 0;
   double seconds = 0;
+  // Each stage in order: its name, seconds, and the process's peak memory (MiB) at its end.
+  struct Stage {
+    std::string name;
+    double seconds = 0;
+    double peak_mib = 0;
+  };
+  std::vector<Stage> stages;
 };
 
 AlignSummary AlignStore(Store store, const AlignOptions& options, const ProgressFn& progress = {});

@@ -97,6 +97,12 @@ def test_errors_name_the_file_and_bad_options_name_the_option(tmp_path):
 def test_align_then_compose_and_export_from_python(store, tmp_path):
     summary = rolamos.align(store.path)
     assert summary["components"] == 1 and summary["rms_after_px"] < 2.0, summary
+    # Every stage timed, in order, with the peak memory at its end (which only grows).
+    stages = list(summary["stage_seconds"])
+    assert stages[:4] == ["graph", "retrieval", "consistency", "solve"] and stages[-1] == "store", stages
+    assert all(t >= 0 for t in summary["stage_seconds"].values())
+    peaks = [summary["stage_peak_mib"][name] for name in stages]
+    assert peaks[0] > 0 and peaks == sorted(peaks), peaks
     rolamos.compose(store.path)
     image = rolamos.open_image(store.path, "mosaic")
     out = tmp_path / "region.png"

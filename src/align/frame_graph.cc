@@ -13,6 +13,7 @@
 #include "align/stored_frames.h"
 #include "engine/patch_adjustment.h"
 #include "engine/registration.h"
+#include "geometry/pair_compression.h"
 #include "geometry/plane_adjustment.h"
 #include "rolamos/error.hpp"
 #include "util/homography.h"
@@ -42,54 +43,13 @@ GraphEdge ThinEdge(GraphEdge e, int n, cv::Size frame) {
 }
 
 GraphEdge CompressEdge(GraphEdge e, int points) {
-  const size_t n = e.in_a.size();
-  const int side = static_cast<int>(std::floor(std::sqrt(std::max(0, points))));
-  if (side < 2 || n < 8 || n <= size_t(side * side) || !e.weight.empty()) return e;
-  const cv::Mat fit = cv::findHomography(e.in_a, e.in_b, 0);  // least squares, refined (LM)
-  if (fit.empty()) return e;
-  const cv::Matx33d H(fit);
-  double scatter = 0;
-  for (size_t i = 0; i < n; ++i) scatter += std::pow(cv::norm(ApplyHomography(H, e.in_a[i]) - cv::Point2d(e.in_b[i])), 2);
-  // The pairs by cell of a side x side grid over their bounds.
-  float x0 = e.in_a[0].x, x1 = x0, y0 = e.in_a[0].y, y1 = y0;
-  for (const auto& p : e.in_a) x0 = std::min(x0, p.x), x1 = std::max(x1, p.x), y0 = std::min(y0, p.y), y1 = std::max(y1, p.y);
-  const cv::Rect2f box(x0, y0, x1 - x0, y1 - y0);
-  std::vector<cv::Point2d> sum(size_t(side * side));
-  std::vector<int> count(size_t(side * side), 0);
-  cv::Point2d mean;
-  for (const auto& p : e.in_a) {
-    const int cx = std::clamp(int((p.x - box.x) * side / std::max(1e-3f, box.width)), 0, side - 1);
-    const int cy = std::clamp(int((p.y - box.y) * side / std::max(1e-3f, box.height)), 0, side - 1);
-    sum[size_t(cy * side + cx)] += cv::Point2d(p);
-    ++count[size_t(cy * side + cx)];
-    mean += cv::Point2d(p);
-  }
-  mean *= 1.0 / double(n);
-  // Cell centres lose the spread within cells, and with it some of the pairs' hold on rotation
-  // and scale: stretched about the mean until their second moments are the pairs'.
-  cv::Point2d total, between;
-  for (const auto& p : e.in_a) total += cv::Point2d(std::pow(p.x - mean.x, 2), std::pow(p.y - mean.y, 2));
-  std::vector<cv::Point2d> centre;
-  std::vector<float> weight;
-  for (size_t c = 0; c < count.size(); ++c) {
-    if (count[c] == 0) continue;
-    centre.push_back(sum[c] * (1.0 / count[c]));
-    weight.push_back(std::sqrt(float(count[c])));
-    between += count[c] * cv::Point2d(std::pow(centre.back().x - mean.x, 2), std::pow(centre.back().y - mean.y, 2));
-  }
-  if (centre.size() < 5) return e;  // too few cells to hold a homography: the pairs stay
-  const double sx = between.x > 0 ? std::clamp(std::sqrt(total.x / between.x), 1.0, 2.0) : 1.0;
-  const double sy = between.y > 0 ? std::clamp(std::sqrt(total.y / between.y), 1.0, 2.0) : 1.0;
-  e.in_a.clear();
-  e.in_b.clear();
-  for (const auto& c : centre) {
-    const cv::Point2d p(mean.x + (c.x - mean.x) * sx, mean.y + (c.y - mean.y) * sy);
-    e.in_a.emplace_back(p);
-    e.in_b.emplace_back(ApplyHomography(H, p));
-  }
-  e.weight = std::move(weight);
-  e.scatter_px = static_cast<float>(std::sqrt(scatter / double(n)));
-  e.matches = static_cast<int>(n);
+  CompressedPairs c;
+  if (!e.weight.empty() || !CompressPairs(e.in_a, e.in_b, points, &c)) return e;
+  e.in_a = std::move(c.in_a);
+  e.in_b = std::move(c.in_b);
+  e.weight = std::move(c.weight);
+  e.scatter_px = static_cast<float>(c.scatter_px);
+  e.matches = c.pairs;
   return e;
 }
 

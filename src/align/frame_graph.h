@@ -102,10 +102,8 @@ void AddRetrievalEdges(FrameGraph& g, const AlignOptions& o, AlignSummary* summa
 // At most `n` pairs spread over frame a (Thin's grid), as the optimisation wants them.
 GraphEdge ThinEdge(GraphEdge e, int n, cv::Size frame);
 
-// The edge's pairs replaced by the homography they fit (least squares), sampled at the centres of
-// at most `points` cells of a grid over them, each weighing as the pairs of its cell and spread
-// so that their second moments are the pairs': the solve then holds a few rows per edge rather
-// than a row pair per matched pair, with the same pull. Kept as it is when it has too few pairs.
+// The edge's pairs replaced by the homography they fit, at most `points` weighted points
+// (geometry/pair_compression.h), their scatter kept; as it is when that gains nothing.
 GraphEdge CompressEdge(GraphEdge e, int points);
 
 // What align does with every edge it finds: thinned to pairs_per_edge, compressed to

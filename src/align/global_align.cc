@@ -19,6 +19,7 @@
 #include "align/navigation_fit.h"
 #include "rolamos/error.hpp"
 #include "util/homography.h"
+#include "util/memory.h"
 
 namespace rolamos {
 
@@ -219,11 +220,19 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
   AlignSummary summary;
   ParallelForOptions pfo;
   pfo.threads = o.threads;
+  auto stage_start = start;
+  auto lap = [&](const char* name) {
+    const auto now = std::chrono::steady_clock::now();
+    summary.stages.push_back({name, std::chrono::duration<double>(now - stage_start).count(), PeakRssMb()});
+    stage_start = now;
+  };
 
   // 1-3. The graph: frames, the engine's links, appearance retrieval.
   FrameGraph g = LoadFrameGraph(store, o, &summary, pfo);
+  lap("graph");
   report(0.1);
   AddRetrievalEdges(g, o, &summary, pfo);
+  lap("retrieval");
   report(0.3);
   const std::vector<int> followed_node = FollowedNodes(g);
   const std::vector<NavPoint> nav = NavigationPoints(g, followed_node, o);
@@ -242,6 +251,7 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
   summary.edges_inconsistent = consistency.dropped_edges;
   summary.rejected_joins = consistency.rejected;
   RemoveEdges(g, consistency.drop);
+  lap("consistency");
   report(0.4);
 
   // 4-6. First placement, adjustment, loop closures.
@@ -250,6 +260,7 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
   GraphSolution first = StartSolution(g, G, comp);
   summary.rms_before_px = KeptEdgesRms(g, first);
   GraphSolution s = SolveGraph(g, std::move(first), comp, o, pfo, /*trust_chain=*/false, &summary);
+  lap("solve");
   report(0.6);
   // A link of the engine's chain within a patch found false hundreds of pixels off is not a
   // noisy link but a group of frames pulled away by links that agree with each other and not
@@ -260,20 +271,24 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
     RemoveLoopClosures(g);  // found again from the chain's placement
     summary.edges_dropped = summary.loop_edges = summary.loop_tried = 0;
     s = SolveGraph(g, StartSolution(g, G, comp), comp, o, pfo, /*trust_chain=*/true, &summary);
+    lap("solve, chain first");
   }
   report(0.8);
 
   // 7. Navigation.
   FollowNavigation(g, s, nav, o, pfo, &summary);
+  if (!nav.empty()) lap("navigation");
   summary.rms_after_px = KeptEdgesRms(g, s);
 
   // Where the map is sure and where it rests on little: each frame's residual and uncertainty;
   // frames far off their own edges are placed again from them, or flagged.
   std::vector<FrameConfidence> confidence = AssessFrames(g, s, o, &summary);
+  lap("confidence");
   report(0.9);
 
   // 8. The store.
   WriteAlignment(store, g, s, followed_node, confidence, &summary);
+  lap("store");
   report(1.0);
   summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return summary;
