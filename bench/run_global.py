@@ -32,6 +32,8 @@ KINDS = {
                    ["--frames", "10000", "--lanes", "80", "--no-turns"] + CAMERA),
     # Look-alike ground: the bottom-right quarter of the world repeats the top-left one turned 180
     # degrees; frames over the two match at the wrong place.
+    "repeat-300": ("random walk with revisits, 300 frames, a quarter repeated turned 180 deg",
+                   ["--frames", "300", "--path", "random", "--max-turn", "40", "--gsd", "0.9", "--repeat", "rotate"] + CAMERA),
     "repeat-1000": ("lawnmower, 24 lanes joined without turns, 984 frames, a quarter repeated turned 180 deg",
                     ["--frames", "984", "--lanes", "24", "--no-turns", "--gsd", "0.9", "--repeat", "rotate"] + CAMERA),
     "repeat-10000": ("lawnmower, 80 lanes joined without turns, 10,000 frames, a quarter repeated turned 180 deg",

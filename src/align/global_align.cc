@@ -104,6 +104,11 @@ void FollowNavigation(const FrameGraph& g, GraphSolution& s, const std::vector<N
     return Median(d);
   };
   if (nav.size() < 2) return;
+  // The edges' residuals are in pixels, unweighted, as if a matched pixel were off by 1 px; it is
+  // off by what the kept edges leave (~0.2 px a coordinate). The navigation's sigma is put in the
+  // same units, or it would weigh tens of times more than it should against vision, and its noise
+  // would bend a map of thousands of frames.
+  const double pixel_sigma = std::max(0.05, KeptEdgesRms(g, s) / std::sqrt(2.0));
   cv::Matx33d to_map;
   summary->navigation_before_m = residual(&to_map);
   for (int round = 0; round < 2 && summary->navigation_before_m >= 0; ++round) {
@@ -115,7 +120,7 @@ void FollowNavigation(const FrameGraph& g, GraphSolution& s, const std::vector<N
       p.frame = n.node;
       p.pixel = n.pixel;
       p.xy = ApplyHomography(from_map, n.map);
-      p.sigma_px = o.navigation_sigma_m / std::max(1e-12, metres_per_px);
+      p.sigma_px = o.navigation_sigma_m / std::max(1e-12, metres_per_px) / pixel_sigma;
       priors.push_back(p);
     }
     summary->edges_dropped += AdjustParts(g, s, priors, o, pfo);

@@ -21,6 +21,7 @@ PlaneLink LinkOf(const GraphEdge& e, int a, int b) {
   l.in_a = e.in_a;
   l.in_b = e.in_b;
   l.pair_weight = e.weight;
+  l.scatter_px = e.scatter_px;
   return l;
 }
 

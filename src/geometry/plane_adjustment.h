@@ -24,6 +24,10 @@ struct PlaneLink {
   // Per pair (empty: 1 each): multiplies that pair's residuals. A pair of weight w stands for w^2
   // matched pairs (an edge's homography sampled at a few points, each for the pairs about it).
   std::vector<float> pair_weight;
+  // The RMS scatter of the matched pairs about the points (a compressed link: the pairs' distance
+  // from the homography they fit). Reported in the transfer error as those pairs would count it;
+  // the solve does not see it (no pose changes it).
+  double scatter_px = 0;
   // A link the others must agree with (the engine's chain of consecutive frames, verified as it
   // was made): never dropped, not discounted by the robust loss, and ten times the weight, so
   // that a group of frames other links pulled away is pulled back by it and those links become
@@ -37,6 +41,8 @@ struct GroundPrior {
   int frame = 0;
   cv::Point2d pixel;  // of the frame
   cv::Point2d xy;     // on the plane
+  // Its standard deviation, in the units of the links' residuals: pixels, or (align) pixels over
+  // the matched pixels' own sigma.
   double sigma_px = 1.0;
 };
 
@@ -79,8 +85,8 @@ PlaneAdjustment AdjustPlanePoses(std::vector<PlanePose>* poses, double* focal, c
                                  const std::vector<char>& held, const std::vector<GroundPrior>& priors,
                                  const PlaneAdjustmentOptions& options);
 
-// RMS transfer error of the links under the poses (frame pixels), as the adjustment measures it:
-// each pair counted pair_weight^2 times.
+// RMS transfer error of the links under the poses (frame pixels), as the adjustment reports it:
+// each pair counted pair_weight^2 times, a compressed link's scatter included.
 double PlaneTransferRms(const std::vector<PlanePose>& poses, double focal, cv::Size frame,
                         const std::vector<PlaneLink>& links);
 

@@ -111,6 +111,9 @@ TEST(PlaneAdjustment, PairWeightsCountAsThatManyPairs) {
   EXPECT_NEAR(PlaneTransferRms(poses, kFocal, kFrame, {l}), std::sqrt(4.0 / 2), 1e-3);
   l.pair_weight = {1.0f, 3.0f};
   EXPECT_NEAR(PlaneTransferRms(poses, kFocal, kFrame, {l}), std::sqrt(9 * 4.0 / 10), 1e-3);
+  // The scatter of the pairs they stand for counts too: 1 px on each of the 10.
+  l.scatter_px = 1.0;
+  EXPECT_NEAR(PlaneTransferRms(poses, kFocal, kFrame, {l}), std::sqrt((9 * 4.0 + 10) / 10), 1e-3);
 }
 
 }  // namespace
