@@ -111,15 +111,12 @@ std::vector<double> GraphUncertainty(int n, const std::vector<std::pair<int, int
 
 namespace {
 
-// An edge's matched pixels through the solution.
-EdgeError ErrorOf(const FrameGraph& g, const GraphSolution& s, const GraphEdge& e) {
-  return EdgeTransferError(e, NodeToPlane(g, s, e.b).inv() * NodeToPlane(g, s, e.a));
-}
-
+// The RMS transfer error of edges' matched pixels through the solution (a compressed edge's
+// scatter included, as PlaneTransferRms counts it).
 double ResidualOf(const FrameGraph& g, const GraphSolution& s, const std::vector<size_t>& edges) {
-  EdgeError all;
-  for (size_t k : edges) all.Add(ErrorOf(g, s, g.edges[k]));
-  return all.Rms();
+  std::vector<PlaneLink> links;
+  for (size_t k : edges) links.push_back(LinkOf(g.edges[k], g.edges[k].a, g.edges[k].b));
+  return PlaneTransferRms(s.poses, g.focal, g.frame, links);
 }
 
 // A frame placed again from its own edges, its neighbours held: the homography that takes its
@@ -190,7 +187,7 @@ std::vector<FrameConfidence> AssessFrames(const FrameGraph& g, GraphSolution& s,
   for (size_t k = 0; k < g.edges.size(); ++k) {
     if (k < s.dropped.size() && s.dropped[k]) continue;
     pairs.push_back({g.edges[k].a, g.edges[k].b});
-    pair_residual.push_back(ErrorOf(g, s, g.edges[k]).Rms());
+    pair_residual.push_back(ResidualOf(g, s, {k}));
   }
   std::vector<cv::Point2d> centre(static_cast<size_t>(n));
   for (int i = 0; i < n; ++i)

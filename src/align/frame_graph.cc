@@ -57,17 +57,6 @@ GraphEdge MeasureEdge(GraphEdge e, const AlignOptions& o, cv::Size frame) {
   return CompressEdge(ThinEdge(std::move(e), o.pairs_per_edge, frame), o.points_per_edge);
 }
 
-EdgeError EdgeTransferError(const GraphEdge& e, const cv::Matx33d& a_to_b) {
-  EdgeError out;
-  for (size_t k = 0; k < e.in_a.size(); ++k) {
-    const double w2 = k < e.weight.size() ? double(e.weight[k]) * e.weight[k] : 1.0;
-    out.sum_sq += w2 * std::pow(cv::norm(ApplyHomography(a_to_b, e.in_a[k]) - cv::Point2d(e.in_b[k])), 2);
-    out.count += w2;
-  }
-  out.sum_sq += out.count * double(e.scatter_px) * e.scatter_px;
-  return out;
-}
-
 double Median(std::vector<double> v) {
   if (v.empty()) return 0;
   std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());

@@ -3,7 +3,6 @@
 // later, loop closures, each verified by a RANSAC homography.
 #pragma once
 
-#include <cmath>
 #include <map>
 #include <set>
 #include <string>
@@ -45,15 +44,6 @@ struct GraphEdge {
   int Matches() const { return matches > 0 ? matches : static_cast<int>(in_a.size()); }
 };
 
-// How far the map puts an edge's matched pairs from each other, through `a_to_b` (frame a ->
-// frame b): the sum of their squared errors (pixels of b) over `count` pairs, the compressed
-// edge's scatter included.
-struct EdgeError {
-  double sum_sq = 0, count = 0;
-  void Add(const EdgeError& e) { sum_sq += e.sum_sq, count += e.count; }
-  double Rms() const { return count > 0 ? std::sqrt(sum_sq / count) : 0.0; }
-};
-EdgeError EdgeTransferError(const GraphEdge& e, const cv::Matx33d& a_to_b);
 
 // Union-find over frames.
 struct UnionFind {

@@ -11,9 +11,6 @@
 
 namespace rolamos {
 
-namespace {
-
-// An edge as the plane adjustment takes it, between nodes `a` and `b` of the problem.
 PlaneLink LinkOf(const GraphEdge& e, int a, int b) {
   PlaneLink l;
   l.a = a;
@@ -24,8 +21,6 @@ PlaneLink LinkOf(const GraphEdge& e, int a, int b) {
   l.scatter_px = e.scatter_px;
   return l;
 }
-
-}  // namespace
 
 cv::Matx33d NodeToPlane(const FrameGraph& g, const GraphSolution& s, int i) { return FrameToPlane(s.poses[size_t(i)], g.K); }
 
@@ -127,13 +122,12 @@ double WorstDroppedChainLink(const FrameGraph& g, const GraphSolution& s) {
 }
 
 double KeptEdgesRms(const FrameGraph& g, const GraphSolution& s) {
-  EdgeError all;
+  std::vector<PlaneLink> all;
   for (size_t k = 0; k < g.edges.size(); ++k) {
     if (k < s.dropped.size() && s.dropped[k]) continue;
-    const GraphEdge& e = g.edges[k];
-    all.Add(EdgeTransferError(e, NodeToPlane(g, s, e.b).inv() * NodeToPlane(g, s, e.a)));
+    all.push_back(LinkOf(g.edges[k], g.edges[k].a, g.edges[k].b));
   }
-  return all.Rms();
+  return PlaneTransferRms(s.poses, g.focal, g.frame, all);
 }
 
 int AddLoopClosures(FrameGraph& g, GraphSolution& s, UnionFind& comp, const AlignOptions& o, AlignSummary* summary,

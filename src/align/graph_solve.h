@@ -53,7 +53,11 @@ enum class AdjustMode {
 int AdjustParts(const FrameGraph& g, GraphSolution& s, const std::vector<GroundPrior>& priors, const AlignOptions& o,
                 const ParallelForOptions& pfo, AdjustMode mode = AdjustMode::kJudge);
 
-// Transfer error of every kept edge, frame pixels (RMS).
+// An edge as the plane adjustment takes it (its points, their weights, the pairs' scatter), between
+// nodes `a` and `b` of the problem.
+PlaneLink LinkOf(const GraphEdge& e, int a, int b);
+
+// Transfer error of every kept edge, frame pixels (RMS over the matched pairs).
 double KeptEdgesRms(const FrameGraph& g, const GraphSolution& s);
 
 // One round of loop closures: frames of the same part the solution puts over the same ground

@@ -5,16 +5,9 @@
 
 #include <opencv2/calib3d.hpp>
 
+#include "util/homography.h"
+
 namespace rolamos {
-
-namespace {
-
-cv::Point2d Apply(const cv::Matx33d& H, cv::Point2d p) {
-  const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1);
-  return {q[0] / q[2], q[1] / q[2]};
-}
-
-}  // namespace
 
 bool CompressPairs(const std::vector<cv::Point2f>& in_a, const std::vector<cv::Point2f>& in_b, int points,
                    CompressedPairs* out) {
@@ -39,7 +32,7 @@ bool CompressPairs(const std::vector<cv::Point2f>& in_a, const std::vector<cv::P
     sum[size_t(cy * side + cx)] += cv::Point2d(p);
     ++count[size_t(cy * side + cx)];
     mean += cv::Point2d(p);
-    const cv::Point2d d = Apply(H, p) - cv::Point2d(in_b[i]);
+    const cv::Point2d d = ApplyHomography(H, p) - cv::Point2d(in_b[i]);
     scatter += d.dot(d);
   }
   mean *= 1.0 / double(n);
@@ -60,7 +53,7 @@ bool CompressPairs(const std::vector<cv::Point2f>& in_a, const std::vector<cv::P
   for (const auto& m : centre) {
     const cv::Point2d p(mean.x + (m.x - mean.x) * sx, mean.y + (m.y - mean.y) * sy);
     c.in_a.emplace_back(p);
-    c.in_b.emplace_back(Apply(H, p));
+    c.in_b.emplace_back(ApplyHomography(H, p));
   }
   c.weight = std::move(weight);
   c.scatter_px = std::sqrt(scatter / double(n));
