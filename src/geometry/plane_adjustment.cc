@@ -48,30 +48,24 @@ void Rotation(const T* e, T R[9]) {
 constexpr double kTrustedWeight = 10.0;
 double WeightOf(const PlaneLink& l) { return l.trusted ? kTrustedWeight * l.weight : l.weight; }
 
-struct Transfer {
-  Transfer(cv::Point2f pa, cv::Point2f pb, double cx, double cy, double w)
-      : pa(pa), pb(pb), cx(cx), cy(cy), w(w) {}
-  template <typename T>
-  bool operator()(const T* ea, const T* ca, const T* eb, const T* cb, const T* f, T* r) const {
-    T Ra[9], Rb[9];
-    Rotation(ea, Ra);
-    Rotation(eb, Rb);
-    const T v[3] = {(T(pa.x) - T(cx)) / f[0], (T(pa.y) - T(cy)) / f[0], T(1)};
-    T d[3];  // the ray in the world: Ra^T v
-    for (int k = 0; k < 3; ++k) d[k] = Ra[k] * v[0] + Ra[3 + k] * v[1] + Ra[6 + k] * v[2];
-    if (!(d[2] > T(1e-6))) return false;  // parallel to the plane or away from it
-    const T s = -ca[2] / d[2];
-    const T X[3] = {ca[0] + s * d[0] - cb[0], ca[1] + s * d[1] - cb[1], -cb[2]};
-    T c[3];
-    for (int k = 0; k < 3; ++k) c[k] = Rb[3 * k] * X[0] + Rb[3 * k + 1] * X[1] + Rb[3 * k + 2] * X[2];
-    if (!(c[2] > T(1e-6))) return false;
-    r[0] = T(w) * (f[0] * c[0] / c[2] + T(cx) - T(pb.x));
-    r[1] = T(w) * (f[0] * c[1] / c[2] + T(cy) - T(pb.y));
-    return true;
-  }
-  cv::Point2f pa, pb;
-  double cx, cy, w;
-};
+// A pixel of frame a cast onto the plane and seen by b (world-to-camera rotations Ra, Rb), against
+// its match in b, weighted by w.
+template <typename T>
+bool TransferResidual(const T Ra[9], const T* ca, const T Rb[9], const T* cb, const T* f, cv::Point2f pa,
+                      cv::Point2f pb, double cx, double cy, double w, T* r) {
+  const T v[3] = {(T(pa.x) - T(cx)) / f[0], (T(pa.y) - T(cy)) / f[0], T(1)};
+  T d[3];  // the ray in the world: Ra^T v
+  for (int k = 0; k < 3; ++k) d[k] = Ra[k] * v[0] + Ra[3 + k] * v[1] + Ra[6 + k] * v[2];
+  if (!(d[2] > T(1e-6))) return false;  // parallel to the plane or away from it
+  const T s = -ca[2] / d[2];
+  const T X[3] = {ca[0] + s * d[0] - cb[0], ca[1] + s * d[1] - cb[1], -cb[2]};
+  T c[3];
+  for (int k = 0; k < 3; ++k) c[k] = Rb[3 * k] * X[0] + Rb[3 * k + 1] * X[1] + Rb[3 * k + 2] * X[2];
+  if (!(c[2] > T(1e-6))) return false;
+  r[0] = T(w) * (f[0] * c[0] / c[2] + T(cx) - T(pb.x));
+  r[1] = T(w) * (f[0] * c[1] / c[2] + T(cy) - T(pb.y));
+  return true;
+}
 
 double PairWeight(const PlaneLink& l, size_t i) { return i < l.pair_weight.size() ? l.pair_weight[i] : 1.0; }
 
@@ -88,13 +82,58 @@ struct LinkTransfer {
   LinkTransfer(const PlaneLink* l, double cx, double cy) : l(l), cx(cx), cy(cy) {}
   template <typename T>
   bool operator()(const T* ea, const T* ca, const T* eb, const T* cb, const T* f, T* r) const {
+    T Ra[9], Rb[9];
+    Rotation(ea, Ra);
+    Rotation(eb, Rb);
     for (size_t i = 0; i < l->in_a.size(); ++i)
-      if (!Transfer(l->in_a[i], l->in_b[i], cx, cy, WeightOf(*l) * PairWeight(*l, i))(ea, ca, eb, cb, f, r + 2 * i))
+      if (!TransferResidual(Ra, ca, Rb, cb, f, l->in_a[i], l->in_b[i], cx, cy, WeightOf(*l) * PairWeight(*l, i),
+                            r + 2 * i))
         return false;
     return true;
   }
   const PlaneLink* l;
   double cx, cy;
+};
+
+// Every pixel of a link at once, each pixel discounted on its own by the robust loss (Huber or
+// Cauchy, its knee scaled by the pixel's weight): the cost is the per-pixel robust one, but the
+// link's rotations are made once, not once a pixel (the engine's patch adjustment spent most of
+// its time there). Each pair's residual r is scaled to sqrt(rho(|r|^2)) / |r|: the same sum,
+// so the same minimum, as one robust residual block a pixel.
+struct RobustLinkTransfer {
+  RobustLinkTransfer(const PlaneLink* l, double cx, double cy, double knee, bool cauchy)
+      : l(l), cx(cx), cy(cy), knee(knee), cauchy(cauchy) {}
+  template <typename T>
+  bool operator()(const T* ea, const T* ca, const T* eb, const T* cb, const T* f, T* r) const {
+    using std::log;
+    using std::sqrt;
+    T Ra[9], Rb[9];
+    Rotation(ea, Ra);
+    Rotation(eb, Rb);
+    for (size_t i = 0; i < l->in_a.size(); ++i) {
+      T* ri = r + 2 * i;
+      if (!TransferResidual(Ra, ca, Rb, cb, f, l->in_a[i], l->in_b[i], cx, cy, WeightOf(*l) * PairWeight(*l, i), ri))
+        return false;
+      if (!(knee > 0)) continue;  // trusted: not discounted
+      const double a = knee * PairWeight(*l, i), a2 = a * a;
+      const T s = ri[0] * ri[0] + ri[1] * ri[1];
+      T scale;
+      if (cauchy) {
+        if (!(s > T(1e-12 * a2))) continue;
+        scale = sqrt(T(a2) * log(T(1) + s / T(a2)) / s);
+      } else {
+        if (!(s > T(a2))) continue;
+        const T norm = sqrt(s);
+        scale = sqrt(T(2 * a) * norm - T(a2)) / norm;
+      }
+      ri[0] *= scale;
+      ri[1] *= scale;
+    }
+    return true;
+  }
+  const PlaneLink* l;
+  double cx, cy, knee;
+  bool cauchy;
 };
 
 // The ground under a frame's pixel against where navigation puts it.
@@ -168,9 +207,6 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
   ceres::Problem::Options po;
   po.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   ceres::Problem problem(po);
-  std::unique_ptr<ceres::LossFunction> loss;
-  if (o.loss == "cauchy") loss = std::make_unique<ceres::CauchyLoss>(o.loss_px);
-  else loss = std::make_unique<ceres::HuberLoss>(o.loss_px);
   std::vector<std::unique_ptr<ceres::LossFunction>> owned_losses;  // per-link losses outlive the problem
   std::vector<char> used(n, 0);
   for (size_t k = 0; k < links.size(); ++k) {
@@ -193,20 +229,13 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
       used[size_t(l.a)] = used[size_t(l.b)] = 1;
       continue;
     }
-    for (size_t i = 0; i < l.in_a.size(); ++i) {
-      auto* cost = new ceres::AutoDiffCostFunction<Transfer, 2, 3, 3, 3, 3, 1>(
-          new Transfer(l.in_a[i], l.in_b[i], cx, cy, WeightOf(l) * PairWeight(l, i)));
-      // A pair of weight w stands for w^2 pairs about it: discounted once they are loss_px off.
-      ceres::LossFunction* pair_loss = l.trusted ? nullptr : loss.get();
-      if (pair_loss && PairWeight(l, i) != 1.0) {
-        const double a = o.loss_px * PairWeight(l, i);
-        pair_loss = o.loss == "cauchy" ? static_cast<ceres::LossFunction*>(new ceres::CauchyLoss(a)) : new ceres::HuberLoss(a);
-        owned_losses.emplace_back(pair_loss);
-      }
-      problem.AddResidualBlock(cost, pair_loss, angles[size_t(l.a)].data(),
-                               centres[size_t(l.a)].data(), angles[size_t(l.b)].data(), centres[size_t(l.b)].data(),
-                               focal);
-      ++result.residuals;
+    if (!l.in_a.empty()) {
+      auto* cost = new ceres::AutoDiffCostFunction<RobustLinkTransfer, ceres::DYNAMIC, 3, 3, 3, 3, 1>(
+          new RobustLinkTransfer(&l, cx, cy, l.trusted ? 0.0 : o.loss_px, o.loss == "cauchy"),
+          2 * static_cast<int>(l.in_a.size()));
+      problem.AddResidualBlock(cost, nullptr, angles[size_t(l.a)].data(), centres[size_t(l.a)].data(),
+                               angles[size_t(l.b)].data(), centres[size_t(l.b)].data(), focal);
+      result.residuals += static_cast<int>(l.in_a.size());
     }
     used[size_t(l.a)] = used[size_t(l.b)] = 1;
   }
