@@ -37,9 +37,11 @@ std::optional<cv::Matx33d> FitSimilarity(const std::vector<cv::Point2d>& from, c
   a *= 1.0 / from.size();
   b *= 1.0 / to.size();
   // Image pixels run down where maps run north: the transform may be a mirror image as well as
-  // a turn. Both are fitted (a mirror as a turn of the flipped points); the better one is kept.
+  // a turn. Both are fitted (a mirror as a turn of the flipped points); the better one is kept:
+  // by the mean residual, not the median, since a track mostly straight (a lane and the start of
+  // a turn) fits both ways at its median, and only the frames off the line tell them apart.
   std::optional<cv::Matx33d> best;
-  double best_median = 0;
+  double best_mean = 0;
   for (const double flip : {1.0, -1.0}) {
     std::vector<cv::Point2f> x, y;
     for (size_t i = 0; i < from.size(); ++i) {
@@ -56,11 +58,11 @@ std::optional<cv::Matx33d> FitSimilarity(const std::vector<cv::Point2d>& from, c
                           cv::Matx33d(1, 0, 0, 0, flip, 0, 0, 0, 1) * cv::Matx33d(1, 0, -a.x, 0, 1, -a.y, 0, 0, 1);
     std::vector<double> residuals;
     for (size_t i = 0; i < from.size(); ++i) residuals.push_back(cv::norm(ApplyHomography(M, from[i]) - to[i]));
-    std::nth_element(residuals.begin(), residuals.begin() + residuals.size() / 2, residuals.end());
-    const double median = residuals[residuals.size() / 2];
-    if (!best || median < best_median) {
+    double mean = 0;
+    for (const double r : residuals) mean += r / static_cast<double>(residuals.size());
+    if (!best || mean < best_mean) {
       best = M;
-      best_median = median;
+      best_mean = mean;
     }
   }
   return best;
