@@ -179,7 +179,7 @@ const OptionTable<MosaickerOptions>& MosaickerTable() {
         .Flag("bilateral", &O::bilateral).Flag("temporal", &O::temporal).Flag("clahe", &O::clahe)
         .Number("track_pixels", &O::track_pixels).Integer("track_points", &O::track_points)
         .Number("keyframe_overlap", &O::keyframe_overlap).Number("keyframe_min_overlap", &O::keyframe_min_overlap)
-        .Number("describe_overlap", &O::describe_overlap).Text("features", &O::features)
+        .Number("describe_overlap", &O::describe_overlap).Number("blend_overlap", &O::blend_overlap).Text("features", &O::features)
         .Integer("max_features", &O::max_features).Number("detect_scale", &O::detect_scale)
         .Number("detect_pixels", &O::detect_pixels).Flag("sift_upsample", &O::sift_upsample)
         .Number("ratio", &O::ratio).Flag("cross_check", &O::cross_check).Flag("fundamental", &O::fundamental)

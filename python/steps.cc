@@ -87,6 +87,7 @@ py::dict SummaryDict(const MosaicSummary& s) {
   d["rejected"] = s.rejected;
   d["patches"] = s.patches;
   d["keyframes"] = s.keyframes;
+  d["blended"] = s.blended;
   d["described"] = s.described;
   d["recovered"] = s.recovered;
   d["seconds"] = s.seconds;

@@ -163,9 +163,9 @@ static int RunMosaic(MosaicSwitches s) {
     std::printf("the open patch's preview could not be written (the patches are): %s\n", sum.preview_problem.c_str());
   if (!sum.calibration_note.empty()) std::printf("%s\n", sum.calibration_note.c_str());
   if (!sum.mask_note.empty()) std::printf("%s\n", sum.mask_note.c_str());
-  std::printf("%s: %d frames, %d stitched (%d keyframes, %d described, %d on a second chance), %d rejected, "
+  std::printf("%s: %d frames, %d stitched (%d keyframes, %d blended, %d described, %d on a second chance), %d rejected, "
               "%d patches, %.1f s (%.1f frames/s), CPU %.0f %% of %u cores, peak memory %.0f MiB\n",
-              s.output.c_str(), sum.frames, sum.stitched, sum.keyframes, sum.described, sum.recovered, sum.rejected,
+              s.output.c_str(), sum.frames, sum.stitched, sum.keyframes, sum.blended, sum.described, sum.recovered, sum.rejected,
               sum.patches,
               sum.seconds, sum.frames / std::max(sum.seconds, 1e-9),
               100.0 * sum.cpu_seconds / std::max(sum.seconds, 1e-9) / std::max(1u, std::thread::hardware_concurrency()),
@@ -248,8 +248,12 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--track-points", o.track_points, "points a keyframe hands on to the frames after it")
       ->capture_default_str();
   cmd->add_option("--keyframe-overlap", o.keyframe_overlap,
-                  "a frame that overlaps the last keyframe less than this becomes a keyframe (blended, adjusted, "
-                  "its features stored); 1 = every frame")
+                  "a frame that overlaps the last keyframe less than this becomes a keyframe (adjusted with the "
+                  "patch's others, its features stored); 1 = every frame")
+      ->capture_default_str();
+  cmd->add_option("--blend-overlap", o.blend_overlap,
+                  "a keyframe is blended into the patch image when it overlaps the last blended keyframe less than "
+                  "this (the others link and place only); 1 = every keyframe")
       ->capture_default_str();
   cmd->add_option("--keyframe-min-overlap", o.keyframe_min_overlap,
                   "a frame becomes a keyframe when the next one is predicted to overlap the last keyframe less than this")

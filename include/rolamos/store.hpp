@@ -55,15 +55,21 @@ struct FrameRecord {
   std::optional<std::string> registered_by;
   std::optional<bool> doubtful;        // weakly supported, kept because the motion model agreed
   std::optional<int> patch_frames;     // frames of the patch it was fitted against (with previous)
-  // Absent (older stores) or true: the frame is blended into the patch image. false: followed
-  // between keyframes and placed, not blended; `placed_from` is the keyframe it was followed from.
+  // Absent (older stores) or true: a keyframe, adjusted with the patch's others (and blended
+  // unless `blended` says otherwise). false: followed between keyframes and placed, not blended;
+  // `placed_from` is the keyframe it was followed from.
   std::optional<bool> keyframe;
   std::optional<int> placed_from;
   // Absent or true: a keyframe's features were found and stored (when it had any). false: a
   // keyframe the engine linked by its tracks only, its ground described by its neighbours; its
   // frame is never read again to describe it.
   std::optional<bool> described;
+  // Absent or true: a keyframe's pixels are blended into the patch image. false: a keyframe
+  // adjusted with the others and placed (compose and align use it as any keyframe) whose pixels
+  // are in the patch image only through the blended keyframes around it.
+  std::optional<bool> blended;
   bool is_keyframe() const { return keyframe.value_or(true); }
+  bool is_blended() const { return is_keyframe() && blended.value_or(true); }
   bool is_described() const { return is_keyframe() && described.value_or(true); }
   nlohmann::json extra = nlohmann::json::object();  // fields added by later versions, kept as read
 };

@@ -74,12 +74,13 @@ class Frame:
     patch: int
     index: int  # in the input sequence
     source: str
-    keyframe: bool  # blended into the patch image (False: placed between keyframes only)
+    keyframe: bool  # adjusted with its patch's keyframes (False: placed between keyframes only)
     frame_to_patch: np.ndarray  # 3 x 3 homography, frame pixels -> patch pixels
     frame_to_mosaic: Optional[np.ndarray]  # frame pixels -> mosaic.tif level-0 pixels, once composed
     aligned: bool  # placed by `align` (frame_to_mosaic from its own adjusted placement)
     inliers: int
     registered_by: Optional[str]  # how the engine placed it when not from the frame before
+    blended: bool = True  # its pixels are blended into the patch image (keyframes only; the others link)
 
     def centre(self, in_mosaic: bool = True, frame_size: Tuple[int, int] = None) -> Optional[Tuple[float, float]]:
         """The frame's centre in the mosaic (or its patch), given the frame size (w, h)."""
@@ -171,7 +172,8 @@ class Store:
                     mosaic = to_mosaic @ H
                 out.append(Frame(patch=p.id, index=f["index"], source=f["source"], keyframe=f.get("keyframe", True),
                                  frame_to_patch=H, frame_to_mosaic=mosaic, aligned=own is not None,
-                                 inliers=f.get("inliers", 0), registered_by=f.get("registered_by")))
+                                 inliers=f.get("inliers", 0), registered_by=f.get("registered_by"),
+                                 blended=f.get("keyframe", True) and f.get("blended", True)))
         return out
 
     # ---- georeference ------------------------------------------------------------------------

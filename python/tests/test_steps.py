@@ -41,6 +41,7 @@ def mapped(survey):
                              progress=lambda f, what: seen.append((f, what)))
     assert summary["frames"] == 24 and summary["stitched"] >= 23, summary
     assert summary["patches"] >= 2 and summary["keyframes"] >= 1 and "features" in summary["stage_seconds"]
+    assert 1 <= summary["blended"] <= summary["keyframes"]
     assert seen[-1] == (pytest.approx(1.0), "mosaic")
     return rolamos.Store(store)
 

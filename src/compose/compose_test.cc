@@ -91,7 +91,7 @@ TEST_F(ComposeTest, PatchesLandWhereTheGroundTruthSays) {
       ours.insert(ours.end(), a.begin(), a.end());
       theirs.insert(theirs.end(), b.begin(), b.end());
       // A keyframe (blended, not only placed) near the middle of the survey.
-      if (f.is_keyframe() && f.index <= 17 && f.index >= sample_index) {
+      if (f.is_blended() && f.index <= 17 && f.index >= sample_index) {
         sample = {to_mosaic, fs::path(f.source).filename().string()};
         sample_index = f.index;
       }

@@ -10,16 +10,18 @@ KeyframeProducts RunKeyframeJob(const KeyframeJob& job, const KeyframeTools& too
   // The spatio-temporal filter: the frame before (not blended itself) averaged in where the two
   // agree, then the bilateral filter. A keyframe right after another has no such frame: blending
   // averages the two already.
-  cv::Mat image = job.frame->image;
-  if (tools.temporal && job.before && !job.before->image.empty() && job.before->image.size() == image.size())
-    image = tools.pre->Temporal(image, job.before->image, job.to_before);
-  if (tools.bilateral) image = tools.pre->Bilateral(image);
-  out.image = image;
+  if (job.blend) {
+    cv::Mat image = job.frame->image;
+    if (tools.temporal && job.before && !job.before->image.empty() && job.before->image.size() == image.size())
+      image = tools.pre->Temporal(image, job.before->image, job.to_before);
+    if (tools.bilateral) image = tools.pre->Bilateral(image);
+    out.image = image;
+  }
   out.filter_seconds = 1e-9 * cpu.Lap();
   out.features = tools.features(*job.frame);
-  // Nothing reads the unfiltered image after this (the patch blends the filtered one): a
-  // patch's keyframes hold one image each until it is written, not two.
-  job.frame->image.release();
+  // Nothing reads a blended frame's unfiltered image after this (the patch blends the filtered
+  // one): a patch's keyframes hold one image each until it is written, not two.
+  if (job.blend) job.frame->image.release();
   cpu.Restart();  // the features are timed where they are found
   // Loop closures within the patch: the older keyframes under this one (their jobs ran before).
   if (out.features && !out.features->empty()) {

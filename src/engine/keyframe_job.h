@@ -20,7 +20,7 @@
 namespace rolamos {
 
 struct KeyframeProducts {
-  cv::Mat image;  // filtered, BGR 8-bit: what the patch blends
+  cv::Mat image;  // filtered, BGR 8-bit: what the patch blends (empty: not blended)
   std::shared_ptr<const Features> features;
   std::vector<FrameLink> loop_links;  // a = this keyframe
   double filter_seconds = 0, link_seconds = 0;  // what the filter and the loop links took
@@ -43,6 +43,9 @@ struct KeyframeJob {
   cv::Matx33d to_before = cv::Matx33d::eye();
   cv::Matx33d to_patch = cv::Matx33d::eye();
   std::vector<OlderKeyframe> older;
+  // Blended into the patch image: filtered, its image kept. Otherwise it links and places only
+  // (no image in the products), and its frame stays as it is: the next keyframe may average it in.
+  bool blend = true;
 };
 
 struct KeyframeTools {
@@ -53,7 +56,7 @@ struct KeyframeTools {
   PatchFitOptions fit;
 };
 
-// Releases the frame's unfiltered image when done: the engine must not read it afterwards.
+// Releases a blended frame's unfiltered image when done: the engine must not read it afterwards.
 KeyframeProducts RunKeyframeJob(const KeyframeJob& job, const KeyframeTools& tools);
 
 }  // namespace rolamos

@@ -57,6 +57,10 @@ bool MosaickerOptions::IsValid(std::string* error) const {
              std::to_string(keyframe_min_overlap) + " in (0.05, keyframe overlap]";
     return false;
   }
+  if (!(blend_overlap > 0 && blend_overlap <= 1.0)) {
+    *error = "blend overlap " + std::to_string(blend_overlap) + " must be in (0, 1]";
+    return false;
+  }
   if (!(describe_overlap > 0 && describe_overlap <= 1.0)) {
     *error = "describe overlap " + std::to_string(describe_overlap) + " must be in (0, 1]";
     return false;
@@ -107,6 +111,8 @@ struct Mosaicker::Impl {
   Store store;
   Preprocessor pre;
   FeatureExtractor extractor;
+  // SIFT without the doubled first octave, for keyframes that are not blended (coarse_features).
+  FeatureExtractor coarse_extractor;
   FrameTracker tracker;
   EgomotionOptions ego_options;
   EccOptions ecc_options;
@@ -138,6 +144,7 @@ struct Mosaicker::Impl {
     std::vector<long long> ids;            // their tracks
     KeyframeFuture products;
     bool described = true;                 // its features are found (products.features)
+    bool blended = true;                   // in the patch image (else it links and places only)
   };
   // The frame placed last, keyframe or not.
   struct Placed {
@@ -146,6 +153,7 @@ struct Mosaicker::Impl {
     std::shared_ptr<PreparedFrame> frame;
     bool keyframe = false;
     std::vector<FrameLink> links;  // a followed frame's tracks with its keyframe
+    bool blended = false;
   };
 
   // The patch in progress.
@@ -160,8 +168,11 @@ struct Mosaicker::Impl {
   std::vector<FrameLink> links;          // between keyframes, from their tracks
   size_t keyframe_bytes = 0;                // keyframes' images and features held until the patch is written
   // What a keyframe holds until its patch is written: its filtered image and its features.
-  size_t KeyframeBytes(const PreparedFrame& p, bool described = true) const {
-    return p.image.total() * p.image.elemSize() + (described ? size_t(options.max_features) * 128 * sizeof(float) : 0);
+  // What a keyframe holds until its patch is written: its filtered image when blended, its
+  // features when described.
+  size_t KeyframeBytes(const PreparedFrame& p, bool described = true, bool blended = true) const {
+    return (blended ? p.image.total() * p.image.elemSize() : 0) +
+           (described ? size_t(options.max_features) * 128 * sizeof(float) : 0);
   }
   Placed last;
   long long next_track = 0;
@@ -197,6 +208,7 @@ struct Mosaicker::Impl {
         store(s),
         pre(ToPreprocessOptions(o)),
         extractor(ToFeatureOptions(o)),
+        coarse_extractor(CoarseFeatureOptions(o)),
         tracker(ToTrackerOptions(o)),
         ego_options(ToEgomotionOptions(o)),
         ecc_options(ToEccOptions(o)),
@@ -247,13 +259,15 @@ struct Mosaicker::Impl {
   bool WantsKeyframe(const Candidate& c, const cv::Matx33d& to_patch) const;
   // Whether a new keyframe is described (MosaickerOptions::describe_overlap).
   bool Describes(const PreparedFrame& p, const cv::Matx33d& to_patch, const Candidate* c) const;
+  // Whether a new keyframe is blended (MosaickerOptions::blend_overlap).
+  bool Blends(const Candidate& c, const cv::Matx33d& to_patch) const;
   cv::Matx33d FitToKeyframes(const PreparedFrame& p, const Candidate& c, std::vector<FrameLink>* fitted, int* frames);
 
   void StartPatch(const std::shared_ptr<PreparedFrame>& p, FrameReport& r, const std::optional<PatchLink>& join);
   void ClosePatch(const std::string& why, const std::optional<ClosingFrame>& closing = std::nullopt);
   // `current`: the frame the next ones are followed from (false: a frame placed late, behind it).
   void AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, const Candidate* c,
-                   std::vector<FrameLink> found, FrameRecord rec, bool current = true);
+                   std::vector<FrameLink> found, FrameRecord rec, bool current = true, bool blend = true);
   // The keyframes a new one is matched with (features, guided by the placements) for the
   // adjustment: the recent ones it overlaps besides the one it was followed from (independent
   // measurements over longer baselines, so error does not add up along a lane), and the older
@@ -306,7 +320,8 @@ std::shared_ptr<const Features> Mosaicker::Impl::FeaturesOf(PreparedFrame& p) {
       if (!usable_small.empty() && usable_small.size() == detect.size())
         mask = mask.empty() ? usable_small : (mask & usable_small);
     }
-    p.features = std::make_shared<const Features>(extractor.ExtractScaled(detect, scale, mask));
+    const FeatureExtractor& by = p.coarse_features ? coarse_extractor : extractor;
+    p.features = std::make_shared<const Features>(by.ExtractScaled(detect, scale, mask));
     lap(kFeatures);
   });
   return p.features;
@@ -638,14 +653,29 @@ bool Mosaicker::Impl::Describes(const PreparedFrame& p, const cv::Matx33d& to_pa
   return true;
 }
 
+// The patch image needs a keyframe about every 25 % of a frame (blend_overlap); the adjustment
+// is held straighter by keyframes every 15 % (keyframe_overlap). A keyframe simply followed, with
+// strong support, that the last blended one still covers enough of links and places only.
+bool Mosaicker::Impl::Blends(const Candidate& c, const cv::Matx33d& to_patch) const {
+  if (!c.tracked() || !c.support.strong || !pending.empty()) return true;
+  for (auto it = keys.rbegin(); it != keys.rend(); ++it)
+    if (it->blended) return FootprintOverlap(to_patch, it->to_patch, frame_size) < options.blend_overlap;
+  return true;
+}
+
 void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch,
-                                  const Candidate* c, std::vector<FrameLink> found, FrameRecord rec, bool current) {
+                                  const Candidate* c, std::vector<FrameLink> found, FrameRecord rec, bool current,
+                                  bool blend) {
   Laps lap{this, {}};
   const bool described = Describes(*p, to_patch, c);
   if (!described) rec.described = false;
-  canvas->Add(p->image, *weights, to_patch);
-  if (options.flat_field || options.water_colour)
-    colour->Add(p->image, usable.size() == p->image.size() ? usable : cv::Mat());
+  if (blend) {
+    canvas->Add(p->image, *weights, to_patch);
+    if (options.flat_field || options.water_colour)
+      colour->Add(p->image, usable.size() == p->image.size() ? usable : cv::Mat());
+  } else {
+    rec.blended = false;
+  }
   lap(kCanvas);
   if (adjust_options.enabled)
     for (auto& l : found) links.push_back(Thin(std::move(l), adjust_options.max_pairs_per_link, frame_size));
@@ -656,6 +686,7 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   key.to_patch = to_patch;
   key.frame = p;
   key.described = described;
+  key.blended = blend;
   if (c) {
     key.points = c->at;
     key.ids = c->ids;
@@ -669,11 +700,14 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   lap(kTracking);
   // Filtering, features and loop closures on the workers; the job keeps what it needs and
   // releases the unfiltered image when done: it is not read here once the job is submitted.
-  keyframe_bytes += KeyframeBytes(*p, described);  // until the patch is written
+  keyframe_bytes += KeyframeBytes(*p, described, blend);  // until the patch is written
   KeyframeJob job;
   job.index = key.index;
   job.frame = p;
-  if (current && last.frame && !last.keyframe && last.frame->image.size() == p->image.size()) {
+  job.blend = blend;
+  if (!blend && !p->features) p->coarse_features = true;  // read once the job runs, on its thread
+  if (blend && current && last.frame && !last.blended && !last.frame->image.empty() &&
+      last.frame->image.size() == p->image.size()) {
     job.before = last.frame;
     job.to_before = last.to_patch.inv() * to_patch;
   }
@@ -699,13 +733,14 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
     keys.insert(keys.end() - 1, std::move(key));
   } else {
     keys.push_back(std::move(key));
-    last = Placed{keys.back().index, to_patch, p, true, {}};
+    last = Placed{keys.back().index, to_patch, p, true, {}, blend};
   }
   // Keyframes behind the recent ones are not followed from again: their pyramids go.
   if (keys.size() > 3) keys[keys.size() - 4].frame.reset();
   ++summary.stitched;
   ++summary.keyframes;
   summary.described += described;
+  summary.blended += blend;
 }
 
 void Mosaicker::Impl::AddFollowed(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, FrameRecord rec,
@@ -726,6 +761,7 @@ void Mosaicker::Impl::PromoteLast() {
   rec.placed_from.reset();
   const Placed was = last;
   last.keyframe = true;  // no temporal term with itself
+  last.blended = true;
   AddKeyframe(was.frame, was.to_patch, nullptr, was.links, std::move(rec));
 }
 
@@ -875,7 +911,10 @@ FrameReport Mosaicker::Impl::Place(const std::shared_ptr<PreparedFrame>& p, Cand
     StartPatch(p, r, join);
     return r;
   }
-  if (options.ecc) {
+  // ECC aligns a keyframe with the patch image it is blended into; the others are placed by the
+  // adjustment.
+  const bool blend = Blends(best, to_patch);
+  if (options.ecc && blend) {
     cv::Mat gray;
     cv::cvtColor(p->image, gray, cv::COLOR_BGR2GRAY);
     const EccResult ecc = RefineWithEcc(gray, to_patch, *canvas, ecc_options,
@@ -893,7 +932,7 @@ FrameReport Mosaicker::Impl::Place(const std::shared_ptr<PreparedFrame>& p, Cand
   rec.ecc_shift_px = r.ecc_shift;
   if (options.patch_fit) rec.patch_frames = fitted;
   if (found.empty()) found = best.Links(r.index);
-  AddKeyframe(p, to_patch, best.tracked() ? &best : nullptr, std::move(found), std::move(rec));
+  AddKeyframe(p, to_patch, best.tracked() ? &best : nullptr, std::move(found), std::move(rec), true, blend);
   if (!pending.empty()) SecondChance(p, to_patch, lap);
   return r;
 }

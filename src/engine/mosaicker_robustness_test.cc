@@ -18,6 +18,7 @@
 #include "store/frame_data.h"
 #include "rolamos/mosaicker.hpp"
 #include "rolamos/survey.hpp"
+#include "rolamos/tiled_image.hpp"
 #include "synth/seafloor_texture.h"
 #include "test_support.h"
 #include "util/homography.h"
@@ -340,6 +341,58 @@ TEST(MosaickerRobustness, KeyframesBetweenDescribedOnesAreMarkedAndNeverDescribe
   const AlignSummary aligned = AlignStore(reopened, AlignOptions());
   EXPECT_EQ(aligned.frames_described, 0);
   EXPECT_EQ(aligned.frames, 36);
+}
+
+}  // namespace
+}  // namespace rolamos
+
+namespace rolamos {
+namespace {
+
+// Video-like overlap (92 % from frame to frame): keyframes every 15 % of a frame hold the patch
+// straight, and only those about 25 % apart are blended. The others are adjusted and placed
+// like any keyframe, marked `blended: false`, their features stored; the patch image still shows
+// every frame where the sidecar puts it. With blend_overlap 1 every keyframe is blended.
+TEST(MosaickerRobustness, KeyframesThatOnlyLinkAreMarkedAndTheImageStillShowsEveryFrame) {
+  test::ScratchDir dir;
+  SurveyOptions so = JitteredSurvey(40, 1);
+  so.forward_overlap = 0.92;
+  so.attitude_jitter_deg = 0.3;
+  const Survey survey = WriteSurvey(so, dir / "survey");
+  for (const double blend : {0.75, 1.0}) {
+    MosaickerOptions o = Options();
+    o.blend_overlap = blend;
+    const fs::path out = dir / ("s" + std::to_string(int(blend * 100)) + ".rolamos");
+    Store store = Store::Create(out);
+    const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, o);
+    EXPECT_EQ(sum.stitched, 40);
+    EXPECT_GT(sum.keyframes, 6);
+    if (blend < 1) {
+      EXPECT_GT(sum.blended, 0);
+      EXPECT_LT(sum.blended, sum.keyframes);
+    } else {
+      EXPECT_EQ(sum.blended, sum.keyframes);
+    }
+    Store reopened = Store::Open(out);
+    int blended = 0;
+    for (const auto& p : reopened.patches()) {
+      const PatchSidecar s = reopened.ReadSidecar(p.id);
+      std::set<int> stored;
+      for (const auto& f : ReadFrameFeatures((fs::path(reopened.dir()) / *s.frame_features).string()))
+        stored.insert(f.index);
+      TiledImage image = TiledImage::Open(reopened.PatchImagePath(p.id), std::make_shared<TileCache>());
+      for (const auto& f : s.frames) {
+        blended += f.is_blended();
+        if (f.is_keyframe()) EXPECT_TRUE(stored.count(f.index)) << "keyframe " << f.index << " has its features";
+        // Every frame's centre is covered by the patch image.
+        const cv::Vec3d c = ToMatx(f.frame_to_patch) * cv::Vec3d(240, 180, 1);
+        const cv::Mat px = image.ReadRegion(0, cv::Rect(int(c[0] / c[2]) - 1, int(c[1] / c[2]) - 1, 2, 2));
+        EXPECT_EQ(cv::mean(px)[3], 255.0) << "frame " << f.index << " (blend overlap " << blend << ")";
+      }
+      EXPECT_LT(PatchRms(s, survey), 0.5) << "patch " << p.id << " (blend overlap " << blend << ")";
+    }
+    EXPECT_EQ(blended, sum.blended);
+  }
 }
 
 }  // namespace

@@ -233,6 +233,9 @@ TEST(Mosaicker, ImpossibleOptionsAndInputsAreRefused) {
   o.patch_megapixels = 0;
   EXPECT_THROW(Mosaicker(store, o), Error);
   o = MosaickerOptions{};
+  o.blend_overlap = 0;
+  EXPECT_NE(test::ErrorOf([&] { Mosaicker(store, o); }).find("blend overlap"), std::string::npos);
+  o = MosaickerOptions{};
   o.calibration = dir / "missing.yml";
   EXPECT_THROW(Mosaicker(store, o), Error);
   EXPECT_THROW(MosaicInput(dir / "nothing-here", store, MosaickerOptions{}), Error);

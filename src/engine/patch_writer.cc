@@ -193,16 +193,20 @@ void PatchWriter::Write(PatchJob& job) {
   // In the order of the keyframes in `frames`.
   std::map<int, KeyframeFuture> product_of(job.products.begin(), job.products.end());
   job.products.clear();
-  std::vector<cv::Mat> images;
+  std::vector<cv::Mat> images;  // of the blended keyframes
   std::vector<std::shared_ptr<const Features>> features;
   std::vector<FrameLink> loop_links;
   std::vector<int> key_indices;
+  std::set<int> blended;
   for (const auto& f : job.frames) {
     if (!f.is_keyframe()) continue;
     auto it = product_of.find(f.index);
     if (it == product_of.end()) continue;
     const KeyframeProducts& k = it->second.get();
-    images.push_back(k.image);
+    if (!k.image.empty()) {
+      images.push_back(k.image);
+      blended.insert(f.index);
+    }
     features.push_back(k.features);
     loop_links.insert(loop_links.end(), k.loop_links.begin(), k.loop_links.end());
     key_indices.push_back(f.index);
@@ -221,7 +225,6 @@ void PatchWriter::Write(PatchJob& job) {
   // The image covers the keyframes' union; frame_to_patch moves to its pixel grid.
   std::vector<cv::Matx33d> placements;
   cv::Rect2d bounds;
-  const std::set<int> blended(key_indices.begin(), key_indices.end());
   for (const auto& f : job.frames) {
     if (!f.is_keyframe() || !blended.count(f.index)) continue;
     placements.push_back(ToMatx(f.frame_to_patch));

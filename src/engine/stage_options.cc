@@ -14,6 +14,12 @@ FeatureOptions ToFeatureOptions(const MosaickerOptions& o) {
   return f;
 }
 
+FeatureOptions CoarseFeatureOptions(const MosaickerOptions& o) {
+  FeatureOptions f = ToFeatureOptions(o);
+  f.double_first_octave = false;
+  return f;
+}
+
 EgomotionOptions ToEgomotionOptions(const MosaickerOptions& o) {
   EgomotionOptions e;
   e.epipolar_threshold_px = o.epipolar_threshold;

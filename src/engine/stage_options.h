@@ -11,6 +11,8 @@
 namespace rolamos {
 
 FeatureOptions ToFeatureOptions(const MosaickerOptions& o);
+// The same without SIFT's doubled first octave: for keyframes that link but are not blended.
+FeatureOptions CoarseFeatureOptions(const MosaickerOptions& o);
 EgomotionOptions ToEgomotionOptions(const MosaickerOptions& o);
 PreprocessOptions ToPreprocessOptions(const MosaickerOptions& o);
 EccOptions ToEccOptions(const MosaickerOptions& o);

@@ -127,6 +127,7 @@ json SidecarToJson(const PatchSidecar& s) {
     if (f.keyframe) fj["keyframe"] = *f.keyframe;
     if (f.placed_from) fj["placed_from"] = *f.placed_from;
     if (f.described) fj["described"] = *f.described;
+    if (f.blended) fj["blended"] = *f.blended;
     frames.push_back(std::move(fj));
   }
   j["frames"] = std::move(frames);
@@ -212,10 +213,14 @@ PatchSidecar SidecarFromJson(const json& j, const std::string& where) {
       if (!fr.Get("described").is_boolean()) Fail(fr.Where("described"), "must be true or false");
       f.described = fr.Get("described").get<bool>();
     }
+    if (fr.Has("blended")) {
+      if (!fr.Get("blended").is_boolean()) Fail(fr.Where("blended"), "must be true or false");
+      f.blended = fr.Get("blended").get<bool>();
+    }
     f.extra = Extra(frames[i], {"index", "source", "frame_to_patch", "egomotion", "matches",
                                 "inliers", "ecc", "status", "bilateral_error", "ecc_shift_px",
                                 "frame_to_global", "registered_by", "doubtful", "patch_frames",
-                                "keyframe", "placed_from", "described", "residual_px", "uncertainty_px",
+                                "keyframe", "placed_from", "described", "blended", "residual_px", "uncertainty_px",
                                 "align_edges", "placement_doubtful"});
     s.frames.push_back(std::move(f));
   }
