@@ -53,8 +53,9 @@ struct MosaickerOptions {
   // overlap with the last keyframe falls below this, when the next frame is predicted to fall
   // below keyframe_min_overlap, when the registration is doubtful or came from recovery, or when
   // the points followed thin out. 1 = every frame is a keyframe. Dense keyframes hold a patch
-  // straight: on MPEG-4 video at 800 x 600, 0.85 against 0.75 takes the per-patch error from
-  // 0.90 to 0.69 px (nine surveys, bench/RESULTS.md).
+  // straight: on MPEG-4 video at 800 x 600, 0.85 against 0.75 (with blend_overlap 0.75) takes
+  // the per-patch error from 0.90 to 0.64 px at the same CPU (nine surveys, bench/RESULTS.md).
+  // Stills at 70 % overlap are keyframes, and blended, either way.
   double keyframe_overlap = 0.85;
   double keyframe_min_overlap = 0.5;
   // A keyframe is blended into the patch image (after the spatio-temporal filter and ECC) when it
