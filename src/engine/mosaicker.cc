@@ -279,6 +279,7 @@ struct Mosaicker::Impl {
   // The last frame placed becomes a keyframe when the patch closes after it (lost tracking, end
   // of input): the patch reaches as far as the frames it placed, and its features are stored.
   void PromoteLast();
+  void BlendLastKeyframe();
   FrameReport Reject(FrameReport r, const std::string& reason);
   FrameReport Lost(const std::shared_ptr<PreparedFrame>& p, FrameReport r, const std::string& reason);
   bool BreakAt(const std::shared_ptr<PreparedFrame>& p);
@@ -753,7 +754,11 @@ void Mosaicker::Impl::AddFollowed(const std::shared_ptr<PreparedFrame>& p, const
 }
 
 void Mosaicker::Impl::PromoteLast() {
-  if (!canvas || last.keyframe || !last.frame || frames.empty() || frames.back().index != last.index) return;
+  if (!canvas || !last.frame || frames.empty() || frames.back().index != last.index) return;
+  if (last.keyframe) {
+    if (!last.blended) BlendLastKeyframe();
+    return;
+  }
   FrameRecord rec = frames.back();
   frames.pop_back();
   --summary.stitched;
@@ -763,6 +768,33 @@ void Mosaicker::Impl::PromoteLast() {
   last.keyframe = true;  // no temporal term with itself
   last.blended = true;
   AddKeyframe(was.frame, was.to_patch, nullptr, was.links, std::move(rec));
+}
+
+// The patch's last keyframe, placed but not blended, is blended after all: nothing after it in
+// this patch covers the part of its ground the last blended keyframe does not. Its features and
+// links are the job's it had; the spatio-temporal filter has no frame before it here.
+void Mosaicker::Impl::BlendLastKeyframe() {
+  Key& key = keys.back();
+  const std::shared_ptr<PreparedFrame> p = key.frame;
+  if (key.index != last.index || !p || p->image.empty()) return;
+  canvas->Add(p->image, *weights, key.to_patch);
+  if (options.flat_field || options.water_colour)
+    colour->Add(p->image, usable.size() == p->image.size() ? usable : cv::Mat());
+  frames.back().blended.reset();
+  key.blended = last.blended = true;
+  keyframe_bytes += p->image.total() * p->image.elemSize();
+  ++summary.blended;
+  const KeyframeFuture linked = key.products;
+  const bool bilateral = options.bilateral;
+  auto task = std::make_shared<std::packaged_task<KeyframeProducts()>>([this, p, linked, bilateral] {
+    KeyframeProducts out = linked.get();  // submitted before this one: running or done
+    CpuLaps cpu;
+    out.image = bilateral ? pre.Bilateral(p->image) : p->image;
+    stage_ns[kFilter] += cpu.Lap();
+    return out;
+  });
+  key.products = task->get_future().share();
+  keyframe_pool.Submit([task] { (*task)(); });
 }
 
 // A frame that cannot be registered: kept for a second chance against the frames after it and

@@ -389,10 +389,54 @@ TEST(MosaickerRobustness, KeyframesThatOnlyLinkAreMarkedAndTheImageStillShowsEve
         const cv::Mat px = image.ReadRegion(0, cv::Rect(int(c[0] / c[2]) - 1, int(c[1] / c[2]) - 1, 2, 2));
         EXPECT_EQ(cv::mean(px)[3], 255.0) << "frame " << f.index << " (blend overlap " << blend << ")";
       }
+
       EXPECT_LT(PatchRms(s, survey), 0.5) << "patch " << p.id << " (blend overlap " << blend << ")";
     }
     EXPECT_EQ(blended, sum.blended);
   }
+}
+
+}  // namespace
+}  // namespace rolamos
+
+namespace rolamos {
+namespace {
+
+// The survey's last frame is blended whatever it overlaps (nothing after it covers its ground),
+// also when it became a keyframe that only links: surveys of 37 to 40 frames end on each kind of
+// frame at 92 % overlap.
+TEST(MosaickerRobustness, TheLastFrameIsBlendedWhole) {
+  test::ScratchDir dir;
+  int link_only_before_end = 0;
+  for (int n = 37; n <= 40; ++n) {
+    SurveyOptions so = JitteredSurvey(n, 1);
+    so.forward_overlap = 0.92;
+    so.attitude_jitter_deg = 0.3;
+    const fs::path survey_dir = dir / ("survey" + std::to_string(n)), out = dir / ("s" + std::to_string(n) + ".rolamos");
+    WriteSurvey(so, survey_dir);
+    Store store = Store::Create(out);
+    const MosaicSummary sum = MosaicInput(survey_dir / "frames", store, Options());
+    ASSERT_EQ(sum.stitched, n);
+    Store reopened = Store::Open(out);
+    const auto last_patch = reopened.patches().back();
+    const PatchSidecar s = reopened.ReadSidecar(last_patch.id);
+    const FrameRecord& last = s.frames.back();
+    EXPECT_TRUE(last.is_blended()) << n << " frames: the last is not blended";
+    // Was the frame before the last blended keyframe a keyframe that only links? Then the last
+    // one could have been one too: the case this test is for.
+    for (auto it = s.frames.rbegin() + 1; it != s.frames.rend(); ++it)
+      if (it->is_keyframe()) {
+        link_only_before_end += !it->is_blended();
+        break;
+      }
+    TiledImage image = TiledImage::Open(reopened.PatchImagePath(last_patch.id), std::make_shared<TileCache>());
+    for (const cv::Point2d corner : {cv::Point2d(6, 6), cv::Point2d(473, 6), cv::Point2d(473, 353), cv::Point2d(6, 353)}) {
+      const cv::Vec3d q = ToMatx(last.frame_to_patch) * cv::Vec3d(corner.x, corner.y, 1);
+      const cv::Mat px = image.ReadRegion(0, cv::Rect(int(q[0] / q[2]), int(q[1] / q[2]), 1, 1));
+      EXPECT_EQ(px.at<cv::Vec4b>(0, 0)[3], 255) << n << " frames: the last frame's corner " << corner;
+    }
+  }
+  EXPECT_GT(link_only_before_end, 0);
 }
 
 }  // namespace
