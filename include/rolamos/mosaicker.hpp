@@ -60,8 +60,10 @@ struct MosaickerOptions {
   double keyframe_min_overlap = 0.5;
   // A keyframe is blended into the patch image (after the spatio-temporal filter and ECC) when it
   // overlaps the last blended keyframe less than this, or was not simply followed; the others
-  // only link and place (sidecar `blended: false`). The patch image needs no more than this; the
-  // adjustment gains from every keyframe. 1 = every keyframe is blended.
+  // only link and place (sidecar `blended: false`), and are taken only when frames were followed
+  // since the last keyframe (video; not stills at 80 % overlap, where every other frame would be
+  // one). The patch image needs no more than this; the adjustment gains from every keyframe.
+  // 1 = every keyframe is blended.
   double blend_overlap = 0.75;
   // A keyframe is described (SIFT: stored for the global map's appearance links and loop
   // closures, matched for the patch's loop links and recovery) when it overlaps the patch's last
