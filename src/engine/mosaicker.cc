@@ -280,6 +280,7 @@ struct Mosaicker::Impl {
   // of input): the patch reaches as far as the frames it placed, and its features are stored.
   void PromoteLast();
   void BlendLastKeyframe();
+  void AddToCanvas(const PreparedFrame& p, const cv::Matx33d& to_patch);
   FrameReport Reject(FrameReport r, const std::string& reason);
   FrameReport Lost(const std::shared_ptr<PreparedFrame>& p, FrameReport r, const std::string& reason);
   bool BreakAt(const std::shared_ptr<PreparedFrame>& p);
@@ -673,19 +674,21 @@ bool Mosaicker::Impl::Blends(const Candidate& c, const cv::Matx33d& to_patch) co
   return !WouldOnlyLink(to_patch);
 }
 
+// A keyframe into the working canvas and the lighting model.
+void Mosaicker::Impl::AddToCanvas(const PreparedFrame& p, const cv::Matx33d& to_patch) {
+  canvas->Add(p.image, *weights, to_patch);
+  if (options.flat_field || options.water_colour)
+    colour->Add(p.image, usable.size() == p.image.size() ? usable : cv::Mat());
+}
+
 void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch,
                                   const Candidate* c, std::vector<FrameLink> found, FrameRecord rec, bool current,
                                   bool blend) {
   Laps lap{this, {}};
   const bool described = Describes(*p, to_patch, c);
   if (!described) rec.described = false;
-  if (blend) {
-    canvas->Add(p->image, *weights, to_patch);
-    if (options.flat_field || options.water_colour)
-      colour->Add(p->image, usable.size() == p->image.size() ? usable : cv::Mat());
-  } else {
-    rec.blended = false;
-  }
+  if (blend) AddToCanvas(*p, to_patch);
+  else rec.blended = false;
   lap(kCanvas);
   if (adjust_options.enabled)
     for (auto& l : found) links.push_back(Thin(std::move(l), adjust_options.max_pairs_per_link, frame_size));
@@ -786,9 +789,7 @@ void Mosaicker::Impl::BlendLastKeyframe() {
   Key& key = keys.back();
   const std::shared_ptr<PreparedFrame> p = key.frame;
   if (key.index != last.index || !p || p->image.empty()) return;
-  canvas->Add(p->image, *weights, key.to_patch);
-  if (options.flat_field || options.water_colour)
-    colour->Add(p->image, usable.size() == p->image.size() ? usable : cv::Mat());
+  AddToCanvas(*p, key.to_patch);
   frames.back().blended.reset();
   key.blended = last.blended = true;
   keyframe_bytes += p->image.total() * p->image.elemSize();

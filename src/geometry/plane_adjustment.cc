@@ -77,31 +77,13 @@ double PairCount(const PlaneLink& l) {
   return n;
 }
 
-// Every pixel of a link at once (2 n residuals).
+// Every pixel of a link at once (2 n residuals), the link's rotations made once, not once a pixel
+// (the engine's patch adjustment spent most of its time there). With a knee, each pixel is
+// discounted on its own by the robust loss (Huber or Cauchy, the knee scaled by the pixel's
+// weight): its residual r is scaled to sqrt(rho(|r|^2)) / |r|, the same sum, so the same minimum,
+// as one robust residual block a pixel. Without (knee 0), the pixels are not discounted here.
 struct LinkTransfer {
-  LinkTransfer(const PlaneLink* l, double cx, double cy) : l(l), cx(cx), cy(cy) {}
-  template <typename T>
-  bool operator()(const T* ea, const T* ca, const T* eb, const T* cb, const T* f, T* r) const {
-    T Ra[9], Rb[9];
-    Rotation(ea, Ra);
-    Rotation(eb, Rb);
-    for (size_t i = 0; i < l->in_a.size(); ++i)
-      if (!TransferResidual(Ra, ca, Rb, cb, f, l->in_a[i], l->in_b[i], cx, cy, WeightOf(*l) * PairWeight(*l, i),
-                            r + 2 * i))
-        return false;
-    return true;
-  }
-  const PlaneLink* l;
-  double cx, cy;
-};
-
-// Every pixel of a link at once, each pixel discounted on its own by the robust loss (Huber or
-// Cauchy, its knee scaled by the pixel's weight): the cost is the per-pixel robust one, but the
-// link's rotations are made once, not once a pixel (the engine's patch adjustment spent most of
-// its time there). Each pair's residual r is scaled to sqrt(rho(|r|^2)) / |r|: the same sum,
-// so the same minimum, as one robust residual block a pixel.
-struct RobustLinkTransfer {
-  RobustLinkTransfer(const PlaneLink* l, double cx, double cy, double knee, bool cauchy)
+  LinkTransfer(const PlaneLink* l, double cx, double cy, double knee = 0, bool cauchy = false)
       : l(l), cx(cx), cy(cy), knee(knee), cauchy(cauchy) {}
   template <typename T>
   bool operator()(const T* ea, const T* ca, const T* eb, const T* cb, const T* f, T* r) const {
@@ -114,7 +96,7 @@ struct RobustLinkTransfer {
       T* ri = r + 2 * i;
       if (!TransferResidual(Ra, ca, Rb, cb, f, l->in_a[i], l->in_b[i], cx, cy, WeightOf(*l) * PairWeight(*l, i), ri))
         return false;
-      if (!(knee > 0)) continue;  // trusted: not discounted
+      if (!(knee > 0)) continue;
       const double a = knee * PairWeight(*l, i), a2 = a * a;
       const T s = ri[0] * ri[0] + ri[1] * ri[1];
       T scale;
@@ -230,8 +212,9 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
       continue;
     }
     if (!l.in_a.empty()) {
-      auto* cost = new ceres::AutoDiffCostFunction<RobustLinkTransfer, ceres::DYNAMIC, 3, 3, 3, 3, 1>(
-          new RobustLinkTransfer(&l, cx, cy, l.trusted ? 0.0 : o.loss_px, o.loss == "cauchy"),
+      // A trusted link is not discounted (knee 0).
+      auto* cost = new ceres::AutoDiffCostFunction<LinkTransfer, ceres::DYNAMIC, 3, 3, 3, 3, 1>(
+          new LinkTransfer(&l, cx, cy, l.trusted ? 0.0 : o.loss_px, o.loss == "cauchy"),
           2 * static_cast<int>(l.in_a.size()));
       problem.AddResidualBlock(cost, nullptr, angles[size_t(l.a)].data(), centres[size_t(l.a)].data(),
                                angles[size_t(l.b)].data(), centres[size_t(l.b)].data(), focal);
