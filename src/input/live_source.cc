@@ -374,6 +374,23 @@ bool LiveSource::IsStream(const std::string& input) {
          input.find(" ! ") != std::string::npos;
 }
 
+std::string LiveSource::WithUdpReceiveBuffer(const std::string& pipeline, long bytes) {
+  const std::string name = "udpsrc";
+  std::string out;
+  size_t from = 0;
+  for (size_t at; (at = pipeline.find(name, from)) != std::string::npos;) {
+    const size_t after = at + name.size();
+    out += pipeline.substr(from, after - from);
+    from = after;
+    const bool element = (at == 0 || pipeline[at - 1] == ' ' || pipeline[at - 1] == '!') &&
+                         (after == pipeline.size() || pipeline[after] == ' ' || pipeline[after] == '!');
+    const size_t end = std::min(pipeline.find('!', after), pipeline.size());  // its properties
+    if (element && pipeline.substr(after, end - after).find("buffer-size=") == std::string::npos)
+      out += " buffer-size=" + std::to_string(bytes);
+  }
+  return out + pipeline.substr(from);
+}
+
 std::unique_ptr<LiveSource> LiveSource::Open(const std::string& input, const LiveOptions& options) {
   std::string error;
   if (!options.IsValid(&error)) Fail(input, error);
@@ -386,7 +403,7 @@ std::unique_ptr<LiveSource> LiveSource::Open(const std::string& input, const Liv
   }
   cv::VideoCapture cap;
   try {
-    if (input.find(" ! ") != std::string::npos) cap.open(input, cv::CAP_GSTREAMER);
+    if (input.find(" ! ") != std::string::npos) cap.open(WithUdpReceiveBuffer(input), cv::CAP_GSTREAMER);
     else if (input.rfind("/dev/video", 0) == 0) cap.open(input, cv::CAP_V4L2);
     else cap.open(input, cv::CAP_FFMPEG);
     if (!cap.isOpened() && input.find(" ! ") == std::string::npos) cap.open(input);  // any back end

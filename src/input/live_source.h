@@ -46,6 +46,11 @@ class LiveSource : public FrameSource {
   static std::unique_ptr<LiveSource> Open(const std::string& input, const LiveOptions& options);
   // Whether `input` names a stream (device, URL or pipeline) rather than a folder.
   static bool IsStream(const std::string& input);
+  // A GStreamer pipeline whose udpsrc elements without a `buffer-size` are given one of
+  // `bytes`. The kernel's default (~200 KB, rmem_default) holds two or three camera frames: a
+  // pause of the vehicle's computer longer than that loses datagrams, hence frames, before
+  // the engine could count them. The kernel caps the size at net.core.rmem_max.
+  static std::string WithUdpReceiveBuffer(const std::string& pipeline, long bytes = 4 << 20);
   const LiveCounters& counters() const { return counters_; }
   // Arrival time (steady clock) of the frame Next returned last: for latency.
   std::chrono::steady_clock::time_point arrival() const { return arrival_; }

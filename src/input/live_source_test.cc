@@ -42,5 +42,18 @@ TEST(LiveSourceKeep, SteppingStonesAtTheVehiclesSpeed) {
   EXPECT_EQ(Kept(rule, 10, 3), (std::vector<int>{1, 3, 9}));
 }
 
+// A pilot's udpsrc gets a receive buffer that outlasts a pause of the computer; one the pilot
+// sized, and anything else named like it, is left as written.
+TEST(LiveSourceOpen, UdpSourcesGetAReceiveBuffer) {
+  EXPECT_EQ(LiveSource::WithUdpReceiveBuffer("udpsrc port=5600 ! rtpjpegdepay ! appsink", 1000),
+            "udpsrc buffer-size=1000 port=5600 ! rtpjpegdepay ! appsink");
+  EXPECT_EQ(LiveSource::WithUdpReceiveBuffer("udpsrc buffer-size=5 port=1 ! appsink", 1000),
+            "udpsrc buffer-size=5 port=1 ! appsink");
+  EXPECT_EQ(LiveSource::WithUdpReceiveBuffer("videotestsrc ! myudpsrc ! appsink name=udpsrc2", 1000),
+            "videotestsrc ! myudpsrc ! appsink name=udpsrc2");
+  EXPECT_EQ(LiveSource::WithUdpReceiveBuffer("udpsrc port=1 ! appsink udpsrc port=2 ! fakesink", 7),
+            "udpsrc buffer-size=7 port=1 ! appsink udpsrc buffer-size=7 port=2 ! fakesink");
+}
+
 }  // namespace
 }  // namespace rolamos
