@@ -180,7 +180,7 @@ const OptionTable<MosaickerOptions>& MosaickerTable() {
         .Number("track_pixels", &O::track_pixels).Integer("track_points", &O::track_points)
         .Number("keyframe_overlap", &O::keyframe_overlap).Number("keyframe_min_overlap", &O::keyframe_min_overlap)
         .Number("describe_overlap", &O::describe_overlap).Number("blend_overlap", &O::blend_overlap).Text("features", &O::features)
-        .Integer("max_features", &O::max_features).Number("detect_scale", &O::detect_scale)
+        .Integer("max_features", &O::max_features).Integer("followed_max_features", &O::followed_max_features).Number("detect_scale", &O::detect_scale)
         .Number("detect_pixels", &O::detect_pixels).Flag("sift_upsample", &O::sift_upsample)
         .Number("ratio", &O::ratio).Flag("cross_check", &O::cross_check).Flag("fundamental", &O::fundamental)
         .Number("epipolar_threshold", &O::epipolar_threshold).Number("homography_threshold", &O::homography_threshold)

@@ -265,6 +265,10 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
       ->capture_default_str();
   cmd->add_option("--features", o.features, "sift, orb or akaze")->capture_default_str();
   cmd->add_option("--max-features", o.max_features, "features per frame")->capture_default_str();
+  cmd->add_option("--followed-max-features", o.followed_max_features,
+                  "features of a keyframe that frames were followed into before it (video): its neighbours are linked by "
+                  "the points followed, SIFT serves loop closures and recovery")
+      ->capture_default_str();
   cmd->add_option("--detect-scale", o.detect_scale, "resize before detection (0 = by frame size)")->capture_default_str();
   cmd->add_option("--detect-pixels", o.detect_pixels, "detection image size when --detect-scale is 0")
       ->capture_default_str();

@@ -57,6 +57,10 @@ bool MosaickerOptions::IsValid(std::string* error) const {
              std::to_string(keyframe_min_overlap) + " in (0.05, keyframe overlap]";
     return false;
   }
+  if (!FollowedFeatureOptions(ToFeatureOptions(*this), *this).IsValid(error)) {
+    *error = "features of followed keyframes (" + std::to_string(followed_max_features) + "): " + *error;
+    return false;
+  }
   if (!(blend_overlap > 0 && blend_overlap <= 1.0)) {
     *error = "blend overlap " + std::to_string(blend_overlap) + " must be in (0, 1]";
     return false;
@@ -113,6 +117,8 @@ struct Mosaicker::Impl {
   FeatureExtractor extractor;
   // SIFT without the doubled first octave, for keyframes that are not blended (coarse_features).
   FeatureExtractor coarse_extractor;
+  // Both with fewer features, for keyframes that frames were followed into (followed_features).
+  FeatureExtractor followed_extractor, coarse_followed_extractor;
   FrameTracker tracker;
   EgomotionOptions ego_options;
   EccOptions ecc_options;
@@ -208,6 +214,8 @@ struct Mosaicker::Impl {
         pre(ToPreprocessOptions(o)),
         extractor(ToFeatureOptions(o)),
         coarse_extractor(CoarseFeatureOptions(o)),
+        followed_extractor(FollowedFeatureOptions(ToFeatureOptions(o), o)),
+        coarse_followed_extractor(FollowedFeatureOptions(CoarseFeatureOptions(o), o)),
         tracker(ToTrackerOptions(o)),
         ego_options(ToEgomotionOptions(o)),
         ecc_options(ToEccOptions(o)),
@@ -322,7 +330,8 @@ std::shared_ptr<const Features> Mosaicker::Impl::FeaturesOf(PreparedFrame& p) {
       if (!usable_small.empty() && usable_small.size() == detect.size())
         mask = mask.empty() ? usable_small : (mask & usable_small);
     }
-    const FeatureExtractor& by = p.coarse_features ? coarse_extractor : extractor;
+    const FeatureExtractor& by = p.coarse_features ? (p.followed_features ? coarse_followed_extractor : coarse_extractor)
+                                                   : (p.followed_features ? followed_extractor : extractor);
     p.features = std::make_shared<const Features>(by.ExtractScaled(detect, scale, mask));
     lap(kFeatures);
   });
@@ -718,7 +727,9 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   job.index = key.index;
   job.frame = p;
   job.blend = blend;
-  if (!blend && !p->features) p->coarse_features = true;  // read once the job runs, on its thread
+  // Read once the job runs, on its thread.
+  if (!blend && !p->features) p->coarse_features = true;
+  if (current && last.frame && !last.keyframe && !p->features) p->followed_features = true;
   if (blend && current && last.frame && !last.blended && !last.frame->image.empty() &&
       last.frame->image.size() == p->image.size()) {
     job.before = last.frame;

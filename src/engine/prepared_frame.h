@@ -24,6 +24,9 @@ struct PreparedFrame {
   // Set before they are found: a keyframe that links but is not blended is described by SIFT
   // without its doubled first octave (half the time; its links are held by its neighbours').
   bool coarse_features = false;
+  // Set before they are found: frames were followed into this keyframe before it (video), so
+  // it is described by MosaickerOptions::followed_max_features.
+  bool followed_features = false;
 };
 
 }  // namespace rolamos

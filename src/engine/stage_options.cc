@@ -1,5 +1,7 @@
 #include "engine/stage_options.h"
 
+#include <algorithm>
+
 namespace rolamos {
 
 FeatureOptions ToFeatureOptions(const MosaickerOptions& o) {
@@ -17,6 +19,11 @@ FeatureOptions ToFeatureOptions(const MosaickerOptions& o) {
 FeatureOptions CoarseFeatureOptions(const MosaickerOptions& o) {
   FeatureOptions f = ToFeatureOptions(o);
   f.double_first_octave = false;
+  return f;
+}
+
+FeatureOptions FollowedFeatureOptions(FeatureOptions f, const MosaickerOptions& o) {
+  f.max_features = std::min(f.max_features, o.followed_max_features);
   return f;
 }
 

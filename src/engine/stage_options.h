@@ -13,6 +13,8 @@ namespace rolamos {
 FeatureOptions ToFeatureOptions(const MosaickerOptions& o);
 // The same without SIFT's doubled first octave: for keyframes that link but are not blended.
 FeatureOptions CoarseFeatureOptions(const MosaickerOptions& o);
+// `f` for keyframes that frames were followed into (MosaickerOptions::followed_max_features).
+FeatureOptions FollowedFeatureOptions(FeatureOptions f, const MosaickerOptions& o);
 EgomotionOptions ToEgomotionOptions(const MosaickerOptions& o);
 PreprocessOptions ToPreprocessOptions(const MosaickerOptions& o);
 EccOptions ToEccOptions(const MosaickerOptions& o);
