@@ -110,7 +110,7 @@ def closures(store):
 
 def peer_rows(a, kind, survey):
     """cv::Stitcher SCANS and rolamos mosaic on the first a.peer frames of the survey."""
-    frames = sorted(glob.glob(os.path.join(survey, "frames", "*")))[: a.peer]
+    frames = sorted(os.path.abspath(f) for f in glob.glob(os.path.join(survey, "frames", "*")))[: a.peer]
     listing = os.path.join(a.out, kind + ".peer.txt")
     open(listing, "w").write("\n".join(frames) + "\n")
     store = os.path.join(a.out, kind + ".peer.rolamos")
