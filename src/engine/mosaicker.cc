@@ -221,7 +221,6 @@ struct Mosaicker::Impl {
         ecc_options(ToEccOptions(o)),
         writer(s, o.tiff) {
     adjust_options.enabled = o.adjust_patches;
-    adjust_options.solver.refine_focal = getenv("ROLAMOS_REFINE_FOCAL") != nullptr;
     ColourOptions co;
     co.lighting = o.flat_field;
     co.exposure = o.exposure;
