@@ -77,9 +77,10 @@ struct MosaickerOptions {
   int max_features = 1000;
   // Features of a keyframe that frames were followed into before it (video): its links to the
   // keyframes around it come from the points followed, SIFT's only from loop closures and
-  // recovery, where fewer and stronger features do as well (nine MPEG-4 surveys: 0.60 against
-  // 0.64 px per patch, SIFT ~30 % cheaper). Keyframes on stills keep max_features.
-  int followed_max_features = 600;
+  // recovery, where fewer and stronger features do as well (nine MPEG-4 surveys: 0.58 against
+  // 0.64 px per patch at 400, 0.59 at 600; bench/RESULTS.md). Keyframes on stills keep
+  // max_features: there fewer cost accuracy.
+  int followed_max_features = 400;
   double detect_scale = 0;        // 0 = by frame size (about detect_pixels)
   double detect_pixels = 0.16e6;
   // SIFT's first octave at twice the detection image's size (OpenCV's way): the finest, best-placed
