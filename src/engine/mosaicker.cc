@@ -254,6 +254,8 @@ struct Mosaicker::Impl {
 
   void InitCamera(cv::Size size);
   std::shared_ptr<const Features> FeaturesOf(PreparedFrame& p);
+  // SIFT as the frame asks: halved (coarse_features), fewer (followed_features), both or neither.
+  const FeatureExtractor& ExtractorFor(const PreparedFrame& p) const;
   FrameMotion MotionFromLast(const cv::Matx33d& to_patch) const {
     return MotionOf(last.to_patch.inv() * to_patch, frame_size);
   }
@@ -268,6 +270,8 @@ struct Mosaicker::Impl {
   // Whether a new keyframe is blended (MosaickerOptions::blend_overlap).
   bool Blends(const Candidate& c, const cv::Matx33d& to_patch) const;
   bool WouldOnlyLink(const cv::Matx33d& to_patch) const;
+  // Frames were followed (placed between keyframes) since the last keyframe: video, not stills.
+  bool FollowedSinceKeyframe() const { return !last.keyframe; }
   cv::Matx33d FitToKeyframes(const PreparedFrame& p, const Candidate& c, std::vector<FrameLink>* fitted, int* frames);
 
   void StartPatch(const std::shared_ptr<PreparedFrame>& p, FrameReport& r, const std::optional<PatchLink>& join);
@@ -317,6 +321,11 @@ void Mosaicker::Impl::InitCamera(cv::Size size) {
   gate = std::make_unique<MotionGate>(g, size);
 }
 
+const FeatureExtractor& Mosaicker::Impl::ExtractorFor(const PreparedFrame& p) const {
+  if (p.coarse_features) return p.followed_features ? coarse_followed_extractor : coarse_extractor;
+  return p.followed_features ? followed_extractor : extractor;
+}
+
 std::shared_ptr<const Features> Mosaicker::Impl::FeaturesOf(PreparedFrame& p) {
   std::call_once(p.features_once, [&] {
     Laps lap{this, {}};
@@ -329,9 +338,7 @@ std::shared_ptr<const Features> Mosaicker::Impl::FeaturesOf(PreparedFrame& p) {
       if (!usable_small.empty() && usable_small.size() == detect.size())
         mask = mask.empty() ? usable_small : (mask & usable_small);
     }
-    const FeatureExtractor& by = p.coarse_features ? (p.followed_features ? coarse_followed_extractor : coarse_extractor)
-                                                   : (p.followed_features ? followed_extractor : extractor);
-    p.features = std::make_shared<const Features>(by.ExtractScaled(detect, scale, mask));
+    p.features = std::make_shared<const Features>(ExtractorFor(p).ExtractScaled(detect, scale, mask));
     lap(kFeatures);
   });
   return p.features;
@@ -493,7 +500,7 @@ bool Mosaicker::Impl::WantsKeyframe(const Candidate& c, const cv::Matx33d& to_pa
   // is taken only with frames followed since the last keyframe: on video, not on stills at
   // 80 % overlap, where every other frame would be one for little gain (paper: 7 % slower).
   if (overlap < options.keyframe_overlap &&
-      (options.keyframe_overlap >= 1.0 || !last.keyframe || !WouldOnlyLink(to_patch)))
+      (options.keyframe_overlap >= 1.0 || FollowedSinceKeyframe() || !WouldOnlyLink(to_patch)))
     return true;
   if (c.at.size() < std::max<size_t>(size_t(2 * support_options.strong_inliers), key.points.size() / 3)) return true;
   // The next frame, if the motion from the last one repeats.
@@ -728,7 +735,7 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   job.blend = blend;
   // Read once the job runs, on its thread.
   if (!blend && !p->features) p->coarse_features = true;
-  if (current && last.frame && !last.keyframe && !p->features) p->followed_features = true;
+  if (current && last.frame && FollowedSinceKeyframe() && !p->features) p->followed_features = true;
   if (blend && current && last.frame && !last.blended && !last.frame->image.empty() &&
       last.frame->image.size() == p->image.size()) {
     job.before = last.frame;
