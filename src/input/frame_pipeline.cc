@@ -17,6 +17,7 @@
 #include "input/frame_source.h"
 #include "input/live_preview.h"
 #include "input/live_source.h"
+#include "input/live_status.h"
 #include "engine/prepared_frame.h"
 #include "engine/self_calibration.h"
 #include "engine/preprocess.h"
@@ -35,10 +36,6 @@ namespace rolamos {
 namespace fs = std::filesystem;
 
 namespace {
-
-double UnixSeconds() {
-  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-}
 
 // Up to ten readable frames of one size from the start of `input`: k1 estimated from them and
 // the calibration written to `path`.
@@ -278,214 +275,128 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
 }
 
 // When frames must be skipped, those kept overlap each other at least this much where the room allows.
-constexpr double kMinOverlap = 0.6;
-constexpr std::chrono::milliseconds kStatusEvery{500};
+// What needs the first frames before mapping (self-calibration, the overlay search) cannot wait
+// for them live: an earlier run's results in the store are used. Without them self-calibration
+// fails; the overlay search takes the live run's first frames, which wait in `feed` (every one
+// kept) and are mapped first.
+// Checked before the stream is opened.
+MosaickerOptions LiveCalibration(MosaickerOptions options, const std::string& dir, std::string* note) {
+  if (options.calibration != "auto") return options;
+  if (!fs::exists(dir + "/calibration.yml"))
+    Fail(dir, "has no calibration.yml from an earlier run; live mapping cannot self-calibrate first "
+              "(give a calibration file, or none)");
+  options.calibration = dir + "/calibration.yml";
+  *note = "calibration from " + options.calibration;
+  return options;
+}
 
-// Calls `beat` under `mutex` every kStatusEvery on a thread of its own, until stopped.
-class StatusHeartbeat {
- public:
-  StatusHeartbeat(std::mutex* mutex, std::function<void()> beat) : mutex_(mutex), beat_(std::move(beat)) {
-    thread_ = std::thread([this] {
-      std::unique_lock<std::mutex> lock(*mutex_);
-      while (!wake_.wait_for(lock, kStatusEvery, [this] { return done_; })) beat_();
-    });
+MosaickerOptions LiveMask(MosaickerOptions options, const Store& store, LiveSource* source, ReplayedSource* feed,
+                          std::string* mask_note) {
+  const std::string dir = store.dir();
+  if (options.mask != "auto") return options;
+  if (fs::exists(dir + "/static_mask.png")) {
+    options.mask = dir + "/static_mask.png";
+    *mask_note = "overlay mask from " + options.mask + " (found by an earlier run)";
+    return options;
   }
-  ~StatusHeartbeat() { Stop(); }
-  void Stop() {
-    if (!thread_.joinable()) return;
-    {
-      std::lock_guard<std::mutex> lock(*mutex_);
-      done_ = true;
-    }
-    wake_.notify_all();
-    thread_.join();
+  const StaticMaskOptions mo;
+  std::vector<cv::Mat> images;
+  InputFrame f;
+  // Held frames are beyond the backlog bound by design: none may be skipped while the search
+  // gathers them (a burst of files on a loaded machine skipped some, and the search then waited
+  // for frames that never came).
+  source->CatchUp(mo.frames);
+  while (static_cast<int>(feed->first.size()) < mo.frames && source->Next(&f)) {
+    images.push_back(f.image);
+    feed->first.emplace_back(std::move(f), source->arrival());
+    f = InputFrame{};
+  }
+  options = MaskFromFrames(images, store, options, mask_note);
+  source->CatchUp(mo.frames);  // what arrived meanwhile is mapped, not skipped
+  *mask_note += " (from the first " + std::to_string(images.size()) + " frames of the live run)";
+  return options;
+}
+
+// The open patch for the page: the track and the current frame after every frame (written at
+// most four times a second), the image every `every_s`, and at once for a new patch.
+class PreviewOffers {
+ public:
+  PreviewOffers(const std::string& dir, double every_s) : every_s_(every_s) {
+    if (every_s > 0) writer_.emplace(dir);
+  }
+  void After(const FrameReport& r, const Mosaicker& mosaicker) {
+    if (!writer_) return;
+    const auto now = std::chrono::steady_clock::now();
+    const bool image = std::chrono::duration<double>(now - last_image_).count() >= every_s_ ||
+                       (r.patch_id != writer_->imaged_patch() && r.patch_id > 0);
+    if (image) last_image_ = now;
+    writer_->Offer(mosaicker.Preview(0.5, 2.0, image));
+  }
+  // Writes the last one offered and says that no patch is open; returns what went wrong, if anything.
+  std::string Close() {
+    if (!writer_) return "";
+    std::string problem = writer_->problem();
+    writer_.reset();
+    return problem;
   }
 
  private:
-  std::mutex* mutex_;
-  std::function<void()> beat_;
-  std::condition_variable wake_;
-  bool done_ = false;
-  std::thread thread_;
+  double every_s_;
+  std::optional<LivePreviewWriter> writer_;
+  std::chrono::steady_clock::time_point last_image_ = std::chrono::steady_clock::now();
 };
 
 MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerOptions& given,
                          const LiveOptions& live, const std::function<void(const LiveStatus&)>& on_status,
                          const std::function<void(const FrameReport&, int)>& on_frame) {
-  MosaickerOptions options = given;
-  std::string note, mask_note;
   const std::string dir = store.dir();
-  // What needs the first frames before mapping (self-calibration, the overlay search) cannot wait
-  // for them live: an earlier run's results in the store are used, or none.
-  if (options.calibration == "auto") {
-    if (!fs::exists(dir + "/calibration.yml"))
-      Fail(dir, "has no calibration.yml from an earlier run; live mapping cannot self-calibrate first "
-                "(give a calibration file, or none)");
-    options.calibration = dir + "/calibration.yml";
-    note = "calibration from " + options.calibration;
-  }
+  std::string calibration_note, mask_note;
+  MosaickerOptions options = LiveCalibration(given, dir, &calibration_note);
   auto source = LiveSource::Open(input, live);
   ReplayedSource feed(source.get());
-  if (options.mask == "auto") {
-    if (fs::exists(dir + "/static_mask.png")) {
-      options.mask = dir + "/static_mask.png";
-      mask_note = "overlay mask from " + options.mask + " (found by an earlier run)";
-    } else {
-      // As the folder mode does, from the first frames: they wait (every one kept) until the
-      // search has enough, then are mapped first.
-      const StaticMaskOptions mo;
-      std::vector<cv::Mat> images;
-      InputFrame f;
-      // Held frames are beyond the backlog bound by design: none may be skipped while the search
-      // gathers them (a burst of files on a loaded machine skipped some, and the search then waited
-      // for frames that never came).
-      source->CatchUp(mo.frames);
-      while (static_cast<int>(feed.first.size()) < mo.frames && source->Next(&f)) {
-        images.push_back(f.image);
-        feed.first.emplace_back(std::move(f), source->arrival());
-        f = InputFrame{};
-      }
-      options = MaskFromFrames(images, store, options, &mask_note);
-      source->CatchUp(mo.frames);  // what arrived meanwhile is mapped, not skipped
-      mask_note += " (from the first " + std::to_string(images.size()) + " frames of the live run)";
-    }
-  }
+  options = LiveMask(options, store, source.get(), &feed, &mask_note);
   // Frames taken from the source and not yet mapped: with those waiting in the source, never
   // more than the backlog bound (the pipeline prepares at most one fewer ahead).
   std::atomic<long> in_flight{0};
   source->SetInFlight(&in_flight);
   feed.in_flight = &in_flight;
+  // Before the engine: its patch writer reports to it until the engine is gone.
+  LiveStatusKeeper status(source.get(), live.max_waiting, on_status);
   Mosaicker mosaicker(store, options);
-  // The open patch for the page, every preview_s (rendered here, between frames; written on the
-  // preview writer's thread).
-  std::optional<LivePreviewWriter> preview;
-  if (live.preview_s > 0) preview.emplace(dir);
-  auto last_preview = std::chrono::steady_clock::now();
-  LiveStatus status;
-  status.started = UnixSeconds();
-  status.backlog_bound = live.max_waiting;
-  std::mutex mutex;
-  std::map<long, std::chrono::steady_clock::time_point> arrivals;
-  std::deque<double> latencies;  // ms, the last frames mapped
-  long integrated = 0;
-  long long skipped_before = 0;  // skips counted when the frame before was mapped
-  auto last_report = std::chrono::steady_clock::now();
-  auto report = [&](bool running) {
-    // Under `mutex`.
-    status.running = running;
-    status.frames_received = source->counters().received;
-    status.frames_skipped = source->counters().skipped;
-    status.backlog_max = source->counters().backlog_max;
-    status.frames_incomplete = source->counters().incomplete;
-    status.last_frame_time = source->counters().last_arrival;
-    if (!latencies.empty()) {
-      std::vector<double> l(latencies.begin(), latencies.end());
-      std::sort(l.begin(), l.end());
-      status.latency_ms_p50 = l[l.size() / 2];
-      status.latency_ms_p95 = l[std::min(l.size() - 1, l.size() * 95 / 100)];
-    }
-    status.updated = UnixSeconds();
-    if (on_status) on_status(status);
-  };
-  mosaicker.OnPatch([&](const PatchSidecar&) {
-    std::lock_guard<std::mutex> lock(mutex);
-    ++status.patches;
-    report(true);
-  });
-  report(true);
-  // Frames arrive while the engine is busy, and a stream stalls right after a frame was mapped:
-  // the status also follows the source on its own, so it never lags the frames received by more
-  // than kStatusEvery (it lagged by up to five frames of a stalled 10 frames/s stream).
-  StatusHeartbeat heartbeat(&mutex, [&] {
-    if (source->counters().received == status.frames_received && source->counters().skipped == status.frames_skipped)
-      return;
-    last_report = std::chrono::steady_clock::now();
-    report(true);
-  });
+  PreviewOffers preview(dir, live.preview_s);
+  mosaicker.OnPatch([&](const PatchSidecar&) { status.PatchWritten(); });
   double decode = 0;
   MosaicSummary summary;
   try {
     decode = RunPipeline(
         &feed, mosaicker,
         [&](const FrameReport& r, int total) {
-          {
-            std::lock_guard<std::mutex> lock(mutex);
-            auto it = arrivals.find(integrated);
-            if (it != arrivals.end()) {
-              latencies.push_back(1e3 * std::chrono::duration<double>(std::chrono::steady_clock::now() - it->second).count());
-              if (latencies.size() > 600) latencies.pop_front();
-              arrivals.erase(it);
-            }
-            ++integrated;
-            --in_flight;
-            // Frames were skipped before this one, and it does not join the frame before it.
-            const long long skipped = source->counters().skipped;
-            if (skipped > skipped_before && !r.continues) ++status.coverage_lost;
-            // What the source may skip at the vehicle's speed and keep each frame overlapping the
-            // one before by kMinOverlap (the step measured over the camera frames it spans).
-            if (const double step = mosaicker.LastStepFraction(); step > 0 && r.continues) {
-              const double per_frame = step / double(1 + skipped - skipped_before);
-              source->SetMaxGap(static_cast<int>(std::clamp((1 - kMinOverlap) / per_frame, 1.0, 1000.0)));
-            }
-            skipped_before = skipped;
-            if (r.status == "stitched") ++status.frames_registered;
-            else ++status.frames_rejected;
-            status.open_patch = r.patch_id;
-            const auto now = std::chrono::steady_clock::now();
-            if (now - last_report > kStatusEvery) {
-              last_report = now;
-              report(true);
-            }
-          }
-          if (preview) {
-            // The track and the current frame after every frame (written at most four times a
-            // second); the image every preview_s, and at once for a new patch.
-            const auto now = std::chrono::steady_clock::now();
-            const bool image = std::chrono::duration<double>(now - last_preview).count() >= live.preview_s ||
-                               (r.patch_id != preview->imaged_patch() && r.patch_id > 0);
-            if (image) last_preview = now;
-            preview->Offer(mosaicker.Preview(0.5, 2.0, image));
-          }
+          --in_flight;
+          status.Mapped(r, mosaicker.LastStepFraction());
+          preview.After(r, mosaicker);
           if (on_frame) on_frame(r, total);
         },
-        [&](long index) {
-          std::lock_guard<std::mutex> lock(mutex);
-          arrivals[index] = feed.arrival();
-        },
-        std::max(1, live.max_waiting - 1));
+        [&](long index) { status.Taken(index, feed.arrival()); }, std::max(1, live.max_waiting - 1));
     summary = mosaicker.Finish();
   } catch (const Error& e) {
     // A write failed (a full disk): what was written stays a valid store; say what it holds and
     // what was not saved, rather than only the failure.
-    std::lock_guard<std::mutex> lock(mutex);
     std::error_code ec;
     const auto space = fs::space(dir, ec);
     const bool full = !ec && space.available < (4u << 20);
     Fail(dir, std::string(e.what()) +
                   (full ? " (the disk is full: " + std::to_string(space.available >> 10) + " KiB free)" : "") +
-                  "; the live run stopped there: the store holds the " +
-                  std::to_string(status.patches) + " patches written before (it opens and composes), the " +
-                  std::to_string(integrated) + " frames mapped since the run began were saved only as far as those "
-                  "patches go");
+                  "; the live run stopped there: the store holds the " + std::to_string(status.patches()) +
+                  " patches written before (it opens and composes), the " + std::to_string(status.mapped()) +
+                  " frames mapped since the run began were saved only as far as those patches go");
   }
-  heartbeat.Stop();
-  if (preview) {
-    summary.preview_problem = preview->problem();
-    preview.reset();  // says no patch is open any more
-  }
+  summary.preview_problem = preview.Close();
   AddDecodeStage(&summary, decode);
-  {
-    std::lock_guard<std::mutex> lock(mutex);
-    status.open_patch = 0;
-    // The engine's own count: frames rejected at first and placed later (second chance) are placed.
-    status.frames_registered = summary.stitched;
-    status.frames_rejected = summary.rejected;
-    report(false);
-  }
-  summary.calibration_note = note;
+  status.Finish(summary);
+  summary.calibration_note = calibration_note;
   summary.mask_note = mask_note;
   summary.frames_skipped = static_cast<int>(source->counters().skipped);
-  summary.coverage_lost = static_cast<int>(status.coverage_lost);
+  summary.coverage_lost = static_cast<int>(status.coverage_lost());
   return summary;
 }
 

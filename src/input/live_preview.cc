@@ -10,6 +10,7 @@
 #include "rolamos/tiff_writer.hpp"
 #include "util/files.h"
 #include "util/homography.h"
+#include "util/clock.h"
 
 namespace rolamos {
 
@@ -27,10 +28,6 @@ nlohmann::json Points(const std::vector<cv::Point2d>& points) {
   nlohmann::json out = nlohmann::json::array();
   for (const auto& p : points) out.push_back({std::round(p.x * 100) / 100, std::round(p.y * 100) / 100});
   return out;
-}
-
-double UnixNow() {
-  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
 
 }  // namespace

@@ -22,6 +22,7 @@
 #include "rolamos/error.hpp"
 
 namespace fs = std::filesystem;
+#include "util/clock.h"
 
 namespace rolamos {
 
@@ -46,10 +47,6 @@ bool LiveOptions::IsValid(std::string* error) const {
 }
 
 namespace {
-
-double UnixNow() {
-  return std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
-}
 
 bool Stopped(const LiveOptions& o) { return o.stop && o.stop->load(); }
 
