@@ -2,7 +2,7 @@
 // mosaicking (decode, undistort, the tracking pyramid), and what each of the engine's building
 // blocks costs on the same frames, one core, medians over the frames given.
 //
-//   engine_floor_bench FRAMES_DIR [--frames N] [--window W --levels L --points P --track-pixels N --normalize-sigma S --iterations N --min-step PX]
+//   engine_floor_bench FRAMES_DIR|VIDEO [--frames N] [--window W --levels L --points P --track-pixels N --normalize-sigma S --iterations N --min-step PX]
 //
 // FRAMES_DIR holds consecutive JPEG (or PNG) frames, e.g. `rolamos synth ... -o DIR` then
 // DIR/frames. The figures are milliseconds of one core; the engine spreads them over the cores.
@@ -23,6 +23,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
+#include <opencv2/videoio.hpp>
 
 #include "engine/feather.h"
 #include "engine/features.h"
@@ -56,14 +57,15 @@ std::string ReadBytes(const std::string& path) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  const char* usage = "usage: engine_floor_bench FRAMES_DIR [--frames N] [--window W --levels L --points P --track-pixels N --normalize-sigma S --iterations N --min-step PX]\n";
+  const char* usage = "usage: engine_floor_bench FRAMES_DIR|VIDEO [--frames N] [--window W --levels L --points P --track-pixels N --normalize-sigma S --iterations N --min-step PX]\n";
   if (argc < 2 || std::string(argv[1]) == "--help" || std::string(argv[1]) == "-h") {
     std::fprintf(stderr, "%s", usage);
     return argc < 2 ? 2 : 0;
   }
   std::error_code ec;
-  if (!fs::is_directory(argv[1], ec)) {
-    std::fprintf(stderr, "engine_floor_bench: %s is not a folder of frames\n%s", argv[1], usage);
+  const bool video = fs::is_regular_file(argv[1], ec);
+  if (!video && !fs::is_directory(argv[1], ec)) {
+    std::fprintf(stderr, "engine_floor_bench: %s is neither a folder of frames nor a video\n%s", argv[1], usage);
     return 2;
   }
   int limit = 30;
@@ -81,12 +83,28 @@ int main(int argc, char** argv) {
   }
   cv::setNumThreads(1);  // one core's cost
   std::vector<std::string> paths;
-  for (const auto& e : fs::directory_iterator(argv[1])) {
-    const std::string ext = e.path().extension().string();
-    if (ext == ".jpg" || ext == ".JPG" || ext == ".png" || ext == ".jpeg") paths.push_back(e.path().string());
+  std::vector<std::string> bytes;
+  if (video) {
+    // A video's decoded frames, kept losslessly (PNG), named as a synth survey names its frames:
+    // its codec's artefacts are what the tracker is measured on.
+    cv::VideoCapture cap(argv[1]);
+    cv::Mat frame;
+    std::vector<uchar> png;
+    while (static_cast<int>(paths.size()) < limit && cap.read(frame)) {
+      cv::imencode(".png", frame, png, {cv::IMWRITE_PNG_COMPRESSION, 1});
+      bytes.emplace_back(png.begin(), png.end());
+      char name[32];
+      std::snprintf(name, sizeof name, "frame_%05zu.jpg", paths.size());
+      paths.push_back(name);
+    }
+  } else {
+    for (const auto& e : fs::directory_iterator(argv[1])) {
+      const std::string ext = e.path().extension().string();
+      if (ext == ".jpg" || ext == ".JPG" || ext == ".png" || ext == ".jpeg") paths.push_back(e.path().string());
+    }
+    std::sort(paths.begin(), paths.end());
+    if (paths.size() > size_t(limit)) paths.resize(size_t(limit));
   }
-  std::sort(paths.begin(), paths.end());
-  if (paths.size() > size_t(limit)) paths.resize(size_t(limit));
   if (paths.size() < 2) {
     std::fprintf(stderr, "engine_floor_bench: %s: fewer than 2 frames\n", argv[1]);
     return 1;
@@ -102,8 +120,8 @@ int main(int argc, char** argv) {
       truth[fs::path(f["file"].get<std::string>()).filename().string()] = H;
     }
   }
-  std::vector<std::string> bytes;
-  for (const auto& p : paths) bytes.push_back(ReadBytes(p));
+  if (!video)
+    for (const auto& p : paths) bytes.push_back(ReadBytes(p));
 
   std::vector<std::pair<std::string, std::vector<double>>> rows;
   auto row = [&](const std::string& name) -> std::vector<double>& {
