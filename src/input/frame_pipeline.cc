@@ -354,14 +354,15 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
   MosaickerOptions options = LiveCalibration(given, dir, &calibration_note);
   auto source = LiveSource::Open(input, live);
   ReplayedSource feed(source.get());
+  // From the first frame (the overlay search may hold the first ones a while), and before the
+  // engine: its patch writer reports to it until the engine is gone.
+  LiveStatusKeeper status(source.get(), live.max_waiting, on_status);
   options = LiveMask(options, store, source.get(), &feed, &mask_note);
   // Frames taken from the source and not yet mapped: with those waiting in the source, never
   // more than the backlog bound (the pipeline prepares at most one fewer ahead).
   std::atomic<long> in_flight{0};
   source->SetInFlight(&in_flight);
   feed.in_flight = &in_flight;
-  // Before the engine: its patch writer reports to it until the engine is gone.
-  LiveStatusKeeper status(source.get(), live.max_waiting, on_status);
   Mosaicker mosaicker(store, options);
   PreviewOffers preview(dir, live.preview_s);
   mosaicker.OnPatch([&](const PatchSidecar&) { status.PatchWritten(); });

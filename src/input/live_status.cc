@@ -30,7 +30,16 @@ LiveStatusKeeper::LiveStatusKeeper(LiveSource* source, int backlog_bound, std::f
   });
 }
 
-LiveStatusKeeper::~LiveStatusKeeper() { StopHeartbeat(); }
+LiveStatusKeeper::~LiveStatusKeeper() {
+  StopHeartbeat();
+  if (finished_) return;
+  // The run ended without Finish (an error): the page must not show it running.
+  try {
+    std::lock_guard<std::mutex> lock(mutex_);
+    Report(false);
+  } catch (...) {
+  }
+}
 
 void LiveStatusKeeper::StopHeartbeat() {
   if (!heartbeat_.joinable()) return;
@@ -100,6 +109,7 @@ void LiveStatusKeeper::PatchWritten() {
 void LiveStatusKeeper::Finish(const MosaicSummary& summary) {
   StopHeartbeat();
   std::lock_guard<std::mutex> lock(mutex_);
+  finished_ = true;
   status_.open_patch = 0;
   status_.frames_registered = summary.stitched;
   status_.frames_rejected = summary.rejected;

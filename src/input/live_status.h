@@ -37,7 +37,8 @@ class LiveStatusKeeper {
   void Mapped(const FrameReport& r, double step);
   void PatchWritten();
   // The run ended: the engine's own counts (frames rejected at first and placed later count as
-  // placed) and a last status that is not running. The heartbeat stops first.
+  // placed) and a last status that is not running. The heartbeat stops first. A keeper gone
+  // without it (the run failed) writes a last status that is not running as well.
   void Finish(const MosaicSummary& summary);
 
   long mapped() const;
@@ -62,6 +63,7 @@ class LiveStatusKeeper {
   std::chrono::steady_clock::time_point last_report_;
   std::condition_variable wake_;
   bool stopping_ = false;
+  bool finished_ = false;  // Finish wrote the last status
   std::thread heartbeat_;
 };
 

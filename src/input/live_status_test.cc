@@ -83,5 +83,19 @@ TEST(LiveStatusKeeper, CountsFramesMappedAndEndsNotRunning) {
   EXPECT_GE(last.latency_ms_p50, 0);
 }
 
+TEST(LiveStatusKeeper, ARunThatFailsIsNotLeftRunning) {
+  Arrivals source;
+  std::vector<LiveStatus> all;
+  {
+    LiveStatusKeeper keeper(&source, 3, [&](const LiveStatus& s) { all.push_back(s); });
+    source.Arrive();
+    // The run throws here (a full disk): Finish is never called.
+  }
+  ASSERT_GE(all.size(), 2u);
+  EXPECT_TRUE(all.front().running);
+  EXPECT_FALSE(all.back().running);
+  EXPECT_EQ(all.back().frames_received, 1);
+}
+
 }  // namespace
 }  // namespace rolamos
