@@ -8,9 +8,9 @@
 
 #include "rolamos/error.hpp"
 #include "rolamos/tiff_writer.hpp"
+#include "util/clock.h"
 #include "util/files.h"
 #include "util/homography.h"
-#include "util/clock.h"
 
 namespace rolamos {
 

@@ -20,9 +20,9 @@
 #include <opencv2/videoio.hpp>
 
 #include "rolamos/error.hpp"
+#include "util/clock.h"
 
 namespace fs = std::filesystem;
-#include "util/clock.h"
 
 namespace rolamos {
 

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <vector>
+
 #include "util/clock.h"
 
 namespace rolamos {
@@ -25,7 +26,12 @@ LiveStatusKeeper::LiveStatusKeeper(LiveSource* source, int backlog_bound, std::f
     std::unique_lock<std::mutex> lock(mutex_);
     while (!wake_.wait_for(lock, kStatusEvery, [this] { return stopping_; })) {
       const LiveCounters& c = source_->counters();
-      if (c.received != status_.frames_received || c.skipped != status_.frames_skipped) Report(true);
+      if (c.received == status_.frames_received && c.skipped == status_.frames_skipped) continue;
+      try {
+        Report(true);
+      } catch (...) {
+        // Writing the status is the caller's to report; this thread must not end the run.
+      }
     }
   });
 }
