@@ -80,25 +80,59 @@ bool AnyWeight(const cv::Mat& part) {
 
 }  // namespace
 
+cv::Mat PatchCanvas::Interleave(const cv::Mat& frame, const cv::Mat& code) {
+  CV_Assert((frame.type() == CV_8UC3 || frame.type() == CV_16UC3) && code.type() == CV_8U &&
+            code.size() == frame.size());
+  const bool deep = frame.depth() == CV_16U;
+  cv::Mat wide = code;
+  if (deep) code.convertTo(wide, CV_16U);
+  cv::Mat bgrw(frame.size(), deep ? CV_16UC4 : CV_8UC4);
+  const cv::Mat in[] = {frame, wide};
+  const int from_to[] = {0, 0, 1, 1, 2, 2, 3, 3};
+  cv::mixChannels(in, 2, &bgrw, 1, from_to, 4);
+  return bgrw;
+}
+
+cv::Mat PatchCanvas::InterleaveDeep(const cv::Mat& frame, const cv::Mat& colour, double scale, const cv::Mat& code) {
+  CV_Assert(frame.type() == CV_8UC3 && code.type() == CV_8U && code.size() == frame.size());
+  CV_Assert(colour.empty() || (colour.type() == CV_32FC3 && colour.size() == frame.size()));
+  cv::Mat bgrw(frame.size(), CV_16UC4);
+  const float s = static_cast<float>(scale);
+  cv::parallel_for_(cv::Range(0, frame.rows), [&](const cv::Range& range) {
+    for (int y = range.start; y < range.end; ++y) {
+      const cv::Vec3b* p = frame.ptr<cv::Vec3b>(y);
+      const cv::Vec3f* c = colour.empty() ? nullptr : colour.ptr<cv::Vec3f>(y);
+      const uchar* w = code.ptr<uchar>(y);
+      cv::Vec4w* o = bgrw.ptr<cv::Vec4w>(y);
+      for (int x = 0; x < frame.cols; ++x) {
+        for (int k = 0; k < 3; ++k)
+          o[x][k] = cv::saturate_cast<ushort>(c ? float(p[x][k]) * c[x][k] * s : float(p[x][k]) * s);
+        o[x][3] = w[x];
+      }
+    }
+  });
+  return bgrw;
+}
+
 void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& frame_to_patch,
                       const cv::Rect& clip) {
+  AddInterleaved(Interleave(frame, weights.code), weights.weight, frame_to_patch, clip);
+}
+
+void PatchCanvas::AddInterleaved(const cv::Mat& bgrw_in, const std::array<float, 256>& weight,
+                                 const cv::Matx33d& frame_to_patch, const cv::Rect& clip) {
   // 16-bit frames (colour-corrected, kDeepScale per grey level) only where nothing is reduced.
-  const bool deep = frame.type() == CV_16UC3;
-  CV_Assert((frame.type() == CV_8UC3 || (deep && scale_ == 1 && !reduced_)) && weights.code.size() == frame.size());
+  const bool deep = bgrw_in.type() == CV_16UC4;
+  CV_Assert(bgrw_in.type() == CV_8UC4 || (deep && scale_ == 1 && !reduced_));
   CV_Assert(clip.empty() || scale_ == 1);
-  cv::Rect patch_roi = Enclosing(FrameBounds(frame_to_patch, frame.size()));
+  cv::Rect patch_roi = Enclosing(FrameBounds(frame_to_patch, bgrw_in.size()));
   if (!clip.empty()) patch_roi &= clip;
   if (patch_roi.empty()) return;
   data_ = data_.empty() ? patch_roi : (data_ | patch_roi);
   // Colour and weight code travel together in one 4-channel warp into the ROI only:
   // frame -> ROI pixel = T(-roi.tl) * H. Edge pixels repeat past the frame (colours are never
   // mixed with black) while the weight code, 0 on the frame's outer ring, fades to nothing.
-  cv::Mat code = weights.code;
-  if (deep) weights.code.convertTo(code, CV_16U);
-  cv::Mat bgrw(frame.size(), deep ? CV_16UC4 : CV_8UC4);
-  const cv::Mat in[] = {frame, code};
-  const int from_to[] = {0, 0, 1, 1, 2, 2, 3, 3};
-  cv::mixChannels(in, 2, &bgrw, 1, from_to, 4);
+  cv::Mat bgrw = bgrw_in;
   cv::Matx33d H = ToCanvas() * frame_to_patch;
   if (scale_ < 1) {  // reduced first (area average), then warped: no aliasing, a smaller warp
     cv::Mat small;
@@ -138,7 +172,7 @@ void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv
       parts.emplace_back(block_rect, &b);
     }
   }
-  const float* table = weights.weight.data();
+  const float* table = weight.data();
   constexpr float kCell = 1.0f / (kMirror * kMirror);
   cv::parallel_for_(cv::Range(0, static_cast<int>(parts.size())), [&](const cv::Range& range) {
     for (int i = range.start; i < range.end; ++i) {

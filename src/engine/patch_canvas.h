@@ -7,6 +7,8 @@
 // resolution when the patch closes. Every method speaks patch coordinates whatever the scale.
 #pragma once
 
+#include <array>
+
 #include <cstdint>
 #include <unordered_map>
 
@@ -39,6 +41,15 @@ class PatchCanvas {
   // the part of a frame whose pixels land there (and `weights` that part's code).
   void Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& frame_to_patch,
            const cv::Rect& clip = cv::Rect());
+  // A frame's colour with its feather code as a fourth channel (16-bit codes for a 16-bit frame):
+  // what Add warps. A frame blended into several bands of a patch is interleaved once.
+  static cv::Mat Interleave(const cv::Mat& frame, const cv::Mat& code);
+  // The same for an 8-bit frame corrected to 16 bits on the way (times `colour`, CV_32FC3 of its
+  // size, if given, and `scale`), in one pass: no clipping before the patch is rendered.
+  static cv::Mat InterleaveDeep(const cv::Mat& frame, const cv::Mat& colour, double scale, const cv::Mat& code);
+  // Add for a frame (or part of one) already interleaved; `weight` maps its code to weights.
+  void AddInterleaved(const cv::Mat& bgrw, const std::array<float, 256>& weight, const cv::Matx33d& frame_to_patch,
+                      const cv::Rect& clip = cv::Rect());
   // The blended mosaic (BGRA 8-bit, alpha 0 where nothing was added) of a rectangle of the
   // canvas's pixels (patch coordinates at scale 1).
   cv::Mat Render(const cv::Rect& patch_rect) const;

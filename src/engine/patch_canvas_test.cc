@@ -130,5 +130,63 @@ TEST(PatchCanvas, BandsFromFramePartsRenderWhatWholeFramesRender) {
   EXPECT_EQ(cv::norm(banded, expected, cv::NORM_INF), 0);
 }
 
+// A turned frame's part of each band is most of the frame, so the patch writer interleaves it
+// (colour and feather code) once and warps each band's part of that: the same bands as
+// interleaving each band's part anew, 8-bit and 16-bit.
+TEST(PatchCanvas, AFrameInterleavedOnceRendersWhatItsBandPartsRender) {
+  const cv::Size size(320, 240);
+  const FeatherCode code(FeatherWeights(size, 0.2));
+  const cv::Mat frame = RenderSeafloor(30, 20, size.width, size.height);
+  cv::Mat deep;
+  frame.convertTo(deep, CV_16U, PatchCanvas::kDeepScale * 1.1);
+  const double a = 0.7;  // 40 degrees: each band's part is most of the frame
+  const cv::Matx33d placement(std::cos(a), -std::sin(a), 150, std::sin(a), std::cos(a), 10, 0, 0, 1);
+  const cv::Rect area(-20, -20, 400, 420);
+  for (const cv::Mat& f : {frame, deep}) {
+    const cv::Mat once = PatchCanvas::Interleave(f, code.code);
+    ASSERT_EQ(once.channels(), 4);
+    double share = 0;
+    for (int y = 0; y < area.height; y += 64) {
+      const cv::Rect band(area.x, area.y + y, area.width, std::min(64, area.height - y));
+      const cv::Rect part = PatchCanvas::SourceRect(placement, band, size);
+      if (part.empty()) continue;
+      share += part.area();
+      const cv::Matx33d part_to_patch = placement * cv::Matx33d(1, 0, part.x, 0, 1, part.y, 0, 0, 1);
+      PatchCanvas anew(10'000'000, 1.0, false), reused(10'000'000, 1.0, false);
+      anew.Add(f(part), code.Part(part), part_to_patch, band);
+      reused.AddInterleaved(once(part), code.weight, part_to_patch, band);
+      EXPECT_EQ(cv::norm(anew.Render(band), reused.Render(band), cv::NORM_INF), 0) << "band " << y;
+    }
+    EXPECT_GT(share, 2.0 * size.area());  // what interleaving once saves
+  }
+}
+
+// Colour correction and interleaving in one pass: what OpenCV's multiply (or convertTo without a
+// colour map) gives, to a unit of the 16-bit scale, saturated alike; the code exact.
+TEST(PatchCanvas, DeepInterleavingCorrectsAsOpenCVDoes) {
+  const cv::Size size(97, 61);
+  cv::Mat frame(size, CV_8UC3), colour(size, CV_32FC3), code(size, CV_8U);
+  cv::RNG rng(7);
+  rng.fill(frame, cv::RNG::UNIFORM, 0, 256);
+  rng.fill(colour, cv::RNG::UNIFORM, 0.2, 12.0);  // up to past the 16-bit range at 255
+  rng.fill(code, cv::RNG::UNIFORM, 0, 256);
+  const double scale = 1.07 * PatchCanvas::kDeepScale;
+  for (const cv::Mat& map : {colour, cv::Mat()}) {
+    cv::Mat expected;
+    if (map.empty()) frame.convertTo(expected, CV_16U, scale);
+    else cv::multiply(frame, map, expected, scale, CV_16U);
+    const cv::Mat got = PatchCanvas::InterleaveDeep(frame, map, scale, code);
+    ASSERT_EQ(got.type(), CV_16UC4);
+    std::vector<cv::Mat> ch;
+    cv::split(got, ch);
+    cv::Mat bgr, wide;
+    cv::merge(std::vector<cv::Mat>(ch.begin(), ch.begin() + 3), bgr);
+    EXPECT_LE(cv::norm(bgr, expected, cv::NORM_INF), 1.0);
+    if (!map.empty()) EXPECT_GT(cv::countNonZero(ch[0] == 65535), 0);  // saturated, not wrapped
+    code.convertTo(wide, CV_16U);
+    EXPECT_EQ(cv::norm(ch[3], wide, cv::NORM_INF), 0);
+  }
+}
+
 }  // namespace
 }  // namespace rolamos
