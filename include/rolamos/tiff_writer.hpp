@@ -36,6 +36,7 @@ struct TiffWriteStats {
   long long tiles = 0;
   int levels = 0;
   long long bytes = 0;
+  double encode_cpu_seconds = 0;  // the compression threads' CPU time, all tiles and levels
 };
 
 class PyramidTiffWriter {

@@ -425,7 +425,7 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<Prepared
 std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const std::shared_ptr<PreparedFrame>& p, Laps& lap) {
   std::vector<Candidate> found;
   const auto f = FeaturesOf(*p);
-  lap(kFeatures);
+  lap.Restart();  // FeaturesOf timed itself (counting it here too counted the features twice)
   // 1. The patch's recent keyframes that overlap the last frame, newest first.
   int tried = 0;
   for (auto it = keys.rbegin(); it != keys.rend() && tried < 4; ++it) {
@@ -1213,8 +1213,10 @@ MosaicSummary Mosaicker::Finish() {
   // The writer's thread: adjustment, full-resolution blending and encoding of patches.
   m.summary.stage_seconds.emplace_back("adjustment", m.writer.adjust_seconds());
   m.summary.stage_seconds.emplace_back("patch writing", m.writer.busy_seconds() - m.writer.adjust_seconds());
+  // The patch image's tiles, compressed on the encoders' threads (not the writer's own).
+  m.summary.stage_seconds.emplace_back("tile encoding", m.writer.encode_seconds());
   m.summary.keyframe_stages = {"features", "keyframe fit", "ecc", "working canvas", "keyframe filter",
-                               "loop links", "adjustment", "patch writing"};
+                               "loop links", "adjustment", "patch writing", "tile encoding"};
   return m.summary;
 }
 

@@ -1,5 +1,6 @@
 #include "rolamos/mosaicker.hpp"
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -83,6 +84,26 @@ TEST(Mosaicker, StitchesASyntheticSurveyWhereTheGroundTruthSays) {
   cv::cvtColor(seen, seen, cv::COLOR_BGRA2BGR);
   const cv::Rect centre(140, 105, 200, 150);
   EXPECT_GT(test::PsnrAfterColourFit(seen(centre), frame(centre)), 32.0);  // 29.4 if off by 2 px
+}
+
+// The summary's stages account for the run's CPU: the patch images' tiles, compressed on their
+// own threads, are a stage of their own, and no stage is counted twice (they add up to no more
+// than the process used).
+TEST(Mosaicker, TheStagesAccountForTheRunsCpu) {
+  test::ScratchDir dir;
+  WriteSurvey(test::SmallSurvey(24), dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, FastOptions());
+  std::map<std::string, double> stage(sum.stage_seconds.begin(), sum.stage_seconds.end());
+  ASSERT_EQ(stage.size(), sum.stage_seconds.size());  // each named once
+  EXPECT_GT(stage["tile encoding"], 0);
+  EXPECT_GT(stage["patch writing"], 0);
+  EXPECT_GT(stage["features"], 0);
+  double named = 0;
+  for (const auto& [name, seconds] : sum.stage_seconds) named += seconds;
+  EXPECT_LE(named, sum.cpu_seconds);
+  EXPECT_NE(std::find(sum.keyframe_stages.begin(), sum.keyframe_stages.end(), "tile encoding"),
+            sum.keyframe_stages.end());
 }
 
 TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {

@@ -79,6 +79,8 @@ class PatchWriter {
   // Time spent closing patches (adjustment, blending, writing), seconds, and of it the adjustment.
   double busy_seconds() const { return busy_ns_.load() * 1e-9; }
   double adjust_seconds() const { return adjust_ns_.load() * 1e-9; }
+  // CPU time the image encoders' threads spent on the patches' tiles.
+  double encode_seconds() const { return encode_ns_.load() * 1e-9; }
 
  private:
   void Write(PatchJob& job);
@@ -87,7 +89,7 @@ class PatchWriter {
   TiffWriteOptions options_;
   std::function<void(const PatchSidecar&)> on_patch_;
   std::atomic<int> written_{0};
-  std::atomic<long long> busy_ns_{0}, adjust_ns_{0};
+  std::atomic<long long> busy_ns_{0}, adjust_ns_{0}, encode_ns_{0};
   // Where the last patch's closing frame is in its image: the next patch's link.
   std::optional<cv::Matx33d> closing_to_image_;
   TaskPool pool_{1, 1};

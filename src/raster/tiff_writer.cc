@@ -15,6 +15,7 @@
 #include "raster/tiff_file.h"
 #include "raster/tiff_tags.h"
 #include "raster/tile_encoder.h"
+#include "util/cpu_time.h"
 #include "util/files.h"
 #include "util/task_pool.h"
 
@@ -85,6 +86,7 @@ struct PyramidTiffWriter::Impl {
   bool finished = false;
   TiffWriteStats stats;
   std::atomic<long long> tiles_written{0};
+  std::atomic<long long> encode_ns{0};
 
   void EmitBand(size_t k, const cv::Mat& band);
   void Append(size_t k, const cv::Mat& rows);
@@ -126,7 +128,12 @@ void PyramidTiffWriter::Impl::EmitBand(size_t k, const cv::Mat& band) {
   for (long long tx = 0; tx < level.tiles_x; ++tx) {
     const long long index = ty * level.tiles_x + tx;
     cv::Mat tile = CutFileTile(band, static_cast<int>(tx), options.tile_size);
-    pool->Submit([this, k, index, tile] { WriteTile(k, index, encoders->Encode(tile)); });
+    pool->Submit([this, k, index, tile] {
+      CpuLaps cpu;
+      const std::vector<uint8_t> bytes = encoders->Encode(tile);
+      encode_ns += cpu.Lap();
+      WriteTile(k, index, bytes);
+    });
   }
   level.rows_done += band.rows;
   if (k + 1 < levels.size()) Append(k + 1, Downsample2x(band, layout.HasAlpha()));
@@ -286,6 +293,7 @@ TiffWriteStats PyramidTiffWriter::Finish() {
   RenameFile(m.tmp_path, m.path);
   m.finished = true;
   m.stats.tiles = m.tiles_written;
+  m.stats.encode_cpu_seconds = 1e-9 * static_cast<double>(m.encode_ns.load());
   m.stats.levels = static_cast<int>(m.levels.size());
   std::error_code ec;
   m.stats.bytes = static_cast<long long>(std::filesystem::file_size(m.path, ec));
