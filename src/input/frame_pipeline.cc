@@ -104,15 +104,37 @@ MosaickerOptions MaskFromFrames(const std::vector<cv::Mat>& raw, const Store& st
   return options;
 }
 
-// The same from the first frames of a folder, list or video (read again by the mosaicking).
-MosaickerOptions AutoMask(const std::string& input, const Store& store, MosaickerOptions options,
-                          std::string* note) {
+// A folder, list or video whose first frames were read early (to find the overlay mask from
+// them): those are handed out first, then the source's own, so none is decoded twice.
+class HeldSource : public FrameSource {
+ public:
+  explicit HeldSource(std::unique_ptr<FrameSource> source) : source_(std::move(source)) {}
+  std::deque<InputFrame> first;
+  bool Next(InputFrame* f) override {
+    if (first.empty()) return source_->Next(f);
+    *f = std::move(first.front());
+    first.pop_front();
+    return true;
+  }
+  int count() const override { return source_->count(); }
+
+ private:
+  std::unique_ptr<FrameSource> source_;
+};
+
+// The same from the first frames of a folder, list or video, which `source` keeps for the
+// mosaicking (unreadable ones too: the engine reports them in order).
+MosaickerOptions AutoMask(HeldSource* source, const Store& store, MosaickerOptions options, std::string* note) {
   const StaticMaskOptions mo;
-  auto source = FrameSource::Open(input);
   std::vector<cv::Mat> frames;
+  std::deque<InputFrame> held;
   InputFrame f;
-  for (int read = 0; static_cast<int>(frames.size()) < mo.frames && read < 3 * mo.frames && source->Next(&f); ++read)
+  for (int read = 0; static_cast<int>(frames.size()) < mo.frames && read < 3 * mo.frames && source->Next(&f); ++read) {
     if (!f.image.empty()) frames.push_back(f.image);
+    held.push_back(std::move(f));
+    f = InputFrame{};
+  }
+  source->first = std::move(held);
   return MaskFromFrames(frames, store, options, note);
 }
 
@@ -263,8 +285,8 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
   std::string note;
   MosaickerOptions options = given.calibration == "auto" ? AutoCalibrate(input, store, given, &note) : given;
   std::string mask_note;
-  if (options.mask == "auto") options = AutoMask(input, store, options, &mask_note);
-  auto source = FrameSource::Open(input);
+  auto source = std::make_unique<HeldSource>(FrameSource::Open(input));
+  if (options.mask == "auto") options = AutoMask(source.get(), store, options, &mask_note);
   Mosaicker mosaicker(store, options);
   const double decode = RunPipeline(source.get(), mosaicker, on_frame, nullptr);
   MosaicSummary summary = mosaicker.Finish();
