@@ -7,7 +7,8 @@ turns, strong degradations and a burned-in overlay, over real seafloor photos
 
 For each kind: frames registered, keyframes, patches and how each closed (pixel budget, lost
 tracking), per-patch accuracy against ground truth (bench/eval_mosaic.py: RMS, p95, max),
-frames/s, CPU use, peak RSS. The `video-*` kinds are camera-rate feeds (95 % overlap between
+frames/s (the engine's own, from its first frame to its last patch written, and the whole command's:
+start-up and the overlay search too), CPU use, peak RSS. The `video-*` kinds are camera-rate feeds (95 % overlap between
 consecutive frames, a 30 frames/s ROV) at both frame sizes, read from an MPEG-4 file; the others
 are still frames at 70-80 % overlap. The `*-jpeg` kinds are the video surveys read from their
 JPEG frames instead of the MPEG-4 file: the difference is what the video codec costs.
@@ -152,8 +153,8 @@ def main():
     a.cli = clis[-1]  # synth and the peer's rolamos row: the last (the build under test)
     build = " | build" if len(clis) > 1 else ""
     lines = [f"| kind{build} | frames registered | keyframes | patches (closed by) | RMS px | p95 px | max px | frames/s | "
-             "CPU % | peak RSS MB |",
-             "|---|" + ("---|" if len(clis) > 1 else "") + "---|---|---|---|---|---|---|---|---|"]
+             "command frames/s | CPU % | peak RSS MB |",
+             "|---|" + ("---|" if len(clis) > 1 else "") + "---|---|---|---|---|---|---|---|---|---|"]
     results = {}
     peer_lines = ["| kind | frames | tool | frames kept | seconds | frames/s | peak RSS MB | result |",
                   "|---|---|---|---|---|---|---|---|"]
@@ -169,13 +170,14 @@ def main():
         source = os.path.join(survey, "video.mp4") if video else os.path.join(survey, "frames")
         # Every binary in turn within each round: the machine's speed drifts over minutes, so a
         # before/after is only fair interleaved.
-        runs = {cli: dict(fps=[], rss=[], cpu=[]) for cli in clis}
+        runs = {cli: dict(fps=[], wall=[], rss=[], cpu=[]) for cli in clis}
         for _ in range(a.runs):
             for n, cli in enumerate(clis):
                 store = os.path.join(a.out, f"{kind}.{n}.rolamos")
                 subprocess.run(["rm", "-rf", store])
                 r, t, m = timed([cli, "mosaic", source, "-o", store, "-q"] + a.extra, check=True)
                 runs[cli]["fps"].append(float(re.search(r"\(([\d.]+) frames/s\)", r.stdout).group(1)))
+                runs[cli]["wall"].append(float(re.search(r": (\d+) frames,", r.stdout).group(1)) / t)
                 c = re.search(r"CPU ([\d.]+) %", r.stdout)
                 runs[cli]["cpu"].append(float(c.group(1)) if c else float("nan"))
                 runs[cli]["rss"].append(m)
@@ -187,14 +189,14 @@ def main():
             e = json.loads(subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "bench", "eval_mosaic.py"), survey, store],
                                           capture_output=True, text=True, check=True).stdout)
             c = closures(store)
-            f, m, u = (statistics.median(runs[cli][x]) for x in ("fps", "rss", "cpu"))
-            results.setdefault(cli, {})[kind] = dict(e, fps=f, rss=m, closed=c, stages=runs[cli]["stages"])
+            f, w, m, u = (statistics.median(runs[cli][x]) for x in ("fps", "wall", "rss", "cpu"))
+            results.setdefault(cli, {})[kind] = dict(e, fps=f, wall_fps=w, rss=m, closed=c, stages=runs[cli]["stages"])
             fmt = lambda v: "—" if v is None else f"{v:.2f}"
             closed = ", ".join(f"{k} {v}" for k, v in sorted(c.items()))
             keys = e.get("keyframes", e["stitched"])
             build = f" | {names[n]}" if len(clis) > 1 else ""
             lines.append(f"| {kind}: {desc}{build} | {e['stitched']} / {e['frames']} | {keys} | {sum(c.values())} ({closed}) | "
-                         f"{fmt(e['rms_px'])} | {fmt(e['p95_px'])} | {fmt(e['max_px'])} | {f:.1f} | {u:.0f} | {m:.0f} |")
+                         f"{fmt(e['rms_px'])} | {fmt(e['p95_px'])} | {fmt(e['max_px'])} | {f:.1f} | {w:.1f} | {u:.0f} | {m:.0f} |")
             print(lines[-1], flush=True)
             print(f"    per frame: {runs[cli]['stages']}", flush=True)
         if a.peer:
