@@ -116,31 +116,44 @@ cv::Mat PatchCanvas::InterleaveDeep(const cv::Mat& frame, const cv::Mat& colour,
 
 void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& frame_to_patch,
                       const cv::Rect& clip) {
+  if (scale_ < 1 && frame.type() == CV_8UC3) {
+    // Reduced, then interleaved: area averaging goes channel by channel, so this is what reducing
+    // the interleaved frame gives, with a quarter of the pixels to interleave.
+    cv::Mat small, small_code;
+    cv::resize(frame, small, cv::Size(), scale_, scale_, cv::INTER_AREA);
+    cv::resize(weights.code, small_code, cv::Size(), scale_, scale_, cv::INTER_AREA);
+    AddAtScale(Interleave(small, small_code), weights.weight, frame_to_patch, frame.size(), clip);
+    return;
+  }
   AddInterleaved(Interleave(frame, weights.code), weights.weight, frame_to_patch, clip);
 }
 
-void PatchCanvas::AddInterleaved(const cv::Mat& bgrw_in, const std::array<float, 256>& weight,
+void PatchCanvas::AddInterleaved(const cv::Mat& bgrw, const std::array<float, 256>& weight,
                                  const cv::Matx33d& frame_to_patch, const cv::Rect& clip) {
+  if (scale_ == 1) return AddAtScale(bgrw, weight, frame_to_patch, bgrw.size(), clip);
+  cv::Mat small;  // reduced first (area average), then warped: no aliasing, a smaller warp
+  cv::resize(bgrw, small, cv::Size(), scale_, scale_, cv::INTER_AREA);
+  AddAtScale(small, weight, frame_to_patch, bgrw.size(), clip);
+}
+
+void PatchCanvas::AddAtScale(const cv::Mat& bgrw, const std::array<float, 256>& weight,
+                             const cv::Matx33d& frame_to_patch, cv::Size frame, const cv::Rect& clip) {
   // 16-bit frames (colour-corrected, kDeepScale per grey level) only where nothing is reduced.
-  const bool deep = bgrw_in.type() == CV_16UC4;
-  CV_Assert(bgrw_in.type() == CV_8UC4 || (deep && scale_ == 1 && !reduced_));
+  const bool deep = bgrw.type() == CV_16UC4;
+  CV_Assert(bgrw.type() == CV_8UC4 || (deep && scale_ == 1 && !reduced_));
   CV_Assert(clip.empty() || scale_ == 1);
-  cv::Rect patch_roi = Enclosing(FrameBounds(frame_to_patch, bgrw_in.size()));
+  cv::Rect patch_roi = Enclosing(FrameBounds(frame_to_patch, frame));
   if (!clip.empty()) patch_roi &= clip;
   if (patch_roi.empty()) return;
   data_ = data_.empty() ? patch_roi : (data_ | patch_roi);
   // Colour and weight code travel together in one 4-channel warp into the ROI only:
   // frame -> ROI pixel = T(-roi.tl) * H. Edge pixels repeat past the frame (colours are never
   // mixed with black) while the weight code, 0 on the frame's outer ring, fades to nothing.
-  cv::Mat bgrw = bgrw_in;
   cv::Matx33d H = ToCanvas() * frame_to_patch;
-  if (scale_ < 1) {  // reduced first (area average), then warped: no aliasing, a smaller warp
-    cv::Mat small;
-    cv::resize(bgrw, small, cv::Size(), scale_, scale_, cv::INTER_AREA);
+  if (scale_ < 1) {
     const double c = scale_;
     const cv::Matx33d S(c, 0, 0.5 * (c - 1), 0, c, 0.5 * (c - 1), 0, 0, 1);
     H = H * S.inv();
-    bgrw = small;
   }
   cv::Rect roi = Enclosing(FrameBounds(H, bgrw.size()));
   if (!clip.empty()) roi &= clip;  // canvas pixels are patch coordinates at scale 1

@@ -71,6 +71,9 @@ class PatchCanvas {
   long long pixel_budget() const { return budget_; }
 
  private:
+  // Add for an interleaved frame already at the canvas's scale; `frame` is its full size.
+  void AddAtScale(const cv::Mat& bgrw, const std::array<float, 256>& weight, const cv::Matx33d& frame_to_patch,
+                  cv::Size frame, const cv::Rect& clip);
   static constexpr int kBlock = 256;
   // The working canvas's blocks also keep their sums averaged over 2 x 2 cells, accumulated as
   // frames are added: ECC looks at the mosaic at a quarter of full resolution (half the working
