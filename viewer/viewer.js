@@ -201,6 +201,9 @@
   }
 
   function open(image) {
+    // Not ready until this image's overlays are drawn (the previous image's readiness would
+    // otherwise stand while they load).
+    state.ready = false;
     if (image.name === 'live') { $('follow').checked = true; state.liveView = null; showLive(); return; }
     state.liveView = null;
     state.current = image;
