@@ -116,24 +116,20 @@ cv::Mat PatchCanvas::InterleaveDeep(const cv::Mat& frame, const cv::Mat& colour,
 
 void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv::Matx33d& frame_to_patch,
                       const cv::Rect& clip) {
-  if (scale_ < 1 && frame.type() == CV_8UC3) {
-    // Reduced, then interleaved: area averaging goes channel by channel, so this is what reducing
-    // the interleaved frame gives, with a quarter of the pixels to interleave.
-    cv::Mat small, small_code;
-    cv::resize(frame, small, cv::Size(), scale_, scale_, cv::INTER_AREA);
-    cv::resize(weights.code, small_code, cv::Size(), scale_, scale_, cv::INTER_AREA);
-    AddAtScale(Interleave(small, small_code), weights.weight, frame_to_patch, frame.size(), clip);
-    return;
-  }
-  AddInterleaved(Interleave(frame, weights.code), weights.weight, frame_to_patch, clip);
+  if (scale_ == 1) return AddAtScale(Interleave(frame, weights.code), weights.weight, frame_to_patch, frame.size(), clip);
+  // Reduced first (area average: no aliasing, a smaller warp), then interleaved: area averaging
+  // goes channel by channel, so this is what reducing the interleaved frame gives, with a
+  // quarter of the pixels to interleave.
+  cv::Mat small, small_code;
+  cv::resize(frame, small, cv::Size(), scale_, scale_, cv::INTER_AREA);
+  cv::resize(weights.code, small_code, cv::Size(), scale_, scale_, cv::INTER_AREA);
+  AddAtScale(Interleave(small, small_code), weights.weight, frame_to_patch, frame.size(), clip);
 }
 
 void PatchCanvas::AddInterleaved(const cv::Mat& bgrw, const std::array<float, 256>& weight,
                                  const cv::Matx33d& frame_to_patch, const cv::Rect& clip) {
-  if (scale_ == 1) return AddAtScale(bgrw, weight, frame_to_patch, bgrw.size(), clip);
-  cv::Mat small;  // reduced first (area average), then warped: no aliasing, a smaller warp
-  cv::resize(bgrw, small, cv::Size(), scale_, scale_, cv::INTER_AREA);
-  AddAtScale(small, weight, frame_to_patch, bgrw.size(), clip);
+  CV_Assert(scale_ == 1);  // the patch writer's full-resolution bands
+  AddAtScale(bgrw, weight, frame_to_patch, bgrw.size(), clip);
 }
 
 void PatchCanvas::AddAtScale(const cv::Mat& bgrw, const std::array<float, 256>& weight,

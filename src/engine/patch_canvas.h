@@ -46,7 +46,8 @@ class PatchCanvas {
   // The same for an 8-bit frame corrected to 16 bits on the way (times `colour`, CV_32FC3 of its
   // size, if given, and `scale`), in one pass: no clipping before the patch is rendered.
   static cv::Mat InterleaveDeep(const cv::Mat& frame, const cv::Mat& colour, double scale, const cv::Mat& code);
-  // Add for a frame (or part of one) already interleaved; `weight` maps its code to weights.
+  // Add for a frame (or part of one) already interleaved, on a full-resolution canvas; `weight`
+  // maps its code to weights.
   void AddInterleaved(const cv::Mat& bgrw, const std::array<float, 256>& weight, const cv::Matx33d& frame_to_patch,
                       const cv::Rect& clip = cv::Rect());
   // The blended mosaic (BGRA 8-bit, alpha 0 where nothing was added) of a rectangle of the

@@ -68,11 +68,10 @@ PatchAdjustment PlaceFrames(PatchJob& job, const std::vector<FrameLink>& loop_li
 // pixel until its last band instead of the 8-bit frame's 3.
 constexpr double kInterleaveOnce = 1.5;
 
-// The pixels of the frame that the bands from `first` on take, over the frame's own.
-double SourceShare(const cv::Matx33d& placement, const cv::Rect& rect, const cv::Rect& first, int band_height,
-                   cv::Size frame) {
+// The pixels of the frame that the bands of `rect` take, over the frame's own.
+double SourceShare(const cv::Matx33d& placement, const cv::Rect& rect, int band_height, cv::Size frame) {
   double taken = 0;
-  for (int y = first.y; y < rect.y + rect.height; y += band_height) {
+  for (int y = rect.y; y < rect.y + rect.height; y += band_height) {
     const cv::Rect band(rect.x, y, rect.width, std::min(band_height, rect.y + rect.height - y));
     taken += PatchCanvas::SourceRect(placement, band, frame).area();
   }
@@ -116,17 +115,16 @@ TiffWriteStats BlendAndWrite(const PatchJob& job, std::vector<cv::Mat>& images,
                                          gains[i] * PatchCanvas::kDeepScale, job.weights->code(src));
     return PatchCanvas::Interleave(images[i](src), job.weights->code(src));
   };
-  std::vector<char> whole(images.size(), 0);  // interleaved once, at the frame's first band
+  // Which frames are interleaved once, at their first band (decided once, before the bands).
+  std::vector<char> whole(images.size(), 0);
+  for (size_t i = 0; i < images.size(); ++i)
+    whole[i] = SourceShare(placements[i], rect, writer.band_height(), images[i].size()) > kInterleaveOnce;
   for (int y = 0; y < rect.height; y += writer.band_height()) {
     const cv::Rect band(rect.x, rect.y + y, rect.width, std::min(writer.band_height(), rect.height - y));
     PatchCanvas canvas(std::numeric_limits<long long>::max(), 1.0, false);
     for (size_t i = 0; i < images.size(); ++i) {
       if (images[i].empty() || (cv::Rect2d(band) & bounds[i]).empty()) continue;
-      if (!whole[i] && images[i].channels() == 3 &&
-          SourceShare(placements[i], rect, band, writer.band_height(), images[i].size()) > kInterleaveOnce) {
-        images[i] = interleave(i, cv::Rect(cv::Point(), images[i].size()));
-        whole[i] = 1;
-      }
+      if (whole[i] && images[i].channels() == 3) images[i] = interleave(i, cv::Rect(cv::Point(), images[i].size()));
       const cv::Rect src = PatchCanvas::SourceRect(placements[i], band, images[i].size());
       if (src.empty()) continue;
       const cv::Matx33d part_to_patch = placements[i] * cv::Matx33d(1, 0, src.x, 0, 1, src.y, 0, 0, 1);
