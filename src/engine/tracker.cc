@@ -7,6 +7,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
+#include "engine/lucas_kanade.h"
 #include "rolamos/error.hpp"
 
 namespace rolamos {
@@ -207,14 +208,11 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
   }
   back = a;
   std::vector<uchar> forward, backward;
-  std::vector<float> err;
   const cv::Size win(options_.window, options_.window);
   const cv::TermCriteria until(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, options_.max_iterations,
                                options_.min_step_px);
-  cv::calcOpticalFlowPyrLK(from.pyramid, to.pyramid, a, b, forward, err, win, options_.levels, until,
-                           cv::OPTFLOW_USE_INITIAL_FLOW, 1e-4);
-  cv::calcOpticalFlowPyrLK(to.pyramid, from.pyramid, b, back, backward, err, win, options_.levels, until,
-                           cv::OPTFLOW_USE_INITIAL_FLOW, 1e-4);
+  FollowLucasKanade(from.pyramid, to.pyramid, a, &b, &forward, win, options_.levels, until, 1e-4);
+  FollowLucasKanade(to.pyramid, from.pyramid, b, &back, &backward, win, options_.levels, until, 1e-4);
   const cv::Size t = to.pyramid[0].size();
   for (size_t i = 0; i < points.size(); ++i) {
     flow.to[i] = ToFull(b[i], to.scale);
