@@ -4,6 +4,7 @@
 #include <cfloat>
 #include <cmath>
 #include <cstdint>
+#include <functional>
 
 #include <immintrin.h>
 #include <opencv2/video/tracking.hpp>
@@ -33,21 +34,42 @@ Weights WeightsAt(float a, float b) {
 int Pair(int lo, int hi) { return int((uint32_t(lo) & 0xffffu) | (uint32_t(hi) << 16)); }
 
 // A window of the first image at a point: intensities (x 32) and derivatives, `stride` values a
-// row; derivatives are zero beyond the window's width, so whole vector rows can be summed.
+// row; derivatives are zero beyond the window's width, so whole vector rows can be summed. It
+// points into a scratch buffer or into prepared templates.
 struct Window {
   int w = 0, h = 0, stride = 0;
-  std::vector<int16_t> i, ix, iy;
-  explicit Window(cv::Size size)
-      : w(size.width), h(size.height), stride((size.width + 15) / 16 * 16),
-        i(size_t(stride * h)), ix(size_t(stride * h)), iy(size_t(stride * h)) {}
+  int16_t* i = nullptr;
+  int16_t* ix = nullptr;
+  int16_t* iy = nullptr;
 };
 
-// Where one level's images start and how wide each row may be read.
-struct Level {
-  const cv::Mat* I = nullptr;   // first image
-  const cv::Mat* dI = nullptr;  // its derivatives (CV_16SC2)
-  const cv::Mat* J = nullptr;   // second image
-  int readable_i = 0, readable_d = 0, readable_j = 0;  // columns readable from column 0 (border included)
+int StrideFor(cv::Size window) { return (window.width + 15) / 16 * 16; }
+size_t ValuesFor(cv::Size window) { return size_t(3 * StrideFor(window) * window.height); }
+
+Window WindowAt(int16_t* values, cv::Size window) {
+  Window w;
+  w.w = window.width, w.h = window.height, w.stride = StrideFor(window);
+  const size_t plane = size_t(w.stride * w.h);
+  w.i = values, w.ix = values + plane, w.iy = values + 2 * plane;
+  return w;
+}
+
+// A window's second moments, ready for the iterations; not `ok` where the point is off the
+// first image or its window too flat at that level (OpenCV gives up on such a point there).
+struct Moments {
+  float A11 = 0, A12 = 0, A22 = 0, D = 0;  // D: the inverse determinant
+  bool ok = false;
+};
+
+// Where a pyramid level starts and how wide each row may be read.
+struct FromLevel {
+  const cv::Mat* I = nullptr;   // intensities
+  const cv::Mat* dI = nullptr;  // derivatives (CV_16SC2)
+  int readable_i = 0, readable_d = 0;  // columns readable from column 0, border included
+};
+struct ToLevel {
+  const cv::Mat* J = nullptr;
+  int readable_j = 0;
 };
 
 // The template of the window whose top-left pixel is `src` / `dsrc`; returns the sums of
@@ -56,9 +78,9 @@ void TemplateScalar(const uchar* src, size_t si, const int16_t* dsrc, size_t sd,
                     float* A) {
   float a11 = 0, a12 = 0, a22 = 0;
   for (int y = 0; y < win.h; ++y, src += si, dsrc += sd) {
-    int16_t* irow = win.i.data() + y * win.stride;
-    int16_t* xrow = win.ix.data() + y * win.stride;
-    int16_t* yrow = win.iy.data() + y * win.stride;
+    int16_t* irow = win.i + y * win.stride;
+    int16_t* xrow = win.ix + y * win.stride;
+    int16_t* yrow = win.iy + y * win.stride;
     for (int x = 0; x < win.w; ++x) {
       const int16_t* d = dsrc + 2 * x;
       const int ival = Descale(src[x] * w.w00 + src[x + 1] * w.w01 + src[x + si] * w.w10 + src[x + si + 1] * w.w11,
@@ -81,9 +103,9 @@ void TemplateScalar(const uchar* src, size_t si, const int16_t* dsrc, size_t sd,
 void MismatchScalar(const uchar* src, size_t sj, const Weights& w, const Window& win, float* b) {
   float b1 = 0, b2 = 0;
   for (int y = 0; y < win.h; ++y, src += sj) {
-    const int16_t* irow = win.i.data() + y * win.stride;
-    const int16_t* xrow = win.ix.data() + y * win.stride;
-    const int16_t* yrow = win.iy.data() + y * win.stride;
+    const int16_t* irow = win.i + y * win.stride;
+    const int16_t* xrow = win.ix + y * win.stride;
+    const int16_t* yrow = win.iy + y * win.stride;
     for (int x = 0; x < win.w; ++x) {
       const int diff = Descale(src[x] * w.w00 + src[x + 1] * w.w01 + src[x + sj] * w.w10 + src[x + sj + 1] * w.w11,
                                kWBits - 5) - irow[x];
@@ -144,9 +166,9 @@ __attribute__((target("avx2"))) void TemplateAvx2(const uchar* src, size_t si, c
   const __m256i lanes = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
   __m256 a11 = _mm256_setzero_ps(), a12 = _mm256_setzero_ps(), a22 = _mm256_setzero_ps();
   for (int y = 0; y < win.h; ++y, src += si, dsrc += sd) {
-    int16_t* irow = win.i.data() + y * win.stride;
-    int16_t* xrow = win.ix.data() + y * win.stride;
-    int16_t* yrow = win.iy.data() + y * win.stride;
+    int16_t* irow = win.i + y * win.stride;
+    int16_t* xrow = win.ix + y * win.stride;
+    int16_t* yrow = win.iy + y * win.stride;
     __m256i r11 = _mm256_setzero_si256(), r12 = _mm256_setzero_si256(), r22 = _mm256_setzero_si256();
     for (int x = 0; x < win.stride; x += 16) {
       _mm256_storeu_si256(reinterpret_cast<__m256i*>(irow + x), Bilinear16(src + x, si, top, bottom));
@@ -180,9 +202,9 @@ __attribute__((target("avx2"))) void MismatchAvx2(const uchar* src, size_t sj, c
   const __m256i bottom = _mm256_set1_epi32(Pair(w.w10, w.w11));
   __m256 b1 = _mm256_setzero_ps(), b2 = _mm256_setzero_ps();
   for (int y = 0; y < win.h; ++y, src += sj) {
-    const int16_t* irow = win.i.data() + y * win.stride;
-    const int16_t* xrow = win.ix.data() + y * win.stride;
-    const int16_t* yrow = win.iy.data() + y * win.stride;
+    const int16_t* irow = win.i + y * win.stride;
+    const int16_t* xrow = win.ix + y * win.stride;
+    const int16_t* yrow = win.iy + y * win.stride;
     __m256i r1 = _mm256_setzero_si256(), r2 = _mm256_setzero_si256();
     for (int x = 0; x < win.stride; x += 16) {
       const __m256i diff = _mm256_sub_epi16(Bilinear16(src + x, sj, top, bottom),
@@ -204,63 +226,87 @@ struct Settings {
   bool vectorised = false;
 };
 
-// One point through every level, coarse to fine; OpenCV's LKTrackerInvoker's rules.
-void FollowPoint(const std::vector<Level>& levels, const Settings& s, cv::Point2f from, cv::Point2f* to,
-                 uchar* status, Window& win) {
+Settings SettingsFor(cv::Size window, const cv::TermCriteria& until, double min_eigen, bool vectorised) {
+  Settings s;
+  s.window = window;
+  s.max_count = (until.type & cv::TermCriteria::COUNT) ? std::clamp(until.maxCount, 0, 100) : 30;
+  const double eps = (until.type & cv::TermCriteria::EPS) ? std::clamp(until.epsilon, 0.0, 10.0) : 0.01;
+  s.epsilon2 = eps * eps;
+  s.min_eigen = float(min_eigen);
+  s.vectorised = vectorised;
+  return s;
+}
+
+cv::Point2f HalfWindow(cv::Size w) { return {(w.width - 1) * 0.5f, (w.height - 1) * 0.5f}; }
+
+// The window of `from` at one level around `point` (level pixels) into `win`, and its moments.
+Moments MakeTemplate(const FromLevel& lv, const Settings& s, cv::Point2f point, Window& win) {
   const cv::Size ws = s.window;
-  const cv::Point2f half((ws.width - 1) * 0.5f, (ws.height - 1) * 0.5f);
-  const int top_level = int(levels.size()) - 1;
+  const cv::Point2f prev = point - HalfWindow(ws);
+  const cv::Point ip(cvFloor(prev.x), cvFloor(prev.y));
+  if (ip.x < -ws.width || ip.x >= lv.dI->cols || ip.y < -ws.height || ip.y >= lv.dI->rows) return {};
+  const Weights w = WeightsAt(prev.x - float(ip.x), prev.y - float(ip.y));
+  const uchar* isrc = lv.I->data + ptrdiff_t(ip.y) * ptrdiff_t(lv.I->step) + ip.x;
+  const size_t dstep = lv.dI->step / sizeof(int16_t);
+  const int16_t* dsrc = reinterpret_cast<const int16_t*>(lv.dI->data) + ptrdiff_t(ip.y) * ptrdiff_t(dstep) + 2 * ip.x;
+  float A[3];
+  const bool wide = s.vectorised && ip.x + win.stride + 1 <= lv.readable_i && ip.x + win.stride + 1 <= lv.readable_d;
+  (wide ? TemplateAvx2 : TemplateScalar)(isrc, lv.I->step, dsrc, dstep, w, win, A);
+  Moments m;
+  m.A11 = A[0] * kFltScale, m.A12 = A[1] * kFltScale, m.A22 = A[2] * kFltScale;
+  const float D = m.A11 * m.A22 - m.A12 * m.A12;
+  const float min_eigen = (m.A22 + m.A11 - std::sqrt((m.A11 - m.A22) * (m.A11 - m.A22) + 4.f * m.A12 * m.A12)) /
+                          float(2 * ws.width * ws.height);
+  if (min_eigen < s.min_eigen || D < FLT_EPSILON) return {};
+  m.D = 1.f / D;
+  m.ok = true;
+  return m;
+}
+
+// Lucas-Kanade's steps at one level from `next` (level pixels); `out` follows each step.
+// Returns false where the window left the second image.
+bool Iterate(const ToLevel& lv, const Settings& s, const Moments& m, const Window& win, cv::Point2f next,
+             cv::Point2f* out) {
+  const cv::Size ws = s.window;
+  const cv::Point2f half = HalfWindow(ws);
+  next -= half;
+  cv::Point2f last_delta;
+  for (int j = 0; j < s.max_count; ++j) {
+    const cv::Point in(cvFloor(next.x), cvFloor(next.y));
+    if (in.x < -ws.width || in.x >= lv.J->cols || in.y < -ws.height || in.y >= lv.J->rows) return false;
+    const Weights wj = WeightsAt(next.x - float(in.x), next.y - float(in.y));
+    const uchar* jsrc = lv.J->data + ptrdiff_t(in.y) * ptrdiff_t(lv.J->step) + in.x;
+    float b[2];
+    const bool wide = s.vectorised && in.x + win.stride + 1 <= lv.readable_j;
+    (wide ? MismatchAvx2 : MismatchScalar)(jsrc, lv.J->step, wj, win, b);
+    const float b1 = b[0] * kFltScale, b2 = b[1] * kFltScale;
+    const cv::Point2f delta(float((m.A12 * b2 - m.A22 * b1) * m.D), float((m.A12 * b1 - m.A11 * b2) * m.D));
+    next += delta;
+    *out = next + half;
+    if (delta.ddot(delta) <= s.epsilon2) break;
+    if (j > 0 && std::abs(delta.x + last_delta.x) < 0.01 && std::abs(delta.y + last_delta.y) < 0.01) {
+      *out -= delta * 0.5f;  // oscillating: halfway
+      break;
+    }
+    last_delta = delta;
+  }
+  return true;
+}
+
+// Where a point's window and moments at a level come from: made here, or prepared.
+using TemplateSource = std::function<Moments(int level, Window* win)>;
+
+// One point through every level, coarse to fine; OpenCV's LKTrackerInvoker's rules.
+void FollowPoint(const std::vector<ToLevel>& levels, const Settings& s, const TemplateSource& windows,
+                 cv::Point2f* to, uchar* status) {
+  const int top = int(levels.size()) - 1;
   cv::Point2f out = *to;
-  for (int level = top_level; level >= 0; --level) {
-    const Level& lv = levels[size_t(level)];
-    const cv::Point2f prev = from * float(1. / (1 << level)) - half;
-    cv::Point2f next = level == top_level ? out * float(1. / (1 << level)) : out * 2.f;
-    out = next;
-    const cv::Point ip(cvFloor(prev.x), cvFloor(prev.y));
-    if (ip.x < -ws.width || ip.x >= lv.dI->cols || ip.y < -ws.height || ip.y >= lv.dI->rows) {
-      if (level == 0) *status = 0;
-      continue;
-    }
-    const Weights wi = WeightsAt(prev.x - float(ip.x), prev.y - float(ip.y));
-    const uchar* isrc = lv.I->data + ptrdiff_t(ip.y) * ptrdiff_t(lv.I->step) + ip.x;
-    const size_t dstep = lv.dI->step / sizeof(int16_t);
-    const int16_t* dsrc = reinterpret_cast<const int16_t*>(lv.dI->data) + ptrdiff_t(ip.y) * ptrdiff_t(dstep) + 2 * ip.x;
-    float A[3];
-    const bool wide = s.vectorised && ip.x + win.stride + 1 <= lv.readable_i && ip.x + win.stride + 1 <= lv.readable_d;
-    (wide ? TemplateAvx2 : TemplateScalar)(isrc, lv.I->step, dsrc, dstep, wi, win, A);
-    const float A11 = A[0] * kFltScale, A12 = A[1] * kFltScale, A22 = A[2] * kFltScale;
-    float D = A11 * A22 - A12 * A12;
-    const float min_eigen =
-        (A22 + A11 - std::sqrt((A11 - A22) * (A11 - A22) + 4.f * A12 * A12)) / float(2 * ws.width * ws.height);
-    if (min_eigen < s.min_eigen || D < FLT_EPSILON) {
-      if (level == 0) *status = 0;
-      continue;
-    }
-    D = 1.f / D;
-    next -= half;
-    cv::Point2f last_delta;
-    for (int j = 0; j < s.max_count; ++j) {
-      const cv::Point in(cvFloor(next.x), cvFloor(next.y));
-      if (in.x < -ws.width || in.x >= lv.J->cols || in.y < -ws.height || in.y >= lv.J->rows) {
-        if (level == 0) *status = 0;
-        break;
-      }
-      const Weights wj = WeightsAt(next.x - float(in.x), next.y - float(in.y));
-      const uchar* jsrc = lv.J->data + ptrdiff_t(in.y) * ptrdiff_t(lv.J->step) + in.x;
-      float b[2];
-      const bool wide_j = s.vectorised && in.x + win.stride + 1 <= lv.readable_j;
-      (wide_j ? MismatchAvx2 : MismatchScalar)(jsrc, lv.J->step, wj, win, b);
-      const float b1 = b[0] * kFltScale, b2 = b[1] * kFltScale;
-      const cv::Point2f delta(float((A12 * b2 - A22 * b1) * D), float((A12 * b1 - A11 * b2) * D));
-      next += delta;
-      out = next + half;
-      if (delta.ddot(delta) <= s.epsilon2) break;
-      if (j > 0 && std::abs(delta.x + last_delta.x) < 0.01 && std::abs(delta.y + last_delta.y) < 0.01) {
-        out -= delta * 0.5f;  // oscillating: halfway
-        break;
-      }
-      last_delta = delta;
-    }
+  for (int level = top; level >= 0; --level) {
+    out = level == top ? out * float(1. / (1 << level)) : out * 2.f;
+    Window win;
+    const Moments m = windows(level, &win);
+    const bool followed = m.ok && Iterate(levels[size_t(level)], s, m, win, out, &out);
+    if (!followed && level == 0) *status = 0;
   }
   *to = out;
 }
@@ -281,51 +327,131 @@ bool CpuHasAvx2() {
   return has;
 }
 
-// The levels both pyramids hold with the borders the kernel reads; empty if they do not.
-std::vector<Level> LevelsOf(const std::vector<cv::Mat>& from, const std::vector<cv::Mat>& to, cv::Size window,
-                            int levels) {
-  std::vector<Level> out;
-  const int have = std::min(int(from.size()), int(to.size())) / 2 - 1;
-  const int border = std::max(window.width, window.height);
-  for (int l = 0; l <= std::min(levels, have); ++l) {
-    Level lv;
-    lv.I = &from[size_t(2 * l)];
-    lv.dI = &from[size_t(2 * l + 1)];
-    lv.J = &to[size_t(2 * l)];
-    if (lv.I->type() != CV_8UC1 || lv.J->type() != CV_8UC1 || lv.dI->type() != CV_16SC2 ||
-        lv.dI->size() != lv.I->size() || !Bordered(*lv.I, border, &lv.readable_i) ||
-        !Bordered(*lv.dI, border, &lv.readable_d) || !Bordered(*lv.J, border, &lv.readable_j))
+int Border(cv::Size window) { return std::max(window.width, window.height); }
+
+// The levels of a first image's pyramid (with derivatives) up to `levels`, with the borders the
+// kernel reads; empty if it has not.
+std::vector<FromLevel> FromLevels(const std::vector<cv::Mat>& pyramid, cv::Size window, int levels) {
+  std::vector<FromLevel> out;
+  for (int l = 0; l <= std::min(levels, int(pyramid.size()) / 2 - 1); ++l) {
+    FromLevel lv;
+    lv.I = &pyramid[size_t(2 * l)];
+    lv.dI = &pyramid[size_t(2 * l + 1)];
+    if (lv.I->type() != CV_8UC1 || lv.dI->type() != CV_16SC2 || lv.dI->size() != lv.I->size() ||
+        !Bordered(*lv.I, Border(window), &lv.readable_i) || !Bordered(*lv.dI, Border(window), &lv.readable_d))
       return {};
     out.push_back(lv);
   }
   return out;
 }
 
+std::vector<ToLevel> ToLevels(const std::vector<cv::Mat>& pyramid, cv::Size window, int levels) {
+  std::vector<ToLevel> out;
+  const int step = pyramid.size() > 1 && pyramid[1].type() == CV_16SC2 ? 2 : 1;
+  for (int l = 0; l <= std::min(levels, int(pyramid.size()) / step - 1); ++l) {
+    ToLevel lv;
+    lv.J = &pyramid[size_t(step * l)];
+    if (lv.J->type() != CV_8UC1 || !Bordered(*lv.J, Border(window), &lv.readable_j)) return {};
+    out.push_back(lv);
+  }
+  return out;
+}
+
+void OpenCvFollow(const std::vector<cv::Mat>& from, const std::vector<cv::Mat>& to,
+                  const std::vector<cv::Point2f>& points, std::vector<cv::Point2f>* found, std::vector<uchar>* status,
+                  cv::Size window, int levels, const cv::TermCriteria& until, double min_eigen) {
+  cv::calcOpticalFlowPyrLK(from, to, points, *found, *status, cv::noArray(), window, levels, until,
+                           cv::OPTFLOW_USE_INITIAL_FLOW, min_eigen);
+}
+
 void Follow(const std::vector<cv::Mat>& from, const std::vector<cv::Mat>& to, const std::vector<cv::Point2f>& points,
             std::vector<cv::Point2f>* found, std::vector<uchar>* status, cv::Size window, int levels,
             const cv::TermCriteria& until, double min_eigen, bool vectorised) {
-  const std::vector<Level> lv = LevelsOf(from, to, window, levels);
-  if (lv.empty() || window.width > 64 || found->size() != points.size()) {  // not a pyramid this kernel reads
-    cv::calcOpticalFlowPyrLK(from, to, points, *found, *status, cv::noArray(), window, levels, until,
-                             cv::OPTFLOW_USE_INITIAL_FLOW, min_eigen);
+  const std::vector<FromLevel> a = FromLevels(from, window, levels);
+  std::vector<ToLevel> b = ToLevels(to, window, levels);
+  if (a.empty() || b.empty() || window.width > 64 || found->size() != points.size()) {
+    OpenCvFollow(from, to, points, found, status, window, levels, until, min_eigen);  // not a pyramid we read
     return;
   }
-  Settings s;
-  s.window = window;
-  s.max_count = (until.type & cv::TermCriteria::COUNT) ? std::clamp(until.maxCount, 0, 100) : 30;
-  const double eps = (until.type & cv::TermCriteria::EPS) ? std::clamp(until.epsilon, 0.0, 10.0) : 0.01;
-  s.epsilon2 = eps * eps;
-  s.min_eigen = float(min_eigen);
-  s.vectorised = vectorised;
+  b.resize(std::min(a.size(), b.size()));
+  const Settings s = SettingsFor(window, until, min_eigen, vectorised);
   status->assign(points.size(), 1);
   cv::parallel_for_(cv::Range(0, int(points.size())), [&](const cv::Range& r) {
-    Window win(window);
-    for (int i = r.start; i < r.end; ++i)
-      FollowPoint(lv, s, points[size_t(i)], &(*found)[size_t(i)], &(*status)[size_t(i)], win);
+    std::vector<int16_t> scratch(ValuesFor(window));
+    for (int i = r.start; i < r.end; ++i) {
+      const cv::Point2f p = points[size_t(i)];
+      const TemplateSource make = [&](int level, Window* win) {
+        *win = WindowAt(scratch.data(), window);
+        return MakeTemplate(a[size_t(level)], s, p * float(1. / (1 << level)), *win);
+      };
+      FollowPoint(b, s, make, &(*found)[size_t(i)], &(*status)[size_t(i)]);
+    }
   });
 }
 
 }  // namespace
+
+class LucasKanadeTemplates {
+ public:
+  cv::Size window;
+  int requested_levels = 0;
+  int levels = -1;  // -1: not prepared (no AVX2, or a pyramid without borders): OpenCV follows
+  double min_eigen = 0;
+  size_t points = 0;
+  std::vector<int16_t> values;   // point by point, level by level: a window's three planes
+  std::vector<Moments> moments;  // point * (levels + 1) + level
+
+  size_t Slot(size_t point, int level) const { return point * size_t(levels + 1) + size_t(level); }
+  Window At(size_t point, int level) const {
+    return WindowAt(const_cast<int16_t*>(values.data()) + Slot(point, level) * ValuesFor(window), window);
+  }
+};
+
+std::shared_ptr<const LucasKanadeTemplates> PrepareLucasKanade(const std::vector<cv::Mat>& from,
+                                                               const std::vector<cv::Point2f>& points,
+                                                               cv::Size window, int levels, double min_eigen) {
+  auto t = std::make_shared<LucasKanadeTemplates>();
+  t->window = window;
+  t->requested_levels = levels;
+  t->min_eigen = min_eigen;
+  t->points = points.size();
+  const std::vector<FromLevel> a = FromLevels(from, window, levels);
+  if (!CpuHasAvx2() || a.empty() || window.width > 64) return t;
+  t->levels = int(a.size()) - 1;
+  t->values.resize(points.size() * a.size() * ValuesFor(window));
+  t->moments.resize(points.size() * a.size());
+  const Settings s = SettingsFor(window, cv::TermCriteria(), min_eigen, true);
+  cv::parallel_for_(cv::Range(0, int(points.size())), [&](const cv::Range& r) {
+    for (int i = r.start; i < r.end; ++i)
+      for (int l = 0; l <= t->levels; ++l) {
+        Window win = t->At(size_t(i), l);
+        t->moments[t->Slot(size_t(i), l)] = MakeTemplate(a[size_t(l)], s, points[size_t(i)] * float(1. / (1 << l)), win);
+      }
+  });
+  return t;
+}
+
+void FollowLucasKanade(const LucasKanadeTemplates& windows, const std::vector<cv::Mat>& from,
+                       const std::vector<cv::Mat>& to, const std::vector<cv::Point2f>& points,
+                       std::vector<cv::Point2f>* found, std::vector<uchar>* status, const cv::TermCriteria& until) {
+  CV_Assert(windows.points == points.size() && found->size() == points.size());
+  std::vector<ToLevel> b = windows.levels < 0 ? std::vector<ToLevel>() : ToLevels(to, windows.window, windows.levels);
+  if (b.empty()) {
+    OpenCvFollow(from, to, points, found, status, windows.window, windows.requested_levels, until, windows.min_eigen);
+    return;
+  }
+  const Settings s = SettingsFor(windows.window, until, windows.min_eigen, true);
+  status->assign(points.size(), 1);
+  cv::parallel_for_(cv::Range(0, int(points.size())), [&](const cv::Range& r) {
+    for (int i = r.start; i < r.end; ++i) {
+      const TemplateSource prepared = [&](int level, Window* win) {
+        *win = windows.At(size_t(i), level);
+        return windows.moments[windows.Slot(size_t(i), level)];
+      };
+      FollowPoint(b, s, prepared, &(*found)[size_t(i)], &(*status)[size_t(i)]);
+    }
+  });
+}
 
 bool LucasKanadeVectorised() { return CpuHasAvx2(); }
 
@@ -334,8 +460,7 @@ void FollowLucasKanade(const std::vector<cv::Mat>& from, const std::vector<cv::M
                        std::vector<uchar>* status, cv::Size window, int levels, const cv::TermCriteria& until,
                        double min_eigen) {
   if (!CpuHasAvx2()) {
-    cv::calcOpticalFlowPyrLK(from, to, points, *found, *status, cv::noArray(), window, levels, until,
-                             cv::OPTFLOW_USE_INITIAL_FLOW, min_eigen);
+    OpenCvFollow(from, to, points, found, status, window, levels, until, min_eigen);
     return;
   }
   Follow(from, to, points, found, status, window, levels, until, min_eigen, true);

@@ -9,6 +9,7 @@
 // (lucas_kanade_test.cc). Without AVX2 the call goes to OpenCV.
 #pragma once
 
+#include <memory>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -24,6 +25,20 @@ void FollowLucasKanade(const std::vector<cv::Mat>& from, const std::vector<cv::M
                        const std::vector<cv::Point2f>& points, std::vector<cv::Point2f>* found,
                        std::vector<uchar>* status, cv::Size window, int levels, const cv::TermCriteria& until,
                        double min_eigen);
+
+// The windows of fixed points in a first image at every level (its intensities and derivatives
+// interpolated, their second-moment matrix), made once and read by every follow from those points:
+// frames are followed from the same keyframe points until the next keyframe, so this is half
+// of the kernel's work done once per keyframe instead of once per frame.
+class LucasKanadeTemplates;
+std::shared_ptr<const LucasKanadeTemplates> PrepareLucasKanade(const std::vector<cv::Mat>& from,
+                                                               const std::vector<cv::Point2f>& points,
+                                                               cv::Size window, int levels, double min_eigen);
+// As above, from windows made by PrepareLucasKanade (for `points`, with the same window, levels and
+// smallest eigenvalue; `from` is the pyramid they were made from).
+void FollowLucasKanade(const LucasKanadeTemplates& windows, const std::vector<cv::Mat>& from,
+                       const std::vector<cv::Mat>& to, const std::vector<cv::Point2f>& points,
+                       std::vector<cv::Point2f>* found, std::vector<uchar>* status, const cv::TermCriteria& until);
 
 // Whether FollowLucasKanade runs its own vectorised kernel on this CPU (else OpenCV's).
 bool LucasKanadeVectorised();

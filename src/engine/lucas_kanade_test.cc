@@ -128,6 +128,18 @@ TEST_F(LucasKanadeTest, PlacesPointsWhereTheyAreAsWellAsOpenCv) {
   EXPECT_NEAR(ours, opencv, 0.002);
 }
 
+TEST_F(LucasKanadeTest, PreparedWindowsFollowAsFreshOnes) {
+  const auto windows = PrepareLucasKanade(from_, points_, win_, levels_, 1e-4);
+  const Tracks fresh = Ours();
+  // Read twice, as frames after a keyframe read them: the same each time, and as made afresh.
+  for (int k = 0; k < 2; ++k) {
+    Tracks again{guess_, {}};
+    FollowLucasKanade(*windows, from_, to_, points_, &again.to, &again.ok, until_);
+    EXPECT_EQ(again.ok, fresh.ok);
+    EXPECT_EQ(Agreeing(again, fresh, 0.0), int(points_.size()));
+  }
+}
+
 TEST_F(LucasKanadeTest, APyramidWithoutBordersGoesToOpenCv) {
   // Levels cut out of plain images have no border to read past the edge: OpenCV's own kernel
   // takes them (and asks for what it needs).

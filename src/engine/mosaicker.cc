@@ -17,6 +17,7 @@
 #include "engine/feather.h"
 #include "engine/features.h"
 #include "engine/keyframe_job.h"
+#include "engine/lucas_kanade.h"
 #include "engine/motion_gate.h"
 #include "engine/patch_adjustment.h"
 #include "engine/patch_canvas.h"
@@ -148,6 +149,8 @@ struct Mosaicker::Impl {
     std::shared_ptr<PreparedFrame> frame;  // kept while recent: followed from, fitted against
     std::vector<cv::Point2f> points;       // followed into the frames after it
     std::vector<long long> ids;            // their tracks
+    // The frame's windows around `points`, made on the first follow from them (tracker.h).
+    mutable std::shared_ptr<const LucasKanadeTemplates> windows;
     KeyframeFuture products;
     bool described = true;                 // its features are found (products.features)
     bool blended = true;                   // in the patch image (else it links and places only)
@@ -401,7 +404,7 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<Prepared
     const cv::Matx33d shifted = tracker.CoarseShift(*key.frame->track, *p->track, guess, &response);
     if (response > 0.05 || !predicted) guess = shifted;
   }
-  const TrackFlow flow = tracker.Follow(*key.frame->track, *p->track, key.points, guess);
+  const TrackFlow flow = tracker.Follow(*key.frame->track, *p->track, key.points, guess, &key.windows);
   std::vector<cv::Point2f> from, to;
   std::vector<long long> ids;
   for (size_t i = 0; i < key.points.size(); ++i) {
@@ -532,7 +535,8 @@ cv::Matx33d Mosaicker::Impl::FitToKeyframes(const PreparedFrame& p, const Candid
   for (auto it = keys.rbegin() + 1; it != keys.rend() && used < 2; ++it) {
     if (!it->frame || !it->frame->track) break;  // no longer kept: older ones are not either
     if (FootprintOverlap(guess, it->to_patch, frame_size) < 0.3) continue;
-    const TrackFlow flow = tracker.Follow(*it->frame->track, *p.track, it->points, guess.inv() * it->to_patch);
+    const TrackFlow flow =
+        tracker.Follow(*it->frame->track, *p.track, it->points, guess.inv() * it->to_patch, &it->windows);
     int n = 0;
     for (size_t i = 0; i < it->points.size(); ++i) {
       if (!flow.ok[i]) continue;
@@ -766,7 +770,10 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
     last = Placed{keys.back().index, to_patch, p, true, {}, blend};
   }
   // Keyframes behind the recent ones are not followed from again: their pyramids go.
-  if (keys.size() > 3) keys[keys.size() - 4].frame.reset();
+  if (keys.size() > 3) {
+    keys[keys.size() - 4].frame.reset();
+    keys[keys.size() - 4].windows.reset();
+  }
   ++summary.stitched;
   ++summary.keyframes;
   summary.described += described;

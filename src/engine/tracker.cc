@@ -192,7 +192,8 @@ std::vector<cv::Point2f> FrameTracker::Corners(const TrackFrame& frame, const st
 }
 
 TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, const std::vector<cv::Point2f>& points,
-                               const cv::Matx33d& guess) const {
+                               const cv::Matx33d& guess,
+                               std::shared_ptr<const LucasKanadeTemplates>* windows) const {
   TrackFlow flow;
   flow.to.resize(points.size());
   flow.ok.assign(points.size(), 0);
@@ -211,8 +212,14 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
   const cv::Size win(options_.window, options_.window);
   const cv::TermCriteria until(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, options_.max_iterations,
                                options_.min_step_px);
-  FollowLucasKanade(from.pyramid, to.pyramid, a, &b, &forward, win, options_.levels, until, 1e-4);
-  FollowLucasKanade(to.pyramid, from.pyramid, b, &back, &backward, win, options_.levels, until, 1e-4);
+  constexpr double kMinEigen = 1e-4;
+  if (windows) {
+    if (!*windows) *windows = PrepareLucasKanade(from.pyramid, a, win, options_.levels, kMinEigen);
+    FollowLucasKanade(**windows, from.pyramid, to.pyramid, a, &b, &forward, until);
+  } else {
+    FollowLucasKanade(from.pyramid, to.pyramid, a, &b, &forward, win, options_.levels, until, kMinEigen);
+  }
+  FollowLucasKanade(to.pyramid, from.pyramid, b, &back, &backward, win, options_.levels, until, kMinEigen);
   const cv::Size t = to.pyramid[0].size();
   for (size_t i = 0; i < points.size(); ++i) {
     flow.to[i] = ToFull(b[i], to.scale);

@@ -60,6 +60,8 @@ struct TrackFlow {
   int followed = 0;
 };
 
+class LucasKanadeTemplates;
+
 class FrameTracker {
  public:
   explicit FrameTracker(const TrackerOptions& options);
@@ -72,8 +74,11 @@ class FrameTracker {
   std::vector<cv::Point2f> Corners(const TrackFrame& frame, const std::vector<cv::Point2f>& existing,
                                    int count) const;
   // `points` of `from` followed into `to`, starting where `guess` (from -> to pixels) puts them.
+  // `windows` (optional) keeps the windows of `from` around `points` for the next follow from
+  // the same points: made on the first call, read on the others.
   TrackFlow Follow(const TrackFrame& from, const TrackFrame& to, const std::vector<cv::Point2f>& points,
-                   const cv::Matx33d& guess) const;
+                   const cv::Matx33d& guess,
+                   std::shared_ptr<const LucasKanadeTemplates>* windows = nullptr) const;
   // A coarse translation from `from` to `to` (full-resolution pixels) by phase correlation of
   // the pyramids' coarsest levels, after `guess`: a start when there is no prediction.
   cv::Matx33d CoarseShift(const TrackFrame& from, const TrackFrame& to, const cv::Matx33d& guess,
