@@ -96,6 +96,7 @@ py::dict SummaryDict(const MosaicSummary& s) {
   py::dict stages;
   for (const auto& [name, sec] : s.stage_seconds) stages[py::str(name)] = sec;
   d["stage_seconds"] = stages;
+  d["rest_cpu_seconds"] = s.RestCpuSeconds();  // CPU no stage names (OpenCV's helper threads)
   d["calibration_note"] = s.calibration_note;
   d["mask_note"] = s.mask_note;
   return d;

@@ -180,12 +180,9 @@ static int RunMosaic(MosaicSwitches s) {
                   1000.0 * sec / std::max(1, sum.frames));
     stages += b;
   }
-  double named = 0;
-  for (const auto& stage : sum.stage_seconds) named += stage.second;
-  // What no stage names: OpenCV's helper threads, hand-overs between threads.
-  if (sum.cpu_seconds > named && !stages.empty()) {
+  if (sum.RestCpuSeconds() > 0 && !stages.empty()) {
     char b[64];
-    std::snprintf(b, sizeof b, ", rest %.0f ms", 1000.0 * (sum.cpu_seconds - named) / std::max(1, sum.frames));
+    std::snprintf(b, sizeof b, ", rest %.0f ms", 1000.0 * sum.RestCpuSeconds() / std::max(1, sum.frames));
     stages += b;
   }
   std::printf("per frame (CPU, all threads): %s\n", stages.c_str());

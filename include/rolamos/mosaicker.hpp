@@ -176,6 +176,9 @@ struct MosaicSummary {
   // Time spent in each stage, summed over frames (seconds): where the time goes.
   std::vector<std::pair<std::string, double>> stage_seconds;
   std::vector<std::string> keyframe_stages;  // the stages that run for keyframes only
+  // CPU time no stage names (OpenCV's helper threads, hand-overs between threads): cpu_seconds
+  // less the stages, at least 0.
+  double RestCpuSeconds() const;
   std::string calibration_note;  // what --calibration auto found, when used
   std::string mask_note;         // what --mask auto found, when used
   int frames_skipped = 0;        // live: frames that arrived and were not mapped (busy, or left at a stop)

@@ -42,6 +42,8 @@ def mapped(survey):
     assert summary["frames"] == 24 and summary["stitched"] >= 23, summary
     assert summary["patches"] >= 2 and summary["keyframes"] >= 1 and "features" in summary["stage_seconds"]
     assert 1 <= summary["blended"] <= summary["keyframes"]
+    named = sum(summary["stage_seconds"].values())
+    assert summary["rest_cpu_seconds"] == pytest.approx(max(0.0, summary["cpu_seconds"] - named), abs=1e-6)
     assert seen[-1] == (pytest.approx(1.0), "mosaic")
     return rolamos.Store(store)
 

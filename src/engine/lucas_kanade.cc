@@ -34,7 +34,8 @@ Weights WeightsAt(float a, float b) {
 int Pair(int lo, int hi) { return int((uint32_t(lo) & 0xffffu) | (uint32_t(hi) << 16)); }
 
 // A window of the first image at a point: intensities (x 32) and derivatives, `stride` values a
-// row; derivatives are zero beyond the window's width, so whole vector rows can be summed. It
+// row (a multiple of 8); derivatives are zero beyond the window's width, so whole vector rows can
+// be summed. It
 // points into a scratch buffer or into prepared templates.
 struct Window {
   int w = 0, h = 0, stride = 0;
@@ -43,7 +44,8 @@ struct Window {
   int16_t* iy = nullptr;
 };
 
-int StrideFor(cv::Size window) { return (window.width + 15) / 16 * 16; }
+// Rows are taken 16 pixels at a time and, for the last 8 or fewer, 8 (a 21-pixel row: 16 + 8).
+int StrideFor(cv::Size window) { return (window.width + 7) / 8 * 8; }
 size_t ValuesFor(cv::Size window) { return size_t(3 * StrideFor(window) * window.height); }
 
 Window WindowAt(int16_t* values, cv::Size window) {
@@ -140,6 +142,26 @@ __attribute__((target("avx2"))) __m256i Bilinear16(const uchar* p, size_t step, 
   return _mm256_packs_epi32(lo, hi);
 }
 
+// The same for 8 pixels (a row's last ones).
+__attribute__((target("avx2"))) __m128i Bilinear8(const uchar* p, size_t step, __m256i top, __m256i bottom) {
+  const __m128i round = _mm_set1_epi32(1 << (kWBits - 5 - 1));
+  const __m128i wt = _mm256_castsi256_si128(top), wb = _mm256_castsi256_si128(bottom);
+  const __m128i t0 = _mm_cvtepu8_epi16(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p)));
+  const __m128i t1 = _mm_cvtepu8_epi16(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p + 1)));
+  const __m128i b0 = _mm_cvtepu8_epi16(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p + step)));
+  const __m128i b1 = _mm_cvtepu8_epi16(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p + step + 1)));
+  __m128i lo = _mm_add_epi32(_mm_madd_epi16(_mm_unpacklo_epi16(t0, t1), wt), _mm_madd_epi16(_mm_unpacklo_epi16(b0, b1), wb));
+  __m128i hi = _mm_add_epi32(_mm_madd_epi16(_mm_unpackhi_epi16(t0, t1), wt), _mm_madd_epi16(_mm_unpackhi_epi16(b0, b1), wb));
+  lo = _mm_srai_epi32(_mm_add_epi32(lo, round), kWBits - 5);
+  hi = _mm_srai_epi32(_mm_add_epi32(hi, round), kWBits - 5);
+  return _mm_packs_epi32(lo, hi);
+}
+
+// Packs 8 + 8 int32 into 16 int16 in order (packing works within 128-bit halves).
+__attribute__((target("avx2"))) __m256i Pack16(__m256i a, __m256i b) {
+  return _mm256_permute4x64_epi64(_mm256_packs_epi32(a, b), 0xD8);
+}
+
 // 8 pixels of the derivatives (Ix, Iy interleaved) interpolated, as two int32 vectors.
 __attribute__((target("avx2"))) void Derivatives8(const int16_t* d, size_t step, __m256i top, __m256i bottom,
                                                   __m256i* gx, __m256i* gy) {
@@ -171,20 +193,34 @@ __attribute__((target("avx2"))) void TemplateAvx2(const uchar* src, size_t si, c
     int16_t* yrow = win.iy + y * win.stride;
     __m256i r11 = _mm256_setzero_si256(), r12 = _mm256_setzero_si256(), r22 = _mm256_setzero_si256();
     for (int x = 0; x < win.stride; x += 16) {
-      _mm256_storeu_si256(reinterpret_cast<__m256i*>(irow + x), Bilinear16(src + x, si, top, bottom));
-      __m256i gx0, gy0, gx1, gy1;
-      Derivatives8(dsrc + 2 * x, sd, top, bottom, &gx0, &gy0);
-      Derivatives8(dsrc + 2 * x + 16, sd, top, bottom, &gx1, &gy1);
-      // Packing works within 128-bit halves: the permute puts the pixels back in order.
-      __m256i gx = _mm256_permute4x64_epi64(_mm256_packs_epi32(gx0, gx1), 0xD8);
-      __m256i gy = _mm256_permute4x64_epi64(_mm256_packs_epi32(gy0, gy1), 0xD8);
+      const bool half = x + 16 > win.stride;  // the row's last 8
+      __m256i gx, gy;
+      if (!half) {
+        _mm256_storeu_si256(reinterpret_cast<__m256i*>(irow + x), Bilinear16(src + x, si, top, bottom));
+        __m256i gx0, gy0, gx1, gy1;
+        Derivatives8(dsrc + 2 * x, sd, top, bottom, &gx0, &gy0);
+        Derivatives8(dsrc + 2 * x + 16, sd, top, bottom, &gx1, &gy1);
+        gx = Pack16(gx0, gx1);
+        gy = Pack16(gy0, gy1);
+      } else {
+        _mm_storeu_si128(reinterpret_cast<__m128i*>(irow + x), Bilinear8(src + x, si, top, bottom));
+        __m256i gx0, gy0;
+        Derivatives8(dsrc + 2 * x, sd, top, bottom, &gx0, &gy0);
+        gx = Pack16(gx0, _mm256_setzero_si256());  // upper 8 lanes zero
+        gy = Pack16(gy0, _mm256_setzero_si256());
+      }
       if (x + 16 > win.w) {  // beyond the window: no weight
         const __m256i inside = _mm256_cmpgt_epi16(_mm256_set1_epi16(int16_t(win.w - x)), lanes);
         gx = _mm256_and_si256(gx, inside);
         gy = _mm256_and_si256(gy, inside);
       }
-      _mm256_storeu_si256(reinterpret_cast<__m256i*>(xrow + x), gx);
-      _mm256_storeu_si256(reinterpret_cast<__m256i*>(yrow + x), gy);
+      if (!half) {
+        _mm256_storeu_si256(reinterpret_cast<__m256i*>(xrow + x), gx);
+        _mm256_storeu_si256(reinterpret_cast<__m256i*>(yrow + x), gy);
+      } else {
+        _mm_storeu_si128(reinterpret_cast<__m128i*>(xrow + x), _mm256_castsi256_si128(gx));
+        _mm_storeu_si128(reinterpret_cast<__m128i*>(yrow + x), _mm256_castsi256_si128(gy));
+      }
       r11 = _mm256_add_epi32(r11, _mm256_madd_epi16(gx, gx));
       r12 = _mm256_add_epi32(r12, _mm256_madd_epi16(gx, gy));
       r22 = _mm256_add_epi32(r22, _mm256_madd_epi16(gy, gy));
@@ -200,17 +236,26 @@ __attribute__((target("avx2"))) void MismatchAvx2(const uchar* src, size_t sj, c
                                                   float* b) {
   const __m256i top = _mm256_set1_epi32(Pair(w.w00, w.w01));
   const __m256i bottom = _mm256_set1_epi32(Pair(w.w10, w.w11));
+  const int whole = win.stride / 16 * 16;  // then 8 more where the stride is not a multiple of 16
   __m256 b1 = _mm256_setzero_ps(), b2 = _mm256_setzero_ps();
   for (int y = 0; y < win.h; ++y, src += sj) {
     const int16_t* irow = win.i + y * win.stride;
     const int16_t* xrow = win.ix + y * win.stride;
     const int16_t* yrow = win.iy + y * win.stride;
     __m256i r1 = _mm256_setzero_si256(), r2 = _mm256_setzero_si256();
-    for (int x = 0; x < win.stride; x += 16) {
+    for (int x = 0; x < whole; x += 16) {
       const __m256i diff = _mm256_sub_epi16(Bilinear16(src + x, sj, top, bottom),
                                             _mm256_loadu_si256(reinterpret_cast<const __m256i*>(irow + x)));
       r1 = _mm256_add_epi32(r1, _mm256_madd_epi16(diff, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(xrow + x))));
       r2 = _mm256_add_epi32(r2, _mm256_madd_epi16(diff, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(yrow + x))));
+    }
+    if (whole < win.stride) {
+      const __m128i diff = _mm_sub_epi16(Bilinear8(src + whole, sj, top, bottom),
+                                         _mm_loadu_si128(reinterpret_cast<const __m128i*>(irow + whole)));
+      const __m128i p1 = _mm_madd_epi16(diff, _mm_loadu_si128(reinterpret_cast<const __m128i*>(xrow + whole)));
+      const __m128i p2 = _mm_madd_epi16(diff, _mm_loadu_si128(reinterpret_cast<const __m128i*>(yrow + whole)));
+      r1 = _mm256_add_epi32(r1, _mm256_inserti128_si256(_mm256_setzero_si256(), p1, 0));
+      r2 = _mm256_add_epi32(r2, _mm256_inserti128_si256(_mm256_setzero_si256(), p2, 0));
     }
     b1 = _mm256_add_ps(b1, _mm256_cvtepi32_ps(r1));
     b2 = _mm256_add_ps(b2, _mm256_cvtepi32_ps(r2));

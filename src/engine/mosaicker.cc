@@ -1202,6 +1202,12 @@ double Mosaicker::LastStepFraction() const {
   return length / extent;
 }
 
+double MosaicSummary::RestCpuSeconds() const {
+  double named = 0;
+  for (const auto& stage : stage_seconds) named += stage.second;
+  return std::max(0.0, cpu_seconds - named);
+}
+
 MosaicSummary Mosaicker::Finish() {
   Impl& m = *impl_;
   m.ClosePatch("end");

@@ -102,6 +102,7 @@ TEST(Mosaicker, TheStagesAccountForTheRunsCpu) {
   double named = 0;
   for (const auto& [name, seconds] : sum.stage_seconds) named += seconds;
   EXPECT_LE(named, sum.cpu_seconds);
+  EXPECT_NEAR(sum.RestCpuSeconds(), sum.cpu_seconds - named, 1e-9);  // what the CLI prints as `rest`
   EXPECT_NE(std::find(sum.keyframe_stages.begin(), sum.keyframe_stages.end(), "tile encoding"),
             sum.keyframe_stages.end());
 }

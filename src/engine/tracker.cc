@@ -199,7 +199,7 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
   flow.ok.assign(points.size(), 0);
   if (points.empty() || from.pyramid.empty() || to.pyramid.empty()) return flow;
   const double s = from.scale;
-  std::vector<cv::Point2f> a, b, back;
+  std::vector<cv::Point2f> a, b;
   a.reserve(points.size());
   b.reserve(points.size());
   const cv::Matx33d G = ScaleMap(to.scale) * guess * ScaleMap(s).inv();
@@ -207,7 +207,6 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
     a.push_back(ToTrack(p, s));
     b.push_back(Apply(G, a.back()));
   }
-  back = a;
   std::vector<uchar> forward, backward;
   const cv::Size win(options_.window, options_.window);
   const cv::TermCriteria until(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, options_.max_iterations,
@@ -219,16 +218,26 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
   } else {
     FollowLucasKanade(from.pyramid, to.pyramid, a, &b, &forward, win, options_.levels, until, kMinEigen);
   }
-  FollowLucasKanade(to.pyramid, from.pyramid, b, &back, &backward, win, options_.levels, until, kMinEigen);
+  // Back only from where the forward pass landed on usable ground: the others are lost anyway.
   const cv::Size t = to.pyramid[0].size();
+  std::vector<size_t> landed;
+  std::vector<cv::Point2f> from_b, to_a;
   for (size_t i = 0; i < points.size(); ++i) {
     flow.to[i] = ToFull(b[i], to.scale);
     const bool inside = b[i].x >= 0 && b[i].y >= 0 && b[i].x <= t.width - 1 && b[i].y <= t.height - 1;
     const bool overlay = inside && !to.usable.empty() && !to.usable.at<uchar>(cv::Point(b[i]));
-    const float dx = back[i].x - a[i].x, dy = back[i].y - a[i].y;
-    flow.ok[i] = forward[i] && backward[i] && inside && !overlay &&
-                 dx * dx + dy * dy <= options_.max_fb_px * options_.max_fb_px;
-    flow.followed += flow.ok[i];
+    if (!forward[i] || !inside || overlay) continue;
+    landed.push_back(i);
+    from_b.push_back(b[i]);
+    to_a.push_back(a[i]);
+  }
+  if (landed.empty()) return flow;
+  std::vector<cv::Point2f> back = to_a;
+  FollowLucasKanade(to.pyramid, from.pyramid, from_b, &back, &backward, win, options_.levels, until, kMinEigen);
+  for (size_t k = 0; k < landed.size(); ++k) {
+    const float dx = back[k].x - to_a[k].x, dy = back[k].y - to_a[k].y;
+    flow.ok[landed[k]] = backward[k] && dx * dx + dy * dy <= options_.max_fb_px * options_.max_fb_px;
+    flow.followed += flow.ok[landed[k]];
   }
   return flow;
 }

@@ -104,22 +104,49 @@ MosaickerOptions MaskFromFrames(const std::vector<cv::Mat>& raw, const Store& st
   return options;
 }
 
-// A folder, list or video whose first frames were read early (to find the overlay mask from
-// them): those are handed out first, then the source's own, so none is decoded twice.
+// A source whose first frames were taken early (the overlay search needs them before the
+// mapping starts): those are handed out first, then the source's own, so none is read twice.
+// From a live source the held frames keep their arrival times, and count as in flight once
+// handed out, as the live source counts its own.
 class HeldSource : public FrameSource {
  public:
-  explicit HeldSource(std::unique_ptr<FrameSource> source) : source_(std::move(source)) {}
-  std::deque<InputFrame> first;
+  using Clock = std::chrono::steady_clock;
+  // `live`: the same source when it is live (arrival times), else null.
+  HeldSource(FrameSource* source, const LiveSource* live) : source_(source), live_(live) {}
+  // Reads the source's next frame and holds it (with its arrival, live); null at the end.
+  const InputFrame* HoldNext() {
+    InputFrame f;
+    if (!source_->Next(&f)) return nullptr;
+    first_.push_back({std::move(f), live_ ? live_->arrival() : Clock::time_point{}});
+    return &first_.back().frame;
+  }
+  size_t held() const { return first_.size(); }
   bool Next(InputFrame* f) override {
-    if (first.empty()) return source_->Next(f);
-    *f = std::move(first.front());
-    first.pop_front();
+    if (!first_.empty()) {
+      if (in_flight) ++*in_flight;
+      *f = std::move(first_.front().frame);
+      arrival_ = first_.front().arrival;
+      first_.pop_front();
+      return true;
+    }
+    if (!source_->Next(f)) return false;
+    if (live_) arrival_ = live_->arrival();
     return true;
   }
   int count() const override { return source_->count(); }
+  // Arrival of the frame Next returned last (live sources only).
+  Clock::time_point arrival() const { return arrival_; }
+  std::atomic<long>* in_flight = nullptr;  // live: frames taken and not yet mapped
 
  private:
-  std::unique_ptr<FrameSource> source_;
+  struct Held {
+    InputFrame frame;
+    Clock::time_point arrival;
+  };
+  FrameSource* source_;
+  const LiveSource* live_;
+  std::deque<Held> first_;
+  Clock::time_point arrival_{};
 };
 
 // The same from the first frames of a folder, list or video, which `source` keeps for the
@@ -127,43 +154,13 @@ class HeldSource : public FrameSource {
 MosaickerOptions AutoMask(HeldSource* source, const Store& store, MosaickerOptions options, std::string* note) {
   const StaticMaskOptions mo;
   std::vector<cv::Mat> frames;
-  std::deque<InputFrame> held;
-  InputFrame f;
-  for (int read = 0; static_cast<int>(frames.size()) < mo.frames && read < 3 * mo.frames && source->Next(&f); ++read) {
-    if (!f.image.empty()) frames.push_back(f.image);
-    held.push_back(std::move(f));
-    f = InputFrame{};
+  for (int read = 0; static_cast<int>(frames.size()) < mo.frames && read < 3 * mo.frames; ++read) {
+    const InputFrame* f = source->HoldNext();
+    if (!f) break;
+    if (!f->image.empty()) frames.push_back(f->image);
   }
-  source->first = std::move(held);
   return MaskFromFrames(frames, store, options, note);
 }
-
-// A live source whose first frames were taken early (to find the overlay mask from them): those
-// are handed out first, with their arrival times, then the source's own.
-class ReplayedSource : public FrameSource {
- public:
-  explicit ReplayedSource(LiveSource* source) : source_(source) {}
-  std::deque<std::pair<InputFrame, std::chrono::steady_clock::time_point>> first;
-  bool Next(InputFrame* f) override {
-    if (!first.empty()) {
-      if (in_flight) ++*in_flight;  // the live source counts its own frames as it hands them out
-      *f = std::move(first.front().first);
-      arrival_ = first.front().second;
-      first.pop_front();
-      return true;
-    }
-    if (!source_->Next(f)) return false;
-    arrival_ = source_->arrival();
-    return true;
-  }
-  int count() const override { return -1; }
-  std::chrono::steady_clock::time_point arrival() const { return arrival_; }
-  std::atomic<long>* in_flight = nullptr;
-
- private:
-  LiveSource* source_;
-  std::chrono::steady_clock::time_point arrival_{};
-};
 
 }  // namespace
 
@@ -285,10 +282,11 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
   std::string note;
   MosaickerOptions options = given.calibration == "auto" ? AutoCalibrate(input, store, given, &note) : given;
   std::string mask_note;
-  auto source = std::make_unique<HeldSource>(FrameSource::Open(input));
-  if (options.mask == "auto") options = AutoMask(source.get(), store, options, &mask_note);
+  const auto opened = FrameSource::Open(input);
+  HeldSource source(opened.get(), nullptr);
+  if (options.mask == "auto") options = AutoMask(&source, store, options, &mask_note);
   Mosaicker mosaicker(store, options);
-  const double decode = RunPipeline(source.get(), mosaicker, on_frame, nullptr);
+  const double decode = RunPipeline(&source, mosaicker, on_frame, nullptr);
   MosaicSummary summary = mosaicker.Finish();
   AddDecodeStage(&summary, decode);
   summary.calibration_note = note;
@@ -296,7 +294,6 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
   return summary;
 }
 
-// When frames must be skipped, those kept overlap each other at least this much where the room allows.
 // What needs the first frames before mapping (self-calibration, the overlay search) cannot wait
 // for them live: an earlier run's results in the store are used. Without them self-calibration
 // fails; the overlay search takes the live run's first frames, which wait in `feed` (every one
@@ -312,7 +309,7 @@ MosaickerOptions LiveCalibration(MosaickerOptions options, const std::string& di
   return options;
 }
 
-MosaickerOptions LiveMask(MosaickerOptions options, const Store& store, LiveSource* source, ReplayedSource* feed,
+MosaickerOptions LiveMask(MosaickerOptions options, const Store& store, LiveSource* source, HeldSource* feed,
                           std::string* mask_note) {
   const std::string dir = store.dir();
   if (options.mask != "auto") return options;
@@ -323,15 +320,14 @@ MosaickerOptions LiveMask(MosaickerOptions options, const Store& store, LiveSour
   }
   const StaticMaskOptions mo;
   std::vector<cv::Mat> images;
-  InputFrame f;
   // Held frames are beyond the backlog bound by design: none may be skipped while the search
   // gathers them (a burst of files on a loaded machine skipped some, and the search then waited
   // for frames that never came).
   source->CatchUp(mo.frames);
-  while (static_cast<int>(feed->first.size()) < mo.frames && source->Next(&f)) {
-    images.push_back(f.image);
-    feed->first.emplace_back(std::move(f), source->arrival());
-    f = InputFrame{};
+  while (static_cast<int>(feed->held()) < mo.frames) {
+    const InputFrame* f = feed->HoldNext();
+    if (!f) break;
+    images.push_back(f->image);
   }
   options = MaskFromFrames(images, store, options, mask_note);
   source->CatchUp(mo.frames);  // what arrived meanwhile is mapped, not skipped
@@ -375,7 +371,7 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
   std::string calibration_note, mask_note;
   MosaickerOptions options = LiveCalibration(given, dir, &calibration_note);
   auto source = LiveSource::Open(input, live);
-  ReplayedSource feed(source.get());
+  HeldSource feed(source.get(), source.get());
   // From the first frame (the overlay search may hold the first ones a while), and before the
   // engine: its patch writer reports to it until the engine is gone.
   LiveStatusKeeper status(source.get(), live.max_waiting, on_status);
