@@ -35,8 +35,7 @@ int Pair(int lo, int hi) { return int((uint32_t(lo) & 0xffffu) | (uint32_t(hi) <
 
 // A window of the first image at a point: intensities (x 32) and derivatives, `stride` values a
 // row (a multiple of 8); derivatives are zero beyond the window's width, so whole vector rows can
-// be summed. It
-// points into a scratch buffer or into prepared templates.
+// be summed. It points into a scratch buffer or into prepared templates.
 struct Window {
   int w = 0, h = 0, stride = 0;
   int16_t* i = nullptr;
