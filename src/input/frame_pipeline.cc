@@ -111,8 +111,7 @@ MosaickerOptions MaskFromFrames(const std::vector<cv::Mat>& raw, const Store& st
 class HeldSource : public FrameSource {
  public:
   using Clock = std::chrono::steady_clock;
-  // `live`: the same source when it is live (arrival times), else null.
-  HeldSource(FrameSource* source, const LiveSource* live) : source_(source), live_(live) {}
+  explicit HeldSource(FrameSource* source) : source_(source), live_(dynamic_cast<const LiveSource*>(source)) {}
   // Reads the source's next frame and holds it (with its arrival, live); null at the end.
   const InputFrame* HoldNext() {
     InputFrame f;
@@ -144,7 +143,7 @@ class HeldSource : public FrameSource {
     Clock::time_point arrival;
   };
   FrameSource* source_;
-  const LiveSource* live_;
+  const LiveSource* live_;  // the same source when it is live (arrival times), else null
   std::deque<Held> first_;
   Clock::time_point arrival_{};
 };
@@ -283,7 +282,7 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
   MosaickerOptions options = given.calibration == "auto" ? AutoCalibrate(input, store, given, &note) : given;
   std::string mask_note;
   const auto opened = FrameSource::Open(input);
-  HeldSource source(opened.get(), nullptr);
+  HeldSource source(opened.get());
   if (options.mask == "auto") options = AutoMask(&source, store, options, &mask_note);
   Mosaicker mosaicker(store, options);
   const double decode = RunPipeline(&source, mosaicker, on_frame, nullptr);
@@ -371,7 +370,7 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
   std::string calibration_note, mask_note;
   MosaickerOptions options = LiveCalibration(given, dir, &calibration_note);
   auto source = LiveSource::Open(input, live);
-  HeldSource feed(source.get(), source.get());
+  HeldSource feed(source.get());
   // From the first frame (the overlay search may hold the first ones a while), and before the
   // engine: its patch writer reports to it until the engine is gone.
   LiveStatusKeeper status(source.get(), live.max_waiting, on_status);
