@@ -7,7 +7,8 @@ best-fit homography for the whole map), time and peak RSS of each step. Peers on
 survey: COLMAP 3.8 (CPU SIFT, sequential matcher, mapper; its camera poses projected onto the
 seafloor plane fitted to its points) and cv::Stitcher SCANS.
 
-  bench/run_global.py [--kinds random-300,lawn-1000,...] [--peers] [--navigation SIGMA_M] [--out bench/out/global]
+  bench/run_global.py [--kinds random-300,lawn-1000,...] [--peers] [--navigation SIGMA_M] [--cli build/rolamos]
+                      [--out bench/out/global]
 """
 import argparse, glob, json, os, shutil, subprocess, sys
 
@@ -114,6 +115,7 @@ def colmap_peer(survey, work):
 
 
 def main():
+    global CLI
     ap = argparse.ArgumentParser()
     ap.add_argument("--kinds", default="random-300,lawn-1000,lawn-turns-1000")
     ap.add_argument("--peers", action="store_true", help="COLMAP and cv::Stitcher on the 300-frame survey")
@@ -123,7 +125,9 @@ def main():
                     "Gaussian noise of SIGMA_M metres (bench/nav_from_truth.py: 1 cm a world pixel)")
     ap.add_argument("--align-before", default="", help="another rolamos whose align runs on a copy of the same "
                     "mosaicked store, in the same run (a before/after of align alone)")
+    ap.add_argument("--cli", default=CLI, help="the rolamos to measure (default: build/rolamos)")
     a = ap.parse_args()
+    CLI = os.path.abspath(a.cli)
     os.makedirs(a.out, exist_ok=True)
     lines = ["| survey | frames in the map | global RMS px (p95, max) | mosaic s / MB | align s / MB | compose s / MB | end to end s | parts |",
              "|---|---|---|---|---|---|---|---|"]

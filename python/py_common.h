@@ -107,7 +107,7 @@ void AddTiffOptions(OptionTable<T>& table, TiffWriteOptions T::*tiff) {
   table.Custom("compression", [tiff](T& o, const py::handle& v) {
     const std::string name = v.cast<std::string>();
     if (!ParseCompression(name, &(o.*tiff).compression))
-      throw py::value_error("option 'compression': unknown codec '" + name + "' (none, jpeg, deflate, zstd or webp)");
+      throw py::value_error("option 'compression': unknown codec '" + name + "' (none, jpeg, jpeg-mask, deflate, zstd or webp)");
   });
   table.Custom("quality", [tiff](T& o, const py::handle& v) { (o.*tiff).quality = v.cast<int>(); });
   table.Custom("tile", [tiff](T& o, const py::handle& v) { (o.*tiff).tile_size = v.cast<int>(); });

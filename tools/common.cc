@@ -9,7 +9,7 @@
 namespace rolamos::cli {
 
 void AddTiffSwitches(CLI::App* cmd, TiffSwitches* s) {
-  cmd->add_option("--compression", s->compression, "none, jpeg, deflate, zstd or webp")
+  cmd->add_option("--compression", s->compression, "none, jpeg, jpeg-mask (JPEG, alpha as a 1-bit mask), deflate, zstd or webp")
       ->capture_default_str();
   cmd->add_option("--quality", s->quality, "JPEG/WebP quality 1..100")->capture_default_str();
   cmd->add_option("--tile", s->tile, "tile size, 256 or 512")->capture_default_str();

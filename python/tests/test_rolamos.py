@@ -7,6 +7,7 @@ import subprocess
 import numpy as np
 import pytest
 import rasterio
+from rasterio.enums import MaskFlags
 from rasterio.windows import Window
 
 import rolamos
@@ -51,9 +52,12 @@ def test_store_lists_patches_and_the_global_record(store):
 
 
 def rasterio_read(path, x, y, w, h, level):
-    """The same window through GDAL: level 0 is the file, level L its (L-1)th overview."""
+    """The same window through GDAL: level 0 is the file, level L its (L-1)th overview. A
+    transparency mask (the engine's jpeg-mask patches) comes as the alpha rolamos reads."""
     with rasterio.open(path, OVERVIEW_LEVEL=level - 1) if level > 0 else rasterio.open(path) as src:
         a = src.read(window=Window(x, y, w, h))
+        if src.count in (1, 3) and MaskFlags.per_dataset in src.mask_flag_enums[0]:
+            a = np.concatenate([a, src.dataset_mask(window=Window(x, y, w, h))[None]], axis=0)
     return np.moveaxis(a, 0, -1)
 
 

@@ -43,9 +43,10 @@ void ExportCog(const std::string& source, const std::string& output, const CogOp
   if (!src) Fail(source, "GDAL cannot open it: " + TakeGdalError());
   GDALDriver* driver = GetGDALDriverManager()->GetDriverByName("COG");
   if (!driver) Fail(output, "this GDAL has no COG driver");
-  const std::string codec = options.compression == Compression::kNone
-                                ? "NONE"
-                                : ToUpper(CompressionName(options.compression));
+  // GDAL's COG driver keeps an alpha band as a mask by itself where JPEG cannot hold it.
+  const std::string codec = options.compression == Compression::kNone       ? "NONE"
+                            : options.compression == Compression::kJpegMask ? "JPEG"
+                                                                            : ToUpper(CompressionName(options.compression));
   CPLStringList opts;
   opts.SetNameValue("COMPRESS", codec.c_str());
   opts.SetNameValue("BLOCKSIZE", std::to_string(options.tile_size).c_str());
@@ -53,7 +54,8 @@ void ExportCog(const std::string& source, const std::string& output, const CogOp
   opts.SetNameValue("NUM_THREADS", "ALL_CPUS");
   opts.SetNameValue("OVERVIEWS", "AUTO");  // reuses the source's levels when it has them
   opts.SetNameValue("RESAMPLING", "AVERAGE");
-  if (options.compression == Compression::kJpeg || options.compression == Compression::kWebp)
+  if (options.compression == Compression::kJpeg || options.compression == Compression::kJpegMask ||
+      options.compression == Compression::kWebp)
     opts.SetNameValue("QUALITY", std::to_string(options.quality).c_str());
   if (options.compression == Compression::kDeflate || options.compression == Compression::kZstd)
     opts.SetNameValue("PREDICTOR", "YES");

@@ -15,7 +15,8 @@ constexpr CodecName kCodecs[] = {{Compression::kNone, "none"},
                                  {Compression::kJpeg, "jpeg"},
                                  {Compression::kDeflate, "deflate"},
                                  {Compression::kZstd, "zstd"},
-                                 {Compression::kWebp, "webp"}};
+                                 {Compression::kWebp, "webp"},
+                                 {Compression::kJpegMask, "jpeg-mask"}};
 
 }  // namespace
 

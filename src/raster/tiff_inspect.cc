@@ -134,6 +134,15 @@ TiffStructure InspectTiff(const std::string& path) {
       s.levels.push_back(d.index);
   }
   if (s.levels.empty()) Fail(path, "holds only mask images");
+  for (int level : s.levels) {
+    const auto& l = s.directories[size_t(level)];
+    int found = -1;
+    for (const auto& d : s.directories)
+      if (found < 0 && d.is_mask && d.width == l.width && d.height == l.height && d.samples == 1 && d.bits == 1 &&
+          ((d.subfile_type & FILETYPE_REDUCEDIMAGE) != 0) == (level != s.levels[0]))
+        found = d.index;
+    s.masks.push_back(found);
+  }
   return s;
 }
 

@@ -27,6 +27,9 @@ struct TiffStructure {
   uint64_t file_size = 0;
   std::vector<TiffDirectory> directories;
   std::vector<int> levels;  // directory indices: full resolution, then reduced levels
+  // Per level, the directory of its transparency mask (1 bit, the level's size; GDAL's internal
+  // masks, Compression::kJpegMask), or -1.
+  std::vector<int> masks;
 };
 
 bool HasTiffSignature(const std::string& path);

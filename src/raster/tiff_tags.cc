@@ -5,7 +5,8 @@
 namespace rolamos {
 
 bool UsesYCbCr(const PixelLayout& layout, const TiffWriteOptions& options) {
-  return options.compression == Compression::kJpeg && layout.channels == 3;
+  return (options.compression == Compression::kJpeg || options.compression == Compression::kJpegMask) &&
+         layout.channels == 3;
 }
 
 void SetLevelTags(TIFF* tif, const PixelLayout& layout, const TiffWriteOptions& options,
@@ -25,7 +26,7 @@ void SetLevelTags(TIFF* tif, const PixelLayout& layout, const TiffWriteOptions& 
     TIFFSetField(tif, TIFFTAG_EXTRASAMPLES, 1, &extra);
   }
   // OpenImageIO reads the IFD chain as MIP levels only with this tag (DESIGN.md).
-  TIFFSetField(tif, TIFFTAG_PIXAR_TEXTUREFORMAT, "Plain Texture");
+  if (level.mip_tag) TIFFSetField(tif, TIFFTAG_PIXAR_TEXTUREFORMAT, "Plain Texture");
   TIFFSetField(tif, TIFFTAG_SOFTWARE, "rolamos " ROLAMOS_VERSION_STRING);
 
   const bool colour = layout.channels >= 3;
@@ -34,6 +35,7 @@ void SetLevelTags(TIFF* tif, const PixelLayout& layout, const TiffWriteOptions& 
       TIFFSetField(tif, TIFFTAG_COMPRESSION, COMPRESSION_NONE);
       break;
     case Compression::kJpeg:
+    case Compression::kJpegMask:
       TIFFSetField(tif, TIFFTAG_COMPRESSION, COMPRESSION_JPEG);
       // Tiles are abbreviated streams; the shared quantisation and standard Huffman tables go
       // in the JPEGTables tag (SetJpegTables). Standard tables also spare the second, optimising
@@ -62,6 +64,20 @@ void SetLevelTags(TIFF* tif, const PixelLayout& layout, const TiffWriteOptions& 
   } else {
     TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, colour ? PHOTOMETRIC_RGB : PHOTOMETRIC_MINISBLACK);
   }
+}
+
+void SetMaskTags(TIFF* tif, const TiffWriteOptions& options, const LevelTags& level) {
+  TIFFSetField(tif, TIFFTAG_SUBFILETYPE, FILETYPE_MASK | (level.reduced ? FILETYPE_REDUCEDIMAGE : 0));
+  TIFFSetField(tif, TIFFTAG_IMAGEWIDTH, level.width);
+  TIFFSetField(tif, TIFFTAG_IMAGELENGTH, level.height);
+  TIFFSetField(tif, TIFFTAG_TILEWIDTH, static_cast<uint32_t>(options.tile_size));
+  TIFFSetField(tif, TIFFTAG_TILELENGTH, static_cast<uint32_t>(options.tile_size));
+  TIFFSetField(tif, TIFFTAG_SAMPLESPERPIXEL, static_cast<uint16_t>(1));
+  TIFFSetField(tif, TIFFTAG_BITSPERSAMPLE, static_cast<uint16_t>(1));
+  TIFFSetField(tif, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG);
+  TIFFSetField(tif, TIFFTAG_ORIENTATION, ORIENTATION_TOPLEFT);
+  TIFFSetField(tif, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MASK);
+  TIFFSetField(tif, TIFFTAG_COMPRESSION, COMPRESSION_ADOBE_DEFLATE);
 }
 
 void SetJpegTables(TIFF* tif, const std::vector<uint8_t>& tables) {

@@ -22,6 +22,18 @@ std::unique_ptr<TiffTileReader> TiffTileReader::TryOpen(const std::string& path,
     if (!TIFFIsCODECConfigured(d.compression)) return nullptr;
   }
   if (r->levels_.empty()) return nullptr;
+  // Masks are read where every level has one and the samples hold no alpha of their own.
+  bool masks = (r->samples_ == 1 || r->samples_ == 3) && r->bits_ == 8 && s.masks.size() == s.levels.size();
+  for (size_t k = 0; masks && k < s.masks.size(); ++k) {
+    const int m = s.masks[k];
+    const TiffDirectory* d = m >= 0 ? &s.directories[size_t(m)] : nullptr;
+    masks = d && d->tiled && int(d->tile_width) == r->levels_[k].tile_width &&
+            int(d->tile_height) == r->levels_[k].tile_height && TIFFIsCODECConfigured(d->compression);
+  }
+  if (masks) {
+    for (size_t k = 0; k < s.masks.size(); ++k) r->levels_[k].mask_directory = s.masks[k];
+    r->masked_ = true;
+  }
   // Held from now on: reads go on if the file is deleted or replaced later.
   auto first = std::make_unique<Handle>();
   first->file = TiffFile::Open(path, "r");
@@ -77,32 +89,51 @@ void TiffTileReader::Return(std::unique_ptr<Handle> h) const {
   returned_.notify_one();
 }
 
-cv::Mat TiffTileReader::DecodeTile(int level, int tx, int ty) const {
-  const Level& l = levels_[size_t(level)];
-  const auto where = [&] {
-    return "level " + std::to_string(level) + " tile (" + std::to_string(tx) + ", " + std::to_string(ty) + ")";
-  };
-  Lease lease{this, Borrow(l.directory)};
+void TiffTileReader::ReadTile(int directory, bool jpeg_ycbcr, int tx, int ty, cv::Mat& out,
+                              const std::string& what) const {
+  Lease lease{this, Borrow(directory)};
   Handle* h = lease.handle.get();
   TIFF* tif = h->file->get();
-  if (h->directory != l.directory) {
+  if (h->directory != directory) {
     h->directory = -1;
-    if (!TIFFSetDirectory(tif, tdir_t(l.directory))) Fail(path_, where() + ": " + h->file->TakeError());
-    if (l.jpeg_ycbcr) TIFFSetField(tif, TIFFTAG_JPEGCOLORMODE, JPEGCOLORMODE_RGB);
-    h->directory = l.directory;
+    if (!TIFFSetDirectory(tif, tdir_t(directory))) Fail(path_, what + ": " + h->file->TakeError());
+    if (jpeg_ycbcr) TIFFSetField(tif, TIFFTAG_JPEGCOLORMODE, JPEGCOLORMODE_RGB);
+    h->directory = directory;
   }
-  cv::Mat tile(l.tile_height, l.tile_width, CV_MAKETYPE(bits_ == 16 ? CV_16U : CV_8U, samples_), cv::Scalar::all(0));
-  const uint32_t index = TIFFComputeTile(tif, uint32_t(tx) * uint32_t(l.tile_width),
-                                         uint32_t(ty) * uint32_t(l.tile_height), 0, 0);
+  uint32_t tw = 0, th = 0;
+  TIFFGetField(tif, TIFFTAG_TILEWIDTH, &tw);
+  TIFFGetField(tif, TIFFTAG_TILELENGTH, &th);
+  const uint32_t index = TIFFComputeTile(tif, uint32_t(tx) * tw, uint32_t(ty) * th, 0, 0);
   if (TIFFGetStrileByteCount(tif, index) > 0) {
-    const tmsize_t bytes = tmsize_t(tile.total() * tile.elemSize());
-    if (TIFFReadEncodedTile(tif, index, tile.data, bytes) < 0) {
+    const tmsize_t bytes = tmsize_t(out.total() * out.elemSize());
+    if (TIFFReadEncodedTile(tif, index, out.data, bytes) < 0) {
       const std::string why = h->file->TakeError();
       h->directory = -1;  // the handle may be left mid-tile
-      Fail(path_, where() + " cannot be decoded: " + (why.empty() ? "libtiff gave no reason" : why));
+      Fail(path_, what + " cannot be decoded: " + (why.empty() ? "libtiff gave no reason" : why));
     }
   }
-  return tile;
+}
+
+cv::Mat TiffTileReader::DecodeTile(int level, int tx, int ty) const {
+  const Level& l = levels_[size_t(level)];
+  const std::string where =
+      "level " + std::to_string(level) + " tile (" + std::to_string(tx) + ", " + std::to_string(ty) + ")";
+  cv::Mat tile(l.tile_height, l.tile_width, CV_MAKETYPE(bits_ == 16 ? CV_16U : CV_8U, samples_), cv::Scalar::all(0));
+  ReadTile(l.directory, l.jpeg_ycbcr, tx, ty, tile, where);
+  if (!masked_) return tile;
+  // The mask's packed bits (the leftmost pixel in the highest bit) as an alpha sample.
+  cv::Mat bits(l.tile_height, (l.tile_width + 7) / 8, CV_8UC1, cv::Scalar(0));
+  ReadTile(l.mask_directory, false, tx, ty, bits, "the mask of " + where);
+  cv::Mat alpha(tile.size(), CV_8UC1);
+  for (int y = 0; y < alpha.rows; ++y) {
+    const uchar* b = bits.ptr<uchar>(y);
+    uchar* a = alpha.ptr<uchar>(y);
+    for (int x = 0; x < alpha.cols; ++x) a[x] = (b[x >> 3] >> (7 - (x & 7))) & 1 ? 255 : 0;
+  }
+  cv::Mat with_alpha;
+  const cv::Mat parts[] = {tile, alpha};
+  cv::merge(parts, 2, with_alpha);
+  return with_alpha;
 }
 
 }  // namespace rolamos

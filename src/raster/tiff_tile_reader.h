@@ -26,11 +26,15 @@ class TiffTileReader {
   ~TiffTileReader();
 
   // Tile (tx, ty) of level `level`, whole (the edge tiles' padding included), in the file's
-  // channel order; 8 or 16-bit. A tile the file does not hold (sparse) is zeros. Throws Error
+  // channel order; 8 or 16-bit. Where every level has a transparency mask (and the samples no
+  // alpha), the mask comes as an alpha sample after the others: 255 where it is set, else 0. A tile the file does not hold (sparse) is zeros. Throws Error
   // naming the file, level and tile when libtiff cannot decode it. Any thread.
   cv::Mat DecodeTile(int level, int tx, int ty) const;
   const FileStamp& stamp() const { return stamp_; }
   int tile_width(int level) const { return levels_[size_t(level)].tile_width; }
+  // Samples a decoded tile has (the file's, plus one for the mask's alpha).
+  int channels() const { return samples_ + (masked_ ? 1 : 0); }
+  bool masked() const { return masked_; }
   int tile_height(int level) const { return levels_[size_t(level)].tile_height; }
 
  private:
@@ -39,6 +43,7 @@ class TiffTileReader {
     int tile_width = 0, tile_height = 0;
     long long width = 0, height = 0;
     bool jpeg_ycbcr = false;  // decoded as RGB by libjpeg
+    int mask_directory = -1;
   };
   // libtiff's handles are one thread's at a time: each decode borrows one, set to the level's
   // directory. The first is opened with the reader, more on demand (at most kMaxHandles); when
@@ -52,6 +57,9 @@ class TiffTileReader {
   static constexpr size_t kMaxHandles = 8;
   std::unique_ptr<Handle> OpenHandle() const;
   std::unique_ptr<Handle> Borrow(int directory) const;
+  // Tile (tx, ty) of `directory` into `out` (sized for it); a tile the file does not hold stays
+  // as it is.
+  void ReadTile(int directory, bool jpeg_ycbcr, int tx, int ty, cv::Mat& out, const std::string& what) const;
   void Return(std::unique_ptr<Handle> h) const;
   // A borrowed handle, given back however the decode ends.
   struct Lease {
@@ -67,6 +75,7 @@ class TiffTileReader {
   // refused, and the cache keys its tiles by it.
   FileStamp stamp_;
   int samples_ = 0, bits_ = 8;
+  bool masked_ = false;
   std::vector<Level> levels_;
   mutable std::mutex mutex_;
   mutable std::condition_variable returned_;

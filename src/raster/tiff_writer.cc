@@ -48,7 +48,8 @@ bool TiffWriteOptions::IsValid(const PixelLayout& layout, std::string* error) co
     return false;
   }
   if (layout.bits == 16 &&
-      (compression == Compression::kJpeg || compression == Compression::kWebp)) {
+      (compression == Compression::kJpeg || compression == Compression::kJpegMask ||
+       compression == Compression::kWebp)) {
     *error = CompressionName(compression) +
              " stores 8-bit samples only; use zstd, deflate or none for 16-bit images";
     return false;
@@ -68,10 +69,15 @@ struct PyramidTiffWriter::Impl {
     cv::Mat acc;  // rows gathered for the next tile row (levels >= 1)
     int acc_rows = 0;
     std::vector<std::pair<uint64_t, uint32_t>> spilled;  // tile -> (offset, size) in spill file
+    std::vector<std::pair<uint64_t, uint32_t>> mask_spilled;  // the same for the mask's tiles
   };
 
   std::string path, tmp_path, spill_path;
   PixelLayout layout;
+  // Compression::kJpegMask with alpha: the file's colour IFDs hold `file_layout` (no alpha), and
+  // the alpha goes to a mask IFD per level, written after the levels.
+  bool masked = false;
+  PixelLayout file_layout;
   TiffWriteOptions options;
   std::unique_ptr<TiffFile> file;
   std::mutex file_mutex;
@@ -79,7 +85,7 @@ struct PyramidTiffWriter::Impl {
   std::mutex spill_mutex;
   uint64_t spill_size = 0;
   std::vector<Level> levels;
-  std::unique_ptr<TileEncoderPool> encoders;
+  std::unique_ptr<TileEncoderPool> encoders, mask_encoders;
   std::vector<uint8_t> jpeg_tables;
   std::unique_ptr<TaskPool> pool;
   std::optional<Georef> georef;
@@ -91,7 +97,8 @@ struct PyramidTiffWriter::Impl {
   void EmitBand(size_t k, const cv::Mat& band);
   void Append(size_t k, const cv::Mat& rows);
   void WriteTile(size_t k, long long index, const std::vector<uint8_t>& bytes);
-  void CopySpilledLevel(size_t k);
+  std::pair<uint64_t, uint32_t> Spill(const std::vector<uint8_t>& bytes);
+  void CopySpilled(const std::vector<std::pair<uint64_t, uint32_t>>& tiles, const std::string& what);
   void Cleanup();
 };
 
@@ -104,20 +111,24 @@ void PyramidTiffWriter::Impl::WriteTile(size_t k, long long index,
                          static_cast<tmsize_t>(bytes.size())) < 0)
       Fail(path, "cannot write tile " + std::to_string(index) + ": " + file->TakeError());
   } else {
-    std::lock_guard<std::mutex> lock(spill_mutex);
-    size_t done = 0;
-    while (done < bytes.size()) {
-      ssize_t n = ::pwrite(spill_fd, bytes.data() + done, bytes.size() - done,
-                           static_cast<off_t>(spill_size + done));
-      if (n < 0 && errno == EINTR) continue;
-      if (n <= 0) Fail(spill_path, std::string("cannot write reduced level: ") + std::strerror(errno));
-      done += static_cast<size_t>(n);
-    }
-    levels[k].spilled[static_cast<size_t>(index)] = {spill_size,
-                                                     static_cast<uint32_t>(bytes.size())};
-    spill_size += bytes.size();
+    levels[k].spilled[static_cast<size_t>(index)] = Spill(bytes);
   }
   ++tiles_written;
+}
+
+std::pair<uint64_t, uint32_t> PyramidTiffWriter::Impl::Spill(const std::vector<uint8_t>& bytes) {
+  std::lock_guard<std::mutex> lock(spill_mutex);
+  size_t done = 0;
+  while (done < bytes.size()) {
+    ssize_t n = ::pwrite(spill_fd, bytes.data() + done, bytes.size() - done,
+                         static_cast<off_t>(spill_size + done));
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) Fail(spill_path, std::string("cannot write a level's tiles: ") + std::strerror(errno));
+    done += static_cast<size_t>(n);
+  }
+  const std::pair<uint64_t, uint32_t> where{spill_size, static_cast<uint32_t>(bytes.size())};
+  spill_size += bytes.size();
+  return where;
 }
 
 void PyramidTiffWriter::Impl::EmitBand(size_t k, const cv::Mat& band) {
@@ -130,9 +141,19 @@ void PyramidTiffWriter::Impl::EmitBand(size_t k, const cv::Mat& band) {
     cv::Mat tile = CutFileTile(band, static_cast<int>(tx), options.tile_size);
     pool->Submit([this, k, index, tile] {
       CpuLaps cpu;
-      const std::vector<uint8_t> bytes = encoders->Encode(tile);
+      if (!masked) {
+        const std::vector<uint8_t> bytes = encoders->Encode(tile);
+        encode_ns += cpu.Lap();
+        WriteTile(k, index, bytes);
+        return;
+      }
+      cv::Mat colour, bits;
+      SplitMask(tile, &colour, &bits);
+      const std::vector<uint8_t> bytes = encoders->Encode(colour);
+      const std::vector<uint8_t> mask = mask_encoders->Encode(bits);
       encode_ns += cpu.Lap();
       WriteTile(k, index, bytes);
+      levels[k].mask_spilled[static_cast<size_t>(index)] = Spill(mask);
     });
   }
   level.rows_done += band.rows;
@@ -153,23 +174,23 @@ void PyramidTiffWriter::Impl::Append(size_t k, const cv::Mat& rows) {
   }
 }
 
-void PyramidTiffWriter::Impl::CopySpilledLevel(size_t k) {
-  const Level& level = levels[k];
+void PyramidTiffWriter::Impl::CopySpilled(const std::vector<std::pair<uint64_t, uint32_t>>& tiles,
+                                          const std::string& what) {
   std::vector<uint8_t> buf;
-  for (size_t i = 0; i < level.spilled.size(); ++i) {
-    const auto [offset, size] = level.spilled[i];
+  for (size_t i = 0; i < tiles.size(); ++i) {
+    const auto [offset, size] = tiles[i];
     buf.resize(size);
     size_t done = 0;
     while (done < size) {
       ssize_t n = ::pread(spill_fd, buf.data() + done, size - done,
                           static_cast<off_t>(offset + done));
       if (n < 0 && errno == EINTR) continue;
-      if (n <= 0) Fail(spill_path, "cannot read back reduced level " + std::to_string(k));
+      if (n <= 0) Fail(spill_path, "cannot read back " + what);
       done += static_cast<size_t>(n);
     }
     if (TIFFWriteRawTile(file->get(), static_cast<uint32_t>(i), buf.data(),
                          static_cast<tmsize_t>(size)) < 0)
-      Fail(path, "cannot write level " + std::to_string(k) + ": " + file->TakeError());
+      Fail(path, "cannot write " + what + ": " + file->TakeError());
   }
 }
 
@@ -190,6 +211,9 @@ PyramidTiffWriter::PyramidTiffWriter(const std::string& path, const PixelLayout&
   m.path = path;
   m.layout = layout;
   m.options = options;
+  m.masked = options.compression == Compression::kJpegMask && layout.HasAlpha();
+  m.file_layout = layout;
+  if (m.masked) --m.file_layout.channels;
   m.tmp_path = TemporarySibling(path);
   m.spill_path = m.tmp_path + ".levels";
 
@@ -209,15 +233,19 @@ PyramidTiffWriter::PyramidTiffWriter(const std::string& path, const PixelLayout&
     h = (h + 1) / 2;
     add_level(w, h);
   }
-  for (size_t k = 1; k < m.levels.size(); ++k)
-    m.levels[k].spilled.resize(static_cast<size_t>(m.levels[k].tiles_x * m.levels[k].tiles_y));
+  for (size_t k = 0; k < m.levels.size(); ++k) {
+    const size_t tiles = static_cast<size_t>(m.levels[k].tiles_x * m.levels[k].tiles_y);
+    if (k > 0) m.levels[k].spilled.resize(tiles);
+    if (m.masked) m.levels[k].mask_spilled.resize(tiles);
+  }
 
   m.file = TiffFile::Open(m.tmp_path, "w8");  // BigTIFF always
   LevelTags level0;
   level0.width = static_cast<uint32_t>(layout.width);
   level0.height = static_cast<uint32_t>(layout.height);
-  SetLevelTags(m.file->get(), layout, options, level0, /*for_encoding=*/false);
-  if (m.levels.size() > 1) {
+  level0.mip_tag = !m.masked;
+  SetLevelTags(m.file->get(), m.file_layout, options, level0, /*for_encoding=*/false);
+  if (m.levels.size() > 1 || m.masked) {
     m.spill_fd = ::open(m.spill_path.c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
     if (m.spill_fd < 0) {
       std::string why = std::strerror(errno);
@@ -226,7 +254,8 @@ PyramidTiffWriter::PyramidTiffWriter(const std::string& path, const PixelLayout&
       Fail(m.spill_path, "cannot create temporary file: " + why);
     }
   }
-  m.encoders = std::make_unique<TileEncoderPool>(layout, options);
+  m.encoders = std::make_unique<TileEncoderPool>(m.file_layout, options);
+  if (m.masked) m.mask_encoders = std::make_unique<TileEncoderPool>(m.file_layout, options, /*mask=*/true);
   m.jpeg_tables = m.encoders->JpegTables();
   SetJpegTables(m.file->get(), m.jpeg_tables);
   // About one tile row of queued tiles: enough for the workers to ride out the main thread's
@@ -283,9 +312,21 @@ TiffWriteStats PyramidTiffWriter::Finish() {
     tags.width = static_cast<uint32_t>(m.levels[k].width);
     tags.height = static_cast<uint32_t>(m.levels[k].height);
     tags.reduced = true;
-    SetLevelTags(tif, m.layout, m.options, tags, /*for_encoding=*/false);
+    tags.mip_tag = !m.masked;
+    SetLevelTags(tif, m.file_layout, m.options, tags, /*for_encoding=*/false);
     SetJpegTables(tif, m.jpeg_tables);
-    m.CopySpilledLevel(k);
+    m.CopySpilled(m.levels[k].spilled, "level " + std::to_string(k));
+  }
+  // The masks after all the levels: readers that know them pair each with the level of its size
+  // (GDAL); OpenImageIO reads the levels as one MIP-mapped image and the masks as another.
+  for (size_t k = 0; m.masked && k < m.levels.size(); ++k) {
+    if (!TIFFWriteDirectory(tif)) Fail(m.path, "cannot write directory: " + m.file->TakeError());
+    LevelTags tags;
+    tags.width = static_cast<uint32_t>(m.levels[k].width);
+    tags.height = static_cast<uint32_t>(m.levels[k].height);
+    tags.reduced = k > 0;
+    SetMaskTags(tif, m.options, tags);
+    m.CopySpilled(m.levels[k].mask_spilled, "the mask of level " + std::to_string(k));
   }
   m.file->Close();
   m.Cleanup();

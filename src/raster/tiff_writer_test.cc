@@ -1,5 +1,6 @@
 #include "rolamos/tiff_writer.hpp"
 
+#include <algorithm>
 #include <filesystem>
 
 #include <gtest/gtest.h>
@@ -25,7 +26,9 @@ struct Case {
 };
 
 std::string Name(const testing::TestParamInfo<Case>& info) {
-  return CompressionName(info.param.compression) + "_c" + std::to_string(info.param.channels) +
+  std::string codec = CompressionName(info.param.compression);
+  std::replace(codec.begin(), codec.end(), '-', '_');
+  return codec + "_c" + std::to_string(info.param.channels) +
          "_b" + std::to_string(info.param.bits) + "_t" + std::to_string(info.param.tile);
 }
 
@@ -90,7 +93,8 @@ INSTANTIATE_TEST_SUITE_P(
                     Case{Compression::kZstd, 3, 16, 512}, Case{Compression::kNone, 1, 16, 256},
                     Case{Compression::kJpeg, 3, 8, 256}, Case{Compression::kJpeg, 1, 8, 256},
                     Case{Compression::kJpeg, 3, 8, 512}, Case{Compression::kJpeg, 4, 8, 256},
-                    Case{Compression::kWebp, 3, 8, 256}, Case{Compression::kWebp, 4, 8, 256}),
+                    Case{Compression::kWebp, 3, 8, 256}, Case{Compression::kWebp, 4, 8, 256},
+                    Case{Compression::kJpegMask, 4, 8, 256}, Case{Compression::kJpegMask, 2, 8, 512}),
     Name);
 
 // WebP tiles come from libwebp directly (libtiff cannot set its effort): at the engine's fast
@@ -125,6 +129,57 @@ TEST(PyramidTiffWriter, FastWebpTilesReadBackEverywhereWithExactAlpha) {
   rgba.channels = 4;
   EXPECT_FALSE(bad.IsValid(rgba, &error));
   EXPECT_NE(error.find("webp method"), std::string::npos);
+}
+
+// jpeg-mask: the colour as JPEG, the alpha as GDAL's per-level masks. rolamos reads the mask back
+// as alpha (0 or 255: alpha >= 128 is data) at every level, GDAL as the dataset's mask band, and
+// OpenImageIO the colour.
+TEST(PyramidTiffWriter, JpegMaskKeepsTheAlphaAsMasksEveryReaderSees) {
+  ScratchDir dir;
+  cv::Mat image = MakeImage(700, 500, 4, 8);
+  cv::Mat alpha(image.size(), CV_8U, cv::Scalar(255));
+  cv::circle(alpha, {350, 250}, 200, cv::Scalar(0), cv::FILLED);
+  cv::rectangle(alpha, cv::Rect(0, 0, 61, 700), cv::Scalar(0), cv::FILLED);
+  cv::insertChannel(alpha, image, 3);
+  TiffWriteOptions o;
+  o.compression = Compression::kJpegMask;
+  o.quality = 85;
+  const std::string path = dir / "masked.tif";
+  WritePyramidTiff(path, image, o);
+  // The levels' alpha as the lossless pyramid holds it, thresholded as the mask keeps it.
+  TiffWriteOptions lossless;
+  lossless.compression = Compression::kZstd;
+  WritePyramidTiff(dir / "lossless.tif", image, lossless);
+
+  auto cache = std::make_shared<TileCache>();
+  TiledImage t = TiledImage::Open(path, cache), ref = TiledImage::Open(dir / "lossless.tif", cache);
+  EXPECT_EQ(t.info().channels, 4);
+  EXPECT_TRUE(t.info().has_alpha);
+  EXPECT_EQ(t.info().compression, "jpeg-mask");
+  ASSERT_EQ(t.num_levels(), ref.num_levels());
+  ASSERT_EQ(t.num_levels(), 3);
+  for (int level = 0; level < t.num_levels(); ++level) {
+    const auto& l = t.info().levels[size_t(level)];
+    const cv::Rect all(0, 0, int(l.width), int(l.height));
+    cv::Mat back = t.ReadRegion(level, all), truth = ref.ReadRegion(level, all), a, b;
+    cv::extractChannel(back, a, 3);
+    cv::extractChannel(truth, b, 3);
+    cv::Mat expected = b >= 128;
+    EXPECT_EQ(cv::norm(a, expected, cv::NORM_INF), 0.0) << "level " << level;
+    if (level == 0) EXPECT_GE(test::MaskedPsnr(back, image), 38.0);
+  }
+  const auto info = test::RunShell("gdalinfo " + path);
+  EXPECT_NE(info.output.find("Mask Flags: PER_DATASET"), std::string::npos) << info.output;
+  EXPECT_NE(info.output.find("Overviews of mask band: 350x250, 175x125"), std::string::npos) << info.output;
+  const auto png = test::RunShell("gdal_translate -q -of PNG -b mask " + path + " " + (dir / "mask.png"));
+  ASSERT_EQ(png.exit_code, 0) << png.output;
+  EXPECT_EQ(cv::norm(cv::imread(dir / "mask.png", cv::IMREAD_UNCHANGED), alpha, cv::NORM_INF), 0.0);
+  const auto oiio = test::RunShell("iinfo " + path);
+  EXPECT_NE(oiio.output.find("700 x  500, 3 channel, uint8 tiff"), std::string::npos) << oiio.output;
+  // Without alpha there is nothing to mask: a plain JPEG pyramid.
+  WritePyramidTiff(dir / "rgb.tif", MakeImage(300, 300, 3, 8), o);
+  EXPECT_EQ(TiledImage::Open(dir / "rgb.tif", cache).info().compression, "jpeg");
+  EXPECT_EQ(InspectTiff(dir / "rgb.tif").directories.size(), 2u);
 }
 
 TEST(PyramidTiffWriter, ReducedLevelsAreAreaAveragesAndNeverDarkenAtDataBorders) {

@@ -9,8 +9,8 @@
 
 namespace rolamos {
 
-TileEncoder::TileEncoder(const PixelLayout& layout, const TiffWriteOptions& options)
-    : layout_(layout), options_(options) {
+TileEncoder::TileEncoder(const PixelLayout& layout, const TiffWriteOptions& options, bool mask)
+    : layout_(layout), options_(options), mask_(mask) {
   Reset();
 }
 
@@ -24,7 +24,8 @@ void TileEncoder::Reset() {
   LevelTags level;
   level.width = static_cast<uint32_t>(options_.tile_size);
   level.height = static_cast<uint32_t>(options_.tile_size) * capacity_;
-  SetLevelTags(file_->get(), layout_, options_, level, /*for_encoding=*/true);
+  if (mask_) SetMaskTags(file_->get(), options_, level);
+  else SetLevelTags(file_->get(), layout_, options_, level, /*for_encoding=*/true);
   header_size_ = file_->memory().size();
   next_tile_ = 0;
 }
@@ -65,8 +66,8 @@ std::vector<uint8_t> EncodeWebp(const cv::Mat& tile, const TiffWriteOptions& opt
 
 std::vector<uint8_t> TileEncoder::Encode(const cv::Mat& tile) {
   CV_Assert(tile.isContinuous() && tile.rows == options_.tile_size &&
-            tile.cols == options_.tile_size);
-  if (options_.compression == Compression::kWebp) return EncodeWebp(tile, options_);
+            tile.cols == (mask_ ? options_.tile_size / 8 : options_.tile_size));
+  if (options_.compression == Compression::kWebp && !mask_) return EncodeWebp(tile, options_);
   if (next_tile_ >= capacity_) Reset();
   TIFF* tif = file_->get();
   const uint32_t index = next_tile_++;
@@ -88,7 +89,8 @@ std::vector<uint8_t> TileEncoder::Encode(const cv::Mat& tile) {
 }
 
 std::vector<uint8_t> TileEncoder::JpegTables() {
-  if (options_.compression != Compression::kJpeg) return {};
+  if (mask_ || (options_.compression != Compression::kJpeg && options_.compression != Compression::kJpegMask))
+    return {};
   if (next_tile_ == 0)
     Encode(cv::Mat::zeros(options_.tile_size, options_.tile_size, layout_.CvType()));
   uint32_t count = 0;
@@ -108,7 +110,7 @@ std::unique_ptr<TileEncoder> TileEncoderPool::Take() {
       return encoder;
     }
   }
-  return std::make_unique<TileEncoder>(layout_, options_);
+  return std::make_unique<TileEncoder>(layout_, options_, mask_);
 }
 
 void TileEncoderPool::Give(std::unique_ptr<TileEncoder> encoder) {
@@ -128,6 +130,29 @@ std::vector<uint8_t> TileEncoderPool::JpegTables() {
   auto tables = encoder->JpegTables();
   Give(std::move(encoder));
   return tables;
+}
+
+void SplitMask(const cv::Mat& tile, cv::Mat* colour, cv::Mat* bits) {
+  CV_Assert(tile.depth() == CV_8U && (tile.channels() == 2 || tile.channels() == 4) && tile.cols % 8 == 0);
+  const int n = tile.channels() - 1;
+  cv::Mat alpha;
+  cv::extractChannel(tile, alpha, n);
+  const cv::Mat data = alpha >= 128;
+  colour->create(tile.size(), CV_8UC(n));
+  const int from_to[] = {0, 0, 1, 1, 2, 2};
+  cv::mixChannels(&tile, 1, colour, 1, from_to, size_t(n));
+  const int with_data = cv::countNonZero(data);
+  if (with_data > 0 && with_data < data.rows * data.cols) colour->setTo(cv::mean(*colour, data), ~data);
+  bits->create(tile.rows, tile.cols / 8, CV_8UC1);
+  for (int y = 0; y < tile.rows; ++y) {
+    const uchar* d = data.ptr<uchar>(y);
+    uchar* b = bits->ptr<uchar>(y);
+    for (int x = 0; x < tile.cols; x += 8) {
+      uchar byte = 0;
+      for (int k = 0; k < 8; ++k) byte = uchar(byte << 1) | uchar(d[x + k] & 1);
+      b[x / 8] = byte;
+    }
+  }
 }
 
 cv::Mat CutFileTile(const cv::Mat& band, int tx, int tile_size) {

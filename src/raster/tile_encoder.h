@@ -20,7 +20,9 @@ class TiffFile;
 
 class TileEncoder {
  public:
-  TileEncoder(const PixelLayout& layout, const TiffWriteOptions& options);
+  // `mask`: the encoder of a transparency mask's tiles (SetMaskTags), fed packed bits:
+  // tile_size rows of tile_size / 8 bytes, the leftmost pixel in the highest bit.
+  TileEncoder(const PixelLayout& layout, const TiffWriteOptions& options, bool mask = false);
   ~TileEncoder();
   // `tile` is tile_size x tile_size, RGB(A)/gray order as the file stores it, contiguous.
   std::vector<uint8_t> Encode(const cv::Mat& tile);
@@ -33,6 +35,7 @@ class TileEncoder {
 
   PixelLayout layout_;
   TiffWriteOptions options_;
+  bool mask_ = false;
   std::unique_ptr<TiffFile> file_;
   uint32_t next_tile_ = 0;
   uint32_t capacity_ = 0;
@@ -42,8 +45,8 @@ class TileEncoder {
 // A thread-safe set of encoders: one per concurrent caller, created on demand.
 class TileEncoderPool {
  public:
-  TileEncoderPool(const PixelLayout& layout, const TiffWriteOptions& options)
-      : layout_(layout), options_(options) {}
+  TileEncoderPool(const PixelLayout& layout, const TiffWriteOptions& options, bool mask = false)
+      : layout_(layout), options_(options), mask_(mask) {}
   std::vector<uint8_t> Encode(const cv::Mat& tile);
   std::vector<uint8_t> JpegTables();
 
@@ -53,9 +56,15 @@ class TileEncoderPool {
 
   PixelLayout layout_;
   TiffWriteOptions options_;
+  bool mask_ = false;
   std::mutex mutex_;
   std::vector<std::unique_ptr<TileEncoder>> idle_;
 };
+
+// Splits a file-order tile with alpha (RGBA or grey + alpha) into the colour JPEG stores and the
+// mask's packed bits (alpha >= 128 is data). Pixels without data take the mean colour of those
+// with data, so JPEG's blocks do not ring with black along the data's edge.
+void SplitMask(const cv::Mat& tile, cv::Mat* colour, cv::Mat* bits);
 
 // Cuts tile (tx, ty) out of `band` (whose row 0 is the tile row's first row), converts to file
 // channel order, and pads to a full tile by repeating edge pixels (no seams in JPEG at edges).

@@ -108,6 +108,11 @@ TiledImage TiledImage::Open(const std::string& path, std::shared_ptr<TileCache> 
     int mip_levels = 1;
     if (impl->tiff) {
       impl->file_id = cache->tiles_->FileId(impl->name.string(), impl->tiff->stamp());
+      if (impl->tiff->masked()) {
+        info.channels = impl->tiff->channels();
+        info.has_alpha = true;
+        info.compression += "-mask";
+      }
     } else {
       ic->get_image_info(impl->name, 0, 0, OIIO::ustring("miplevels"), OIIO::TypeInt, &mip_levels);
       const std::string open_error = ic->geterror();
