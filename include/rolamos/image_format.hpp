@@ -7,8 +7,9 @@
 namespace rolamos {
 
 // kJpegMask: JPEG (YCbCr 4:2:0) for the colour, and an image's alpha, if it has one, as a
-// 1-bit transparency mask per level (GDAL's internal masks): 8 times faster to encode than WebP
-// for the same quality at ~1.2 times the size. kJpeg keeps alpha as a fourth JPEG sample.
+// 1-bit transparency mask per level (GDAL's internal masks): a tile encodes 8 times faster than
+// WebP's (effort 0); at quality 85 the engine's patches are 0-16 % larger than WebP at 90, as
+// close to the lossless blend at level 0. kJpeg keeps alpha as a fourth JPEG sample.
 enum class Compression { kNone, kJpeg, kDeflate, kZstd, kWebp, kJpegMask };
 
 // Accepts "none", "jpeg", "deflate", "zstd", "webp", "jpeg-mask" (case-insensitive). Returns

@@ -25,8 +25,8 @@ struct TiffWriteOptions {
   int threads = 0;        // compression threads; 0 = one per core
   int zstd_level = 9;     // 1..22
   int deflate_level = 6;  // 1..9
-  // libwebp's effort, 0..6 (cwebp -m): 4 is libtiff's own choice; the engine writes its
-  // intermediate patches at 0, 3.3x faster for ~0.5 dB at the same quality and size.
+  // libwebp's effort, 0..6 (cwebp -m): 4 is libtiff's own choice; `mosaic --compression webp`
+  // writes its intermediate patches at 0, 3.3x faster for ~0.5 dB at the same quality and size.
   int webp_method = 4;
 
   bool IsValid(const PixelLayout& layout, std::string* error) const;
