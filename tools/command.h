@@ -39,6 +39,8 @@ struct TiffSwitches {
 void AddTiffSwitches(CLI::App* cmd, TiffSwitches* s);
 // Throws rolamos::Error for an unknown codec name.
 TiffWriteOptions ToWriteOptions(const TiffSwitches& s);
+// The switches' defaults from a library default (e.g. MosaickerOptions::PatchWriteOptions()).
+TiffSwitches FromWriteOptions(const TiffWriteOptions& o);
 
 // "x,y,w,h" -> four numbers; throws rolamos::Error naming the text.
 std::array<double, 4> ParseRegion(const std::string& text);

@@ -37,6 +37,17 @@ TiffWriteOptions ToWriteOptions(const TiffSwitches& s) {
   return o;
 }
 
+TiffSwitches FromWriteOptions(const TiffWriteOptions& o) {
+  TiffSwitches s;
+  s.compression = CompressionName(o.compression);
+  s.quality = o.quality;
+  s.tile = o.tile_size;
+  s.threads = o.threads;
+  s.zstd_level = o.zstd_level;
+  s.webp_method = o.webp_method;
+  return s;
+}
+
 std::array<double, 4> ParseRegion(const std::string& text) {
   std::array<double, 4> v{};
   std::stringstream ss(text);

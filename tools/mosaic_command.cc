@@ -23,9 +23,9 @@ namespace rolamos::cli {
 struct MosaicSwitches {
   std::string input, output;
   MosaickerOptions options;
-  // Patches are intermediate (compose re-encodes them) and written at the camera's rate: JPEG
-  // with the alpha as a mask (MosaickerOptions::PatchWriteOptions).
-  TiffSwitches tiff{"jpeg-mask", 85, 256, 0, 9, 0};
+  // Patches are intermediate (compose re-encodes them) and written at the camera's rate: the
+  // engine's own default codec (JPEG with the alpha as a mask).
+  TiffSwitches tiff = FromWriteOptions(MosaickerOptions::PatchWriteOptions());
   bool no_bilateral = false, no_temporal = false, no_clahe = false, no_sift_upsample = false, no_fundamental = false,
        no_kalman = false, no_ecc = false, no_cross_check = false, no_recover = false, no_patch_fit = false, no_adjust = false,
        no_flat_field = false, no_exposure = false, no_water_colour = false;
