@@ -4,17 +4,22 @@ rate (each under a temporary name, then renamed, as loggers do) while `rolamos m
 maps them; the run ends when the feed has been idle for a few seconds. Reports, per feed: frames
 received, registered, rejected and skipped (arrived while the engine was busy), coverage lost
 (skips after which the next frame taken did not join the one before), the most frames waiting
-or in flight at once (the backlog; bound 3), the latency from
-arrival to integration (p50, p95; STORE/live/status.json), peak RSS.
+or in flight at once (the backlog; bound --max-waiting), patches, the latency from arrival to
+integration (p50, p95; STORE/live/status.json), peak RSS. Each run is printed as well as the
+medians: one feed varies from run to run where the engine is about as fast as the feed.
 
 The surveys are the spread's (bench/run_engine_spread.py writes them): still frames at 70 %
 overlap fed at 10 frames/s (a stills camera is slower), and camera-rate frames (95 % overlap) fed
 at 30 frames/s, at 800 x 600 and 1292 x 964.
 
   bench/run_live.py [--spread bench/out/spread] [--feeds name,...] [--frames 150] [--runs 3]
-                    [--cli OLD,build/rolamos --names before,after]
+                    [--cli OLD,build/rolamos --names before,after] [--fps F] [--load 0.5]
+                    [--mosaic-args "--max-waiting 6"]
+
+--fps feeds every feed at F frames/s; --load keeps a busy loop beside the engine for that
+fraction of a core (a vehicle's computer doing other work, or a slower machine).
 """
-import argparse, json, os, shutil, statistics, subprocess, sys, threading, time
+import argparse, json, multiprocessing, os, shutil, statistics, subprocess, sys, threading, time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_common import write_report  # noqa: E402
@@ -42,13 +47,13 @@ def feed(frames, folder, fps, done):
     done.set()
 
 
-def one_run(cli, frames, fps, work):
+def one_run(cli, frames, fps, work, extra=()):
     shutil.rmtree(work, ignore_errors=True)
     folder, store = os.path.join(work, "incoming"), os.path.join(work, "live.rolamos")
     os.makedirs(folder)
     done = threading.Event()
     proc = subprocess.Popen(["/usr/bin/time", "-f", "TIME %e %M", cli, "mosaic", folder, "-o", store, "--live",
-                             "--idle-timeout", "3", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "--idle-timeout", "3", "-q", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(0.5)  # the engine starts before the camera
     feeder = threading.Thread(target=feed, args=(frames, folder, fps, done))
     feeder.start()
@@ -61,7 +66,18 @@ def one_run(cli, frames, fps, work):
     return dict(received=status["frames_received"], registered=status["frames_registered"],
                 rejected=status["frames_rejected"], skipped=status["frames_skipped"],
                 coverage_lost=status.get("coverage_lost", 0), backlog=status.get("backlog_max", 0),
+                patches=status.get("patches", 0),
                 p50=status.get("latency_ms_p50", 0), p95=status.get("latency_ms_p95", 0), rss=rss)
+
+
+def hog(duty, stop):
+    """A busy loop for `duty` of one core, in 50 ms periods: a vehicle's computer that does other
+    work (navigation, logging), or a slower hour of this machine."""
+    while not stop.is_set():
+        t = time.monotonic()
+        while time.monotonic() - t < 0.05 * duty:
+            pass
+        time.sleep(0.05 * (1 - duty))
 
 
 def main():
@@ -70,17 +86,26 @@ def main():
     ap.add_argument("--feeds", default=",".join(FEEDS))
     ap.add_argument("--frames", type=int, default=150)
     ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--mosaic-args", default="", help="more switches for mosaic, e.g. '--max-waiting 6'")
+    ap.add_argument("--load", type=float, default=0,
+                    help="a busy loop beside the engine for this fraction of one core (0.5: half a core)")
+    ap.add_argument("--fps", type=float, default=0, help="feed every feed at this rate instead of its own")
     ap.add_argument("--cli", default=os.path.join(ROOT, "build", "rolamos"))
     ap.add_argument("--names", default="")
     ap.add_argument("--out", default=os.path.join(ROOT, "bench", "out", "live"))
     a = ap.parse_args()
     clis = a.cli.split(",")
+    # The load in a process of its own: a thread of this script would share the feeder's lock.
+    stop_load = multiprocessing.Event()
+    if a.load > 0:
+        multiprocessing.Process(target=hog, args=(a.load, stop_load), daemon=True).start()
     names = a.names.split(",") if a.names else [os.path.relpath(c, ROOT) for c in clis]
     lines = ["| feed | build | frames fed | received | registered | rejected | skipped | coverage lost | "
-             "backlog max | latency p50 / p95 ms | peak RSS MB |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "backlog max | patches | latency p50 / p95 ms | peak RSS MB |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in a.feeds.split(","):
         kind, fps = FEEDS[name]
+        fps = a.fps or fps
         frames = sorted(os.path.join(a.spread, kind, "frames", f) for f in os.listdir(os.path.join(a.spread, kind, "frames")))
         frames = frames[: a.frames]
         if not frames:
@@ -88,14 +113,20 @@ def main():
         results = {cli: [] for cli in clis}
         for _ in range(a.runs):
             for n, cli in enumerate(clis):  # interleaved: the machine's speed drifts
-                results[cli].append(one_run(cli, frames, fps, os.path.join(a.out, f"{name}.{n}")))
+                r = one_run(cli, frames, fps, os.path.join(a.out, f"{name}.{n}"), a.mosaic_args.split())
+                results[cli].append(r)
+                # One feed varies between runs of one build: each run, not only the medians.
+                print(f"  {name} {names[n]}: registered {r['registered']}, skipped {r['skipped']}, "
+                      f"coverage lost {r['coverage_lost']}, patches {r['patches']}", flush=True)
         for n, cli in enumerate(clis):
             med = {k: statistics.median(r[k] for r in results[cli]) for k in results[cli][0]}
-            lines.append(f"| {name} ({kind} at {fps} frames/s) | {names[n]} | {len(frames)} | {med['received']:.0f} | "
+            load = f", {a.load:g} core busy beside" if a.load else ""
+            lines.append(f"| {name} ({kind} at {fps:g} frames/s{load}) | {names[n]} | {len(frames)} | {med['received']:.0f} | "
                          f"{med['registered']:.0f} | {med['rejected']:.0f} | {med['skipped']:.0f} | "
-                         f"{med['coverage_lost']:.0f} | {med['backlog']:.0f} | "
+                         f"{med['coverage_lost']:.0f} | {med['backlog']:.0f} | {med['patches']:.0f} | "
                          f"{med['p50']:.0f} / {med['p95']:.0f} | {med['rss']:.0f} |")
             print(lines[-1], flush=True)
+    stop_load.set()
     write_report(lines, os.path.join(a.out, "live.md"))
 
 

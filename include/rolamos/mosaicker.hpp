@@ -199,8 +199,12 @@ struct LiveOptions {
   // the others (network file systems), a file counting once its size held over a listing.
   double poll_s = 0.1;
   // The backlog: frames received and not yet mapped (those being prepared included) are at most
-  // this many; beyond it the oldest waiting frames are skipped, never the newest.
-  int max_waiting = 3;
+  // this many; beyond it the oldest waiting frames are skipped, never the newest. It absorbs the
+  // engine's bursts (a patch closing, a lane join): stills overlap so that a frame skipped breaks
+  // the chain, and with 3 an engine as fast as its feed on average fell behind at each burst and
+  // lost a third to half of a 10 frames/s feed (bench/RESULTS.md, session 12). 12 frames: 1.2 s
+  // at 10 frames/s, 0.4 s at 30, reached only while the engine is behind.
+  int max_waiting = 12;
   // How often the open patch is written for the page (STORE/live/preview.json); 0: never.
   double preview_s = 2.0;
   const std::atomic<bool>* stop = nullptr;  // set (e.g. by SIGINT) to end the run cleanly
