@@ -147,7 +147,7 @@ TEST_F(ExportTest, CogPassesGdalsValidator) {
       test::RunShell("/usr/bin/python3 -c 'import osgeo_utils.samples.validate_cloud_optimized_geotiff'")
               .exit_code != 0)
     GTEST_SKIP() << "python3-gdal not installed";
-  for (Compression c : {Compression::kJpeg, Compression::kZstd}) {
+  for (Compression c : {Compression::kJpeg, Compression::kJpegMask, Compression::kZstd}) {
     CogOptions co;
     co.compression = c;
     const std::string out = dir_ / ("cog-" + CompressionName(c) + ".tif");
@@ -165,7 +165,16 @@ TEST_F(ExportTest, CogPassesGdalsValidator) {
     cv::Mat ref;
     cv::cvtColor(image_(cv::Rect(900, 600, 300, 300)), ref, cv::COLOR_BGRA2BGR);
     if (px.channels() == 4) cv::cvtColor(px, px, cv::COLOR_BGRA2BGR);
-    EXPECT_GE(test::Psnr(px, ref), c == Compression::kZstd ? 99.0 : 30.0);
+    EXPECT_GE(test::Psnr(px, ref), c == Compression::kZstd ? 99.0 : 30.0) << CompressionName(c);
+    // The alpha survives: kept as a band (zstd) or as GDAL's 1-bit mask (JPEG), which reads back
+    // as alpha 0 or 255 where the source's alpha is.
+    EXPECT_TRUE(cog.info().has_alpha) << CompressionName(c);
+    const cv::Mat all = cog.ReadRegion(0, cv::Rect(0, 0, image_.cols, image_.rows));
+    ASSERT_EQ(all.channels(), 4) << CompressionName(c);
+    cv::Mat alpha, want;
+    cv::extractChannel(all, alpha, 3);
+    cv::extractChannel(image_, want, 3);
+    EXPECT_EQ(cv::countNonZero(alpha != want), 0) << CompressionName(c);
   }
 }
 
