@@ -5,8 +5,10 @@ maps them; the run ends when the feed has been idle for a few seconds. Reports, 
 received, registered, rejected and skipped (arrived while the engine was busy), coverage lost
 (skips after which the next frame taken did not join the one before), the most frames waiting
 or in flight at once (the backlog; bound --max-waiting), patches, the latency from arrival to
-integration (p50, p95; STORE/live/status.json), peak RSS. Each run is printed as well as the
-medians: one feed varies from run to run where the engine is about as fast as the feed.
+integration (p50, p95; STORE/live/status.json), frames mapped while the engine shed load, the
+placements' per-patch RMS against the survey's ground truth (bench/eval_mosaic.py), peak RSS.
+Each run is printed as well as the medians: one feed varies from run to run where the engine is
+about as fast as the feed.
 
 The surveys are the spread's (bench/run_engine_spread.py writes them): still frames at 70 %
 overlap fed at 10 frames/s (a stills camera is slower), and camera-rate frames (95 % overlap) fed
@@ -47,7 +49,17 @@ def feed(frames, folder, fps, done):
     done.set()
 
 
-def one_run(cli, frames, fps, work, extra=()):
+def placement_rms(survey, store):
+    """Per-patch RMS against the survey's ground truth (bench/eval_mosaic.py), px."""
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "bench", "eval_mosaic.py"), survey, store],
+                       capture_output=True, text=True)
+    try:
+        return json.loads(r.stdout.strip().splitlines()[-1]).get("rms_px") or 0
+    except (ValueError, IndexError):
+        return 0
+
+
+def one_run(cli, frames, fps, work, extra=(), survey=None):
     shutil.rmtree(work, ignore_errors=True)
     folder, store = os.path.join(work, "incoming"), os.path.join(work, "live.rolamos")
     os.makedirs(folder)
@@ -66,7 +78,8 @@ def one_run(cli, frames, fps, work, extra=()):
     return dict(received=status["frames_received"], registered=status["frames_registered"],
                 rejected=status["frames_rejected"], skipped=status["frames_skipped"],
                 coverage_lost=status.get("coverage_lost", 0), backlog=status.get("backlog_max", 0),
-                patches=status.get("patches", 0),
+                patches=status.get("patches", 0), shedding=status.get("frames_shedding", 0),
+                rms=placement_rms(survey, store) if survey else 0,
                 p50=status.get("latency_ms_p50", 0), p95=status.get("latency_ms_p95", 0), rss=rss)
 
 
@@ -101,8 +114,8 @@ def main():
         multiprocessing.Process(target=hog, args=(a.load, stop_load), daemon=True).start()
     names = a.names.split(",") if a.names else [os.path.relpath(c, ROOT) for c in clis]
     lines = ["| feed | build | frames fed | received | registered | rejected | skipped | coverage lost | "
-             "backlog max | patches | latency p50 / p95 ms | peak RSS MB |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "backlog max | patches | mapped shedding | RMS px | latency p50 / p95 ms | peak RSS MB |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in a.feeds.split(","):
         kind, fps = FEEDS[name]
         fps = a.fps or fps
@@ -113,17 +126,20 @@ def main():
         results = {cli: [] for cli in clis}
         for _ in range(a.runs):
             for n, cli in enumerate(clis):  # interleaved: the machine's speed drifts
-                r = one_run(cli, frames, fps, os.path.join(a.out, f"{name}.{n}"), a.mosaic_args.split())
+                r = one_run(cli, frames, fps, os.path.join(a.out, f"{name}.{n}"), a.mosaic_args.split(),
+                            os.path.join(a.spread, kind))
                 results[cli].append(r)
                 # One feed varies between runs of one build: each run, not only the medians.
                 print(f"  {name} {names[n]}: registered {r['registered']}, skipped {r['skipped']}, "
-                      f"coverage lost {r['coverage_lost']}, patches {r['patches']}", flush=True)
+                      f"coverage lost {r['coverage_lost']}, patches {r['patches']}, mapped shedding {r['shedding']}, "
+                      f"RMS {r['rms']:.2f} px", flush=True)
         for n, cli in enumerate(clis):
             med = {k: statistics.median(r[k] for r in results[cli]) for k in results[cli][0]}
             load = f", {a.load:g} core busy beside" if a.load else ""
             lines.append(f"| {name} ({kind} at {fps:g} frames/s{load}) | {names[n]} | {len(frames)} | {med['received']:.0f} | "
                          f"{med['registered']:.0f} | {med['rejected']:.0f} | {med['skipped']:.0f} | "
-                         f"{med['coverage_lost']:.0f} | {med['backlog']:.0f} | {med['patches']:.0f} | "
+                         f"{med['coverage_lost']:.0f} | {med['backlog']:.0f} | {med['patches']:.0f} | {med['shedding']:.0f} | "
+                         f"{med['rms']:.2f} | "
                          f"{med['p50']:.0f} / {med['p95']:.0f} | {med['rss']:.0f} |")
             print(lines[-1], flush=True)
     stop_load.set()

@@ -65,6 +65,8 @@ static std::string StatusJson(const LiveStatus& st) {
                       {"frames_incomplete", st.frames_incomplete},
                       {"backlog_max", st.backlog_max},
                       {"backlog_bound", st.backlog_bound},
+                      {"frames_shedding", st.frames_shedding},
+                      {"shedding", st.shedding},
                       {"patches", st.patches},
                       {"open_patch", st.open_patch},
                       {"last_frame_time", st.last_frame_time},
@@ -171,8 +173,9 @@ static int RunMosaic(MosaicSwitches s) {
               100.0 * sum.cpu_seconds / std::max(sum.seconds, 1e-9) / std::max(1u, std::thread::hardware_concurrency()),
               std::max(1u, std::thread::hardware_concurrency()), sum.peak_rss_mb);
   if (s.live)
-    std::printf("live: %d frames skipped to keep up, coverage lost after %d of them%s\n", sum.frames_skipped,
-                sum.coverage_lost, g_stop ? "; stopped by a signal, the open patch written" : "");
+    std::printf("live: %d frames skipped to keep up, coverage lost after %d of them, %d mapped while shedding load%s\n",
+                sum.frames_skipped, sum.coverage_lost, sum.frames_shedding,
+                g_stop ? "; stopped by a signal, the open patch written" : "");
   std::string stages;
   for (const auto& [name, sec] : sum.stage_seconds) {
     char b[64];
@@ -223,6 +226,11 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--focal", s->focal_px, "with --navigation: focal length in pixels (default: the camera's)");
   cmd->add_option("--max-waiting", s->live_options.max_waiting,
                   "live: frames waiting or being mapped at once, at most; beyond it the oldest waiting are skipped")
+      ->capture_default_str();
+  cmd->add_option("--shed-overlap", s->live_options.shed_describe_overlap,
+                  "live: while the engine is behind (half the backlog), keyframes are described only when they "
+                  "overlap the last described one less than this, instead of --describe-overlap: frames are "
+                  "mapped faster, at some cost in accuracy, rather than skipped; 1 = never")
       ->capture_default_str();
   cmd->add_option("--preview-interval", s->live_options.preview_s,
                   "live: seconds between previews of the open patch (STORE/live/preview.json; 0 = none)")

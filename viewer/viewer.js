@@ -82,6 +82,7 @@
       (st.coverage_lost ? ' (coverage lost ' + st.coverage_lost + ')' : '') + ', ' +
       st.patches + ' patches' + (st.open_patch ? ', patch ' + st.open_patch + ' open' : '') +
       (st.latency_ms_p50 ? ', latency ' + Math.round(st.latency_ms_p50) + ' ms' : '') +
+      (st.running && st.shedding ? ', behind: fewer keyframes described' : '') +
       (age !== null && st.running ? ', last frame ' + age.toFixed(1) + ' s ago' : '') + ' \u00a0 ';
     if (st.images_served !== state.images.length) {
       const listed = new Set(state.images.map((i) => i.name));

@@ -187,6 +187,7 @@ struct MosaicSummary {
   std::string mask_note;         // what --mask auto found, when used
   int frames_skipped = 0;        // live: frames that arrived and were not mapped (busy, or left at a stop)
   int coverage_lost = 0;         // live: of those skips, the ones after which the thread broke
+  int frames_shedding = 0;       // live: frames mapped while load was shed (LiveOptions::shed_describe_overlap)
   std::string preview_problem;   // live: why the open patch's preview could not be written
 };
 
@@ -205,6 +206,14 @@ struct LiveOptions {
   // lost a third to half of a 10 frames/s feed (bench/RESULTS.md, session 12). 12 frames: 1.2 s
   // at 10 frames/s, 0.4 s at 30, reached only while the engine is behind.
   int max_waiting = 12;
+  // Load shedding (Mosaicker::ShedLoad): while the backlog is at least half its bound, and until
+  // it is down to a quarter, keyframes are described (SIFT) only when they overlap the last
+  // described one less than this (MosaickerOptions::describe_overlap otherwise). Frames are then
+  // mapped faster (every other keyframe described on 70 % stills: 15-27 % more frames a second,
+  // 7-25 % more error per patch, bench/RESULTS.md) rather than skipped, which on stills breaks the
+  // chain of frames; each break costs a search that puts the engine further behind.
+  // 1: never shed.
+  double shed_describe_overlap = 0.5;
   // How often the open patch is written for the page (STORE/live/preview.json); 0: never.
   double preview_s = 2.0;
   const std::atomic<bool>* stop = nullptr;  // set (e.g. by SIGINT) to end the run cleanly
@@ -222,6 +231,10 @@ struct LiveStatus {
   long long frames_incomplete = 0;  // files cut short and never finished (taken as they are)
   int backlog_max = 0;    // the most frames received and not yet mapped at once
   int backlog_bound = 0;  // the most there may be (LiveOptions::max_waiting)
+  // Frames mapped while the engine shed load to keep up (LiveOptions::shed_describe_overlap),
+  // and whether it sheds now.
+  long long frames_shedding = 0;
+  bool shedding = false;
   int patches = 0;             // written by this run
   int open_patch = 0;          // id of the patch being built (0: none)
   double last_frame_time = 0;  // Unix seconds of the newest frame received
@@ -278,6 +291,12 @@ class Mosaicker {
   // a live source's measure of how many frames it may skip without losing ground. Same thread
   // as Integrate.
   double LastStepFraction() const;
+  // Load shedding, for a live run behind its feed: while on, keyframes integrated are described
+  // at `describe_overlap` when that is below MosaickerOptions::describe_overlap (SIFT is most of
+  // a still keyframe's cost). Off: as the options say. (Leaving out the search of the patch image
+  // for frames that cannot be followed as well lost more frames than it saved, session 12.)
+  // Same thread as Integrate. Throws Error when `describe_overlap` is outside (0, 1].
+  void ShedLoad(bool on, double describe_overlap = 0.5);
   // Called (from the writer thread) after each patch is committed to the store.
   void OnPatch(std::function<void(const PatchSidecar&)> callback);
 

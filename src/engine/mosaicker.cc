@@ -183,6 +183,17 @@ struct Mosaicker::Impl {
            (described ? size_t(options.max_features) * 128 * sizeof(float) : 0);
   }
   Placed last;
+  // Load shedding (Mosaicker::ShedLoad): fewer keyframes described.
+  bool shedding = false;
+  double shed_describe_overlap = 0.5;
+  // The camera's frames so far, those a live source skipped included (PreparedFrame::camera_frame).
+  long camera_frames = 0;
+  // Camera frames from the last frame placed to `p` (the `index`-th integrated): the motion
+  // model's gap, which frames a live source skipped widen.
+  int StepsSinceLast(const PreparedFrame& p, int index) const {
+    if (!last.frame) return index - last.index;
+    return static_cast<int>(std::clamp<long>(p.camera_frame - last.frame->camera_frame, 1, 1 << 20));
+  }
   long long next_track = 0;
   int lost = 0;
   // Frames rejected while this patch is open, kept for a second chance against later frames and
@@ -673,9 +684,10 @@ std::vector<OlderKeyframe> Mosaicker::Impl::LinkCandidates(const cv::Matx33d& to
 // as is one whose features were found already, or that rejected frames wait to be tried against.
 bool Mosaicker::Impl::Describes(const PreparedFrame& p, const cv::Matx33d& to_patch, const Candidate* c) const {
   if (!c || !c->tracked() || !c->support.strong || p.features || !pending.empty()) return true;
-  if (options.describe_overlap >= 1.0) return true;
+  const double overlap = shedding ? std::min(options.describe_overlap, shed_describe_overlap) : options.describe_overlap;
+  if (overlap >= 1.0) return true;
   for (auto it = keys.rbegin(); it != keys.rend(); ++it)
-    if (it->described) return FootprintOverlap(to_patch, it->to_patch, frame_size) < options.describe_overlap;
+    if (it->described) return FootprintOverlap(to_patch, it->to_patch, frame_size) < overlap;
   return true;
 }
 
@@ -1074,6 +1086,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   FrameReport r;
   r.index = m.summary.frames++;
   r.source = p->source;
+  p->camera_frame = m.camera_frames += 1 + std::max(0, p->skipped_before);
   auto done = [&](FrameReport rep) {
     rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return rep;
@@ -1112,7 +1125,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
     const auto f = m.FeaturesOf(*p);
     if (f->strong < m.options.min_inliers) return done(m.Lost(p, r, "featureless"));
     if (m.BreakAt(p)) {  // a frame rejected before it opens the patch
-      m.gate->Predict(r.index - m.last.index);
+      m.gate->Predict(m.StepsSinceLast(*p, r.index));
       Impl::Candidate again = m.Track(p, true);
       if (m.Usable(again)) return done(m.Place(p, std::move(again), r, lap));
       m.ClosePatch("lost_tracking");
@@ -1120,7 +1133,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
     m.StartPatch(p, r, std::nullopt);
     return done(r);
   }
-  m.gate->Predict(r.index - m.last.index);
+  m.gate->Predict(m.StepsSinceLast(*p, r.index));
   // 1. Followed from the current keyframe, from where the motion model expects it; again from a
   //    coarse correlation when that failed. (Correlating first saves a second follow on half the
   //    frames of a jittered survey, 3-7 % of the time, but places frames slightly worse: 0.40 ->
@@ -1146,7 +1159,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
                                            : best.ego.failure;
     // The next lane, or the ground after a gap: it may join the frames rejected just before.
     if (m.BreakAt(p)) {
-      m.gate->Predict(r.index - m.last.index);
+      m.gate->Predict(m.StepsSinceLast(*p, r.index));
       Impl::Candidate again = m.Track(p, true);
       if (m.Usable(again)) return done(m.Place(p, std::move(again), r, lap));
     }
@@ -1186,6 +1199,14 @@ LivePreview Mosaicker::Preview(double scale, double max_megapixels, bool image) 
     out.to_previous_first = m.link_to_first;
   }
   return out;
+}
+
+void Mosaicker::ShedLoad(bool on, double describe_overlap) {
+  if (!(describe_overlap > 0 && describe_overlap <= 1.0))
+    Fail("describe overlap while shedding load", std::to_string(describe_overlap) + " must be in (0, 1]");
+  // Read only on this (the integrating) thread, by Describes.
+  impl_->shedding = on;
+  impl_->shed_describe_overlap = describe_overlap;
 }
 
 double Mosaicker::LastStepFraction() const {

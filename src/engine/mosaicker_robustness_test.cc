@@ -14,6 +14,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "engine/static_mask.h"
+#include "rolamos/error.hpp"
 #include "rolamos/global_align.hpp"
 #include "store/frame_data.h"
 #include "rolamos/mosaicker.hpp"
@@ -341,6 +342,44 @@ TEST(MosaickerRobustness, KeyframesBetweenDescribedOnesAreMarkedAndNeverDescribe
   const AlignSummary aligned = AlignStore(reopened, AlignOptions());
   EXPECT_EQ(aligned.frames_described, 0);
   EXPECT_EQ(aligned.frames, 36);
+}
+
+// A live run behind its feed sheds load: while ShedLoad is on, keyframes are described as with
+// describe_overlap 0.5; before and after it, every keyframe is (the options' 1). The placements
+// stay within a pixel of the truth throughout.
+TEST(MosaickerRobustness, ShedLoadDescribesFewerKeyframesOnlyWhileOn) {
+  test::ScratchDir dir;
+  const Survey survey = WriteSurvey(JitteredSurvey(36, 1), dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  Mosaicker m(store, Options());
+  EXPECT_THROW(m.ShedLoad(true, 0.0), Error);
+  for (size_t i = 0; i < survey.frames.size(); ++i) {
+    if (i == 12) m.ShedLoad(true, 0.5);
+    if (i == 24) m.ShedLoad(false);
+    const std::string file = (fs::path(dir / "survey") / survey.frames[i].file).string();
+    const FrameReport r = m.Push(cv::imread(file, cv::IMREAD_COLOR), file);
+    ASSERT_EQ(r.status, "stitched") << file;
+  }
+  const MosaicSummary sum = m.Finish();
+  EXPECT_EQ(sum.stitched, 36);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  int undescribed_before = 0, undescribed_while = 0, undescribed_after = 0, keyframes_while = 0;
+  for (const auto& p : reopened.patches()) {
+    const PatchSidecar s = reopened.ReadSidecar(p.id);
+    for (const auto& f : s.frames) {
+      if (!f.is_keyframe()) continue;
+      const int at = f.index;
+      // The frame integrated just before the switch decides on its own keyframe's description.
+      if (at < 12) undescribed_before += !f.is_described();
+      else if (at >= 13 && at < 24) undescribed_while += !f.is_described(), ++keyframes_while;
+      else if (at >= 25) undescribed_after += !f.is_described();
+    }
+    EXPECT_LT(PatchRms(s, survey), 1.0) << "patch " << p.id;
+  }
+  EXPECT_EQ(undescribed_before, 0);
+  EXPECT_EQ(undescribed_after, 0);
+  EXPECT_GE(keyframes_while, 8) << "stills at 70 % overlap: nearly every frame a keyframe";
+  EXPECT_GE(undescribed_while, keyframes_while / 3) << "of " << keyframes_while << " keyframes while shedding";
 }
 
 }  // namespace

@@ -27,6 +27,11 @@ struct PreparedFrame {
   // Set before they are found: frames were followed into this keyframe before it (video), so
   // it is described by MosaickerOptions::followed_max_features.
   bool followed_features = false;
+  // Camera frames skipped just before this one (a live source that could not keep up; 0 in a
+  // survey): the motion model predicts over them. Set before Integrate.
+  int skipped_before = 0;
+  // Its number among the camera's frames (skipped ones counted), set by Integrate.
+  long camera_frame = 0;
 };
 
 }  // namespace rolamos

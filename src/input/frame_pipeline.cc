@@ -18,6 +18,7 @@
 #include "input/live_preview.h"
 #include "input/live_source.h"
 #include "input/live_status.h"
+#include "input/load_shedding.h"
 #include "engine/prepared_frame.h"
 #include "engine/self_calibration.h"
 #include "engine/preprocess.h"
@@ -218,6 +219,7 @@ double RunPipeline(FrameSource* source, Mosaicker& mosaicker,
           if (on_taken) on_taken(index);
         }
         auto prepared = mosaicker.Prepare(f.image, f.source, f.error);
+        if (prepared) prepared->skipped_before = f.skipped_before;
         std::lock_guard<std::mutex> lock(mutex);
         ready[index] = std::move(prepared);
         changed.notify_all();
@@ -383,6 +385,9 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
   Mosaicker mosaicker(store, options);
   PreviewOffers preview(dir, live.preview_s);
   mosaicker.OnPatch([&](const PatchSidecar&) { status.PatchWritten(); });
+  // Behind the feed, the engine describes fewer keyframes rather than skip frames.
+  LoadShedding shed(live.max_waiting);
+  const bool can_shed = live.shed_describe_overlap < 1.0;
   double decode = 0;
   MosaicSummary summary;
   try {
@@ -390,7 +395,10 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
         &feed, mosaicker,
         [&](const FrameReport& r, int total) {
           --in_flight;
-          status.Mapped(r, mosaicker.LastStepFraction());
+          const bool was_shedding = shed.on();
+          if (can_shed && shed.Update(source->counters().waiting + static_cast<int>(in_flight)) != was_shedding)
+            mosaicker.ShedLoad(shed.on(), live.shed_describe_overlap);
+          status.Mapped(r, mosaicker.LastStepFraction(), was_shedding, shed.on());
           preview.After(r, mosaicker);
           if (on_frame) on_frame(r, total);
         },
@@ -415,6 +423,7 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
   summary.mask_note = mask_note;
   summary.frames_skipped = static_cast<int>(source->counters().skipped);
   summary.coverage_lost = static_cast<int>(status.coverage_lost());
+  summary.frames_shedding = static_cast<int>(status.frames_shedding());
   return summary;
 }
 

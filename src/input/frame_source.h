@@ -15,6 +15,9 @@ struct InputFrame {
   std::string source;  // file name, or "video.mp4#frame" for video frames
   cv::Mat image;       // BGR 8-bit; empty when unreadable
   std::string error;
+  // Live: frames of the camera the source skipped just before this one (to keep up): the
+  // vehicle moved that many frames' steps more since the frame before it.
+  int skipped_before = 0;
 };
 
 class FrameSource {

@@ -9,6 +9,7 @@
 #include <mutex>
 #include <set>
 #include <thread>
+#include <tuple>
 
 #if defined(__linux__)
 #include <poll.h>
@@ -37,6 +38,10 @@ bool LiveOptions::IsValid(std::string* error) const {
   }
   if (max_waiting < 1) {
     *error = "frames allowed to wait must be at least 1";
+    return false;
+  }
+  if (!(shed_describe_overlap > 0 && shed_describe_overlap <= 1)) {
+    *error = "describe overlap while shedding load " + std::to_string(shed_describe_overlap) + " must be in (0, 1]";
     return false;
   }
   if (!(preview_s >= 0)) {
@@ -77,9 +82,10 @@ class GrowingFolderSource : public LiveSource {
       if (!ready_.empty()) {
         Thin(&ready_, options_.max_waiting);
         NoteBacklog(ready_.size());
-        const auto [path, arrived] = ready_.front();
+        const auto [path, arrived, seq] = ready_.front();
         ready_.pop_front();
         f->index = index_++;
+        f->skipped_before = SkippedBefore(seq);
         Took();
         f->source = path;
         f->error.clear();
@@ -195,7 +201,7 @@ class GrowingFolderSource : public LiveSource {
         continue;
       }
       last_ = p;
-      ready_.emplace_back(p, now);
+      ready_.emplace_back(p, now, next_seq_++);
     }
   }
 
@@ -208,7 +214,9 @@ class GrowingFolderSource : public LiveSource {
   std::map<std::string, std::chrono::steady_clock::time_point> unchanged_since_;  // and since when
   static constexpr double kAbandonedS = 3.0;
   std::set<std::string> taken_;
-  std::deque<std::pair<std::string, std::chrono::steady_clock::time_point>> ready_;
+  // Complete frames waiting: path, arrival, and their number in the order they came.
+  std::deque<std::tuple<std::string, std::chrono::steady_clock::time_point, long long>> ready_;
+  long long next_seq_ = 0;
   std::string last_;
   int index_ = 0;
 };
@@ -254,9 +262,10 @@ class StreamSource : public LiveSource {
     }
     Thin(&shared_->frames, options_.max_waiting);
     NoteBacklog(shared_->frames.size());
-    auto [image, arrived] = std::move(shared_->frames.front());
+    auto [image, arrived, seq] = std::move(shared_->frames.front());
     shared_->frames.pop_front();
     f->index = index_++;
+    f->skipped_before = SkippedBefore(seq);
     Took();
     f->source = name_ + "#" + std::to_string(f->index);
     f->error.clear();
@@ -270,7 +279,9 @@ class StreamSource : public LiveSource {
     cv::VideoCapture cap;
     std::mutex mutex;
     std::condition_variable changed;
-    std::deque<std::pair<cv::Mat, std::chrono::steady_clock::time_point>> frames;
+    // Frames waiting: image, arrival, and their number in the order they came.
+    std::deque<std::tuple<cv::Mat, std::chrono::steady_clock::time_point, long long>> frames;
+    long long next_seq = 0;
     const std::atomic<bool>* stop = nullptr;
     int max_waiting = 1;
     StreamSource* source = nullptr;  // set while the source lives (its counters)
@@ -298,7 +309,7 @@ class StreamSource : public LiveSource {
         ++s->source->counters_.received;
         s->source->counters_.last_arrival = UnixNow();
       }
-      s->frames.emplace_back(m, std::chrono::steady_clock::now());
+      s->frames.emplace_back(m, std::chrono::steady_clock::now(), s->next_seq++);
       // Frames keep arriving while nothing takes them: the backlog stays within the bound.
       if (s->source) s->source->Thin(&s->frames, s->max_waiting);
       if (s->source) s->source->NoteBacklog(s->frames.size());
@@ -349,8 +360,15 @@ bool LiveSource::StopWith(size_t waiting) {
   return false;
 }
 
+int LiveSource::SkippedBefore(long long seq) {
+  const long long skipped = last_seq_ < 0 ? 0 : std::max(0LL, seq - last_seq_ - 1);
+  last_seq_ = seq;
+  return static_cast<int>(std::min<long long>(skipped, 1 << 20));
+}
+
 void LiveSource::Took() {
   run_ = 0;
+  --counters_.waiting;  // the frame taken was among those NoteBacklog counted
   if (in_flight_) ++*in_flight_;
   int left = catch_up_.load();
   while (left > 0 && !catch_up_.compare_exchange_weak(left, left - 1)) {
@@ -360,6 +378,7 @@ void LiveSource::Took() {
 void LiveSource::NoteBacklog(size_t waiting) {
   const long in_flight = in_flight_ ? std::max(0L, in_flight_->load()) : 0;
   const int backlog = static_cast<int>(in_flight + static_cast<long>(waiting));
+  counters_.waiting = static_cast<int>(waiting);
   if (catch_up_ > 0 && backlog > options_max_waiting_) return;  // catching up: beyond the bound by design
   int seen = counters_.backlog_max.load();
   while (backlog > seen && !counters_.backlog_max.compare_exchange_weak(seen, backlog)) {

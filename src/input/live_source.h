@@ -38,6 +38,9 @@ struct LiveCounters {
   // The most frames kept for mapping at once (waiting, and taken but not yet mapped), counted
   // after the skipping: never more than LiveOptions::max_waiting.
   std::atomic<int> backlog_max{0};
+  // Frames waiting here now (after the skipping), as last counted: with those in flight, the
+  // backlog the engine is behind by.
+  std::atomic<int> waiting{0};
 };
 
 class LiveSource : public FrameSource {
@@ -91,6 +94,9 @@ class LiveSource : public FrameSource {
   void NoteBacklog(size_t waiting);
   // A frame taken (the catch-up counts down).
   void Took();
+  // For the frame taken that came `seq`-th (0, 1, ... in the order frames arrived): how many
+  // that came between it and the frame taken before were skipped.
+  int SkippedBefore(long long seq);
   // Ends the source on a stop: the `waiting` frames are counted as skipped. Returns false.
   bool StopWith(size_t waiting);
 
@@ -100,6 +106,7 @@ class LiveSource : public FrameSource {
   std::atomic<int> catch_up_{0};
   std::atomic<int> max_gap_{0};
   int run_ = 0;  // frames skipped since the last one taken (under the source's own lock)
+  long long last_seq_ = -1;  // arrival number of the frame taken last
   bool stopped_ = false;
   int options_max_waiting_ = 1;  // set by the sources: LiveOptions::max_waiting
 };

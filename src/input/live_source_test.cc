@@ -10,6 +10,7 @@ class Rule : public LiveSource {
  public:
   bool Next(InputFrame*) override { return false; }
   using LiveSource::Keep;
+  using LiveSource::SkippedBefore;
 };
 
 std::vector<int> Kept(const Rule& rule, size_t waiting, int max_waiting) {
@@ -40,6 +41,16 @@ TEST(LiveSourceKeep, SteppingStonesAtTheVehiclesSpeed) {
   EXPECT_EQ(Kept(rule, 10, 3), (std::vector<int>{7, 8, 9}));
   rule.SetMaxGap(2);  // too little room to keep the thread: as far as the room goes, and the newest
   EXPECT_EQ(Kept(rule, 10, 3), (std::vector<int>{1, 3, 9}));
+}
+
+// Each frame taken says how many came between it and the frame taken before (the engine's motion
+// model predicts over them); frames skipped before the first one precede nothing.
+TEST(LiveSourceKeep, FramesTakenCountTheSkippedBeforeThem) {
+  Rule rule;
+  EXPECT_EQ(rule.SkippedBefore(3), 0);
+  EXPECT_EQ(rule.SkippedBefore(4), 0);
+  EXPECT_EQ(rule.SkippedBefore(7), 2);
+  EXPECT_EQ(rule.SkippedBefore(8), 0);
 }
 
 // A pilot's udpsrc gets a receive buffer that outlasts a pause of the computer; one the pilot

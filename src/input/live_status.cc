@@ -81,8 +81,10 @@ void LiveStatusKeeper::Taken(long index, std::chrono::steady_clock::time_point a
   arrivals_[index] = arrived;
 }
 
-void LiveStatusKeeper::Mapped(const FrameReport& r, double step) {
+void LiveStatusKeeper::Mapped(const FrameReport& r, double step, bool shedding, bool shed_next) {
   std::lock_guard<std::mutex> lock(mutex_);
+  status_.frames_shedding += shedding;
+  status_.shedding = shed_next;
   const auto now = std::chrono::steady_clock::now();
   if (auto it = arrivals_.find(mapped_); it != arrivals_.end()) {
     latencies_.push_back(1e3 * std::chrono::duration<double>(now - it->second).count());
@@ -116,10 +118,16 @@ void LiveStatusKeeper::Finish(const MosaicSummary& summary) {
   StopHeartbeat();
   std::lock_guard<std::mutex> lock(mutex_);
   finished_ = true;
+  status_.shedding = false;
   status_.open_patch = 0;
   status_.frames_registered = summary.stitched;
   status_.frames_rejected = summary.rejected;
   Report(false);
+}
+
+long long LiveStatusKeeper::frames_shedding() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return status_.frames_shedding;
 }
 
 long LiveStatusKeeper::mapped() const {

@@ -33,8 +33,9 @@ class LiveStatusKeeper {
   // The `index`-th frame of the run was handed to the engine; it arrived at `arrived`.
   void Taken(long index, std::chrono::steady_clock::time_point arrived);
   // The engine placed or rejected the next frame in order; `step` is Mosaicker::LastStepFraction
-  // after it (the vehicle's step between frames, as a fraction of the frame).
-  void Mapped(const FrameReport& r, double step);
+  // after it (the vehicle's step between frames, as a fraction of the frame); `shedding`: the
+  // frame was mapped while load was shed, and `shed_next` whether it is for the frames after it.
+  void Mapped(const FrameReport& r, double step, bool shedding = false, bool shed_next = false);
   void PatchWritten();
   // The run ended: the engine's own counts (frames rejected at first and placed later count as
   // placed) and a last status that is not running. The heartbeat stops first. A keeper gone
@@ -44,6 +45,7 @@ class LiveStatusKeeper {
   long mapped() const;
   int patches() const;
   long long coverage_lost() const;
+  long long frames_shedding() const;
 
  private:
   void Report(bool running);  // under mutex_
