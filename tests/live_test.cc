@@ -51,6 +51,20 @@ nlohmann::json Status(const fs::path& store) {
   return nlohmann::json::parse(in);
 }
 
+// Live settings out of range are refused with what is wrong, before the store is made.
+TEST(LiveSettings, BadOnesAreRefusedAndLeaveNoStore) {
+  test::ScratchDir dir;
+  fs::create_directories(dir / "incoming");
+  for (const std::string& bad : {std::string("--max-waiting 0"), std::string("--shed-overlap 0")}) {
+    const std::string store = dir / "live.rolamos";
+    auto r = test::RunCli("mosaic -q " + (dir / "incoming") + " -o " + store + " --live --idle-timeout 1 " + bad);
+    EXPECT_NE(r.exit_code, 0) << bad;
+    EXPECT_NE(r.output.find(bad.find("waiting") != std::string::npos ? "frames allowed to wait" : "shedding load"),
+              std::string::npos) << r.output;
+    EXPECT_FALSE(fs::exists(store)) << bad;
+  }
+}
+
 class LiveTest : public testing::Test {
  protected:
   void SetUp() override {
