@@ -387,7 +387,9 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
   mosaicker.OnPatch([&](const PatchSidecar&) { status.PatchWritten(); });
   // Behind the feed, the engine describes fewer keyframes rather than skip frames.
   LoadShedding shed(live.max_waiting);
-  const bool can_shed = live.shed_describe_overlap < 1.0;
+  // Only where it describes fewer than the options do: otherwise nothing would be shed, and the
+  // status would say it was.
+  const bool can_shed = live.shed_describe_overlap < options.describe_overlap;
   double decode = 0;
   MosaicSummary summary;
   try {
