@@ -262,6 +262,10 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
       ->capture_default_str();
   cmd->add_option("--track-points", o.track_points, "points a keyframe hands on to the frames after it")
       ->capture_default_str();
+  cmd->add_option("--track-turn", o.track_turn_deg,
+                  "a frame turned more than this many degrees from the one it is followed from is followed in a "
+                  "copy turned back (0 = never)")
+      ->capture_default_str();
   cmd->add_option("--keyframe-overlap", o.keyframe_overlap,
                   "a frame that overlaps the last keyframe less than this becomes a keyframe (adjusted with the "
                   "patch's others, its features stored); 1 = every frame")

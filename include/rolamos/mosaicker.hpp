@@ -49,6 +49,9 @@ struct MosaickerOptions {
   // least once unless the frame holds less than 0.4 of it: 480 x 360 at full size).
   double track_pixels = 0.6e6;
   int track_points = 300;       // points a keyframe hands on
+  // A frame turned more than this (degrees) from the frame it is followed from is followed in a
+  // copy warped back by the predicted motion (Lucas-Kanade's windows do not turn). 0 = never.
+  double track_turn_deg = 2.0;
   // A frame becomes a keyframe (adjusted with the patch's others, its features stored) when its
   // overlap with the last keyframe falls below this, when the next frame is predicted to fall
   // below keyframe_min_overlap, when the registration is doubtful or came from recovery, or when

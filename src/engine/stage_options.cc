@@ -58,6 +58,7 @@ TrackerOptions ToTrackerOptions(const MosaickerOptions& o) {
   TrackerOptions t;
   t.track_pixels = o.track_pixels;
   t.max_points = o.track_points;
+  t.turn_deg = o.track_turn_deg;
   return t;
 }
 

@@ -30,6 +30,10 @@ bool TrackerOptions::IsValid(std::string* error) const {
     *error = "tracker thresholds must be positive (corner quality below 1)";
     return false;
   }
+  if (!(turn_deg >= 0 && turn_deg <= 180)) {
+    *error = "tracking turn " + std::to_string(turn_deg) + " degrees is outside 0..180";
+    return false;
+  }
   return true;
 }
 
@@ -58,6 +62,11 @@ cv::Point2f ToFull(cv::Point2f q, double s) {
 }
 cv::Matx33d ScaleMap(double s) {  // full -> tracking
   return cv::Matx33d(s, 0, 0.5 * (s - 1), 0, s, 0.5 * (s - 1), 0, 0, 1);
+}
+
+// The turn of a homography about the view axis, degrees (of its upper-left 2 x 2's rotation).
+double TurnDegrees(const cv::Matx33d& H) {
+  return std::abs(std::atan2(H(1, 0) - H(0, 1), H(0, 0) + H(1, 1))) * 180 / CV_PI;
 }
 
 cv::Point2f Apply(const cv::Matx33d& H, cv::Point2f p) {
@@ -212,11 +221,27 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
   const cv::TermCriteria until(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, options_.max_iterations,
                                options_.min_step_px);
   constexpr double kMinEigen = 1e-4;
+  // Turned: followed in `to` warped back onto `from` (where the guess puts every point in place).
+  std::vector<cv::Mat> turned;
+  const std::vector<cv::Mat>* target = &to.pyramid;
+  if (options_.turn_deg > 0 && TurnDegrees(G) > options_.turn_deg) {
+    cv::Mat warped;
+    cv::warpPerspective(to.pyramid[0], warped, cv::Mat(G), from.pyramid[0].size(),
+                        cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
+    cv::buildOpticalFlowPyramid(warped, turned, win, options_.levels, true);
+    target = &turned;
+    b = a;
+  }
   if (windows) {
     if (!*windows) *windows = PrepareLucasKanade(from.pyramid, a, win, options_.levels, kMinEigen);
-    FollowLucasKanade(**windows, from.pyramid, to.pyramid, a, &b, &forward, until);
+    FollowLucasKanade(**windows, from.pyramid, *target, a, &b, &forward, until);
   } else {
-    FollowLucasKanade(from.pyramid, to.pyramid, a, &b, &forward, win, options_.levels, until, kMinEigen);
+    FollowLucasKanade(from.pyramid, *target, a, &b, &forward, win, options_.levels, until, kMinEigen);
+  }
+  std::vector<cv::Point2f> b_turned;
+  if (target == &turned) {
+    b_turned = b;
+    for (auto& q : b) q = Apply(G, q);
   }
   // Back only from where the forward pass landed on usable ground: the others are lost anyway.
   const cv::Size t = to.pyramid[0].size();
@@ -228,12 +253,12 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
     const bool overlay = inside && !to.usable.empty() && !to.usable.at<uchar>(cv::Point(b[i]));
     if (!forward[i] || !inside || overlay) continue;
     landed.push_back(i);
-    from_b.push_back(b[i]);
+    from_b.push_back(target == &turned ? b_turned[i] : b[i]);
     to_a.push_back(a[i]);
   }
   if (landed.empty()) return flow;
   std::vector<cv::Point2f> back = to_a;
-  FollowLucasKanade(to.pyramid, from.pyramid, from_b, &back, &backward, win, options_.levels, until, kMinEigen);
+  FollowLucasKanade(*target, from.pyramid, from_b, &back, &backward, win, options_.levels, until, kMinEigen);
   for (size_t k = 0; k < landed.size(); ++k) {
     const float dx = back[k].x - to_a[k].x, dy = back[k].y - to_a[k].y;
     flow.ok[landed[k]] = backward[k] && dx * dx + dy * dy <= options_.max_fb_px * options_.max_fb_px;
