@@ -8,6 +8,7 @@
 #include <opencv2/video/tracking.hpp>
 
 #include "engine/lucas_kanade.h"
+#include "engine/motion_gate.h"
 #include "rolamos/error.hpp"
 
 namespace rolamos {
@@ -62,11 +63,6 @@ cv::Point2f ToFull(cv::Point2f q, double s) {
 }
 cv::Matx33d ScaleMap(double s) {  // full -> tracking
   return cv::Matx33d(s, 0, 0.5 * (s - 1), 0, s, 0.5 * (s - 1), 0, 0, 1);
-}
-
-// The turn of a homography about the view axis, degrees (of its upper-left 2 x 2's rotation).
-double TurnDegrees(const cv::Matx33d& H) {
-  return std::abs(std::atan2(H(1, 0) - H(0, 1), H(0, 0) + H(1, 1))) * 180 / CV_PI;
 }
 
 cv::Point2f Apply(const cv::Matx33d& H, cv::Point2f p) {
@@ -224,7 +220,8 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
   // Turned: followed in `to` warped back onto `from` (where the guess puts every point in place).
   std::vector<cv::Mat> turned;
   const std::vector<cv::Mat>* target = &to.pyramid;
-  if (options_.turn_deg > 0 && TurnDegrees(G) > options_.turn_deg) {
+  if (options_.turn_deg > 0 &&
+      std::abs(MotionOf(G, from.pyramid[0].size()).rotation) * 180 / CV_PI > options_.turn_deg) {
     cv::Mat warped;
     cv::warpPerspective(to.pyramid[0], warped, cv::Mat(G), from.pyramid[0].size(),
                         cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
@@ -238,22 +235,22 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
   } else {
     FollowLucasKanade(from.pyramid, *target, a, &b, &forward, win, options_.levels, until, kMinEigen);
   }
-  std::vector<cv::Point2f> b_turned;
-  if (target == &turned) {
-    b_turned = b;
-    for (auto& q : b) q = Apply(G, q);
-  }
+  // Where the points landed in `to` (`b` is in the target's pixels, which are `from`'s if turned).
+  std::vector<cv::Point2f> in_to = b;
+  if (target == &turned)
+    for (auto& q : in_to) q = Apply(G, q);
   // Back only from where the forward pass landed on usable ground: the others are lost anyway.
   const cv::Size t = to.pyramid[0].size();
   std::vector<size_t> landed;
   std::vector<cv::Point2f> from_b, to_a;
   for (size_t i = 0; i < points.size(); ++i) {
-    flow.to[i] = ToFull(b[i], to.scale);
-    const bool inside = b[i].x >= 0 && b[i].y >= 0 && b[i].x <= t.width - 1 && b[i].y <= t.height - 1;
-    const bool overlay = inside && !to.usable.empty() && !to.usable.at<uchar>(cv::Point(b[i]));
+    flow.to[i] = ToFull(in_to[i], to.scale);
+    const cv::Point2f q = in_to[i];
+    const bool inside = q.x >= 0 && q.y >= 0 && q.x <= t.width - 1 && q.y <= t.height - 1;
+    const bool overlay = inside && !to.usable.empty() && !to.usable.at<uchar>(cv::Point(q));
     if (!forward[i] || !inside || overlay) continue;
     landed.push_back(i);
-    from_b.push_back(target == &turned ? b_turned[i] : b[i]);
+    from_b.push_back(b[i]);
     to_a.push_back(a[i]);
   }
   if (landed.empty()) return flow;
