@@ -99,6 +99,7 @@ py::dict SummaryDict(const MosaicSummary& s) {
   d["rest_cpu_seconds"] = s.RestCpuSeconds();  // CPU no stage names (OpenCV's helper threads)
   d["calibration_note"] = s.calibration_note;
   d["mask_note"] = s.mask_note;
+  d["track_scale"] = s.track_scale;  // frames followed at this fraction of their size
   return d;
 }
 

@@ -190,7 +190,11 @@ static int RunMosaic(MosaicSwitches s) {
     std::snprintf(b, sizeof b, ", rest %.0f ms", 1000.0 * sum.RestCpuSeconds() / std::max(1, sum.frames));
     stages += b;
   }
-  std::printf("per frame (CPU, all threads): %s\n", stages.c_str());
+  std::string followed;
+  if (sum.track_scale > 0)
+    followed = sum.track_scale >= 1 ? "; followed at full size"
+                                    : "; followed at 1/" + std::to_string(std::lround(1 / sum.track_scale)) + " size";
+  std::printf("per frame (CPU, all threads%s): %s\n", followed.c_str(), stages.c_str());
   std::string per_key;
   for (const auto& [name, sec] : sum.stage_seconds) {
     if (std::find(sum.keyframe_stages.begin(), sum.keyframe_stages.end(), name) == sum.keyframe_stages.end()) continue;
@@ -257,8 +261,12 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
   cmd->add_flag("--no-temporal", s->no_temporal, "skip the temporal filter");
   cmd->add_flag("--no-clahe", s->no_clahe, "no contrast normalisation of the detection image");
   cmd->add_option("--track-pixels", o.track_pixels,
-                  "frames are followed (Lucas-Kanade) halved until they hold at most this many pixels, at least once "
-                  "unless they hold less than 0.4 of it")
+                  "frames are followed (Lucas-Kanade) halved until they hold at most this many pixels")
+      ->capture_default_str();
+  cmd->add_option("--track-halve", o.track_halve,
+                  "halve frames for following at least once all the same: always (video codecs), never (stills), "
+                  "auto (always for a video file or stream)")
+      ->check(CLI::IsMember({"auto", "always", "never"}))
       ->capture_default_str();
   cmd->add_option("--track-points", o.track_points, "points a keyframe hands on to the frames after it")
       ->capture_default_str();

@@ -45,9 +45,14 @@ struct MosaickerOptions {
   // (forward and backward), the homography and the paper's F-RANSAC / bilateral check fitted to
   // the tracks; features (SIFT) are found only on keyframes (stored for the global map) and for
   // recovery.
-  // Frames are followed halved until the tracking image holds at most this many pixels (at
-  // least once unless the frame holds less than 0.4 of it: 480 x 360 at full size).
+  // Frames are followed halved until the tracking image holds at most this many pixels.
   double track_pixels = 0.6e6;
+  // Frames halved at least once all the same (unless under 0.4 of track_pixels): "always" (frames
+  // from a video codec: its blocks and lost detail are followed better over twice the ground,
+  // and a quarter of the pyramid), "never" (stills: their fine detail places them better), or
+  // "auto": always for a video file or stream, never for images (MosaicInput and MosaicLive
+  // decide from the input; frames pushed one by one count as images).
+  std::string track_halve = "auto";
   int track_points = 300;       // points a keyframe hands on
   // A frame turned more than this (degrees) from the frame it is followed from is followed in a
   // copy warped back by the predicted motion (Lucas-Kanade's windows do not turn). 0 = never.
@@ -188,6 +193,9 @@ struct MosaicSummary {
   double RestCpuSeconds() const;
   std::string calibration_note;  // what --calibration auto found, when used
   std::string mask_note;         // what --mask auto found, when used
+  // Frames were followed (Lucas-Kanade) at this fraction of their size (MosaickerOptions::
+  // track_pixels, track_halve); 0 before the first frame.
+  double track_scale = 0;
   int frames_skipped = 0;        // live: frames that arrived and were not mapped (busy, or left at a stop)
   int coverage_lost = 0;         // live: of those skips, the ones after which the thread broke
   int frames_shedding = 0;       // live: frames mapped while load was shed (LiveOptions::shed_describe_overlap)

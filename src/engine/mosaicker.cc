@@ -52,6 +52,10 @@ bool MosaickerOptions::IsValid(std::string* error) const {
       !ToPreprocessOptions(*this).IsValid(error) || !ToEccOptions(*this).IsValid(error) ||
       !ToTrackerOptions(*this).IsValid(error))
     return false;
+  if (track_halve != "auto" && track_halve != "always" && track_halve != "never") {
+    *error = "tracking halving \"" + track_halve + "\" is none of auto, always, never";
+    return false;
+  }
   if (!(keyframe_overlap > 0.1 && keyframe_overlap <= 1.0) ||
       !(keyframe_min_overlap > 0.05 && keyframe_min_overlap <= keyframe_overlap)) {
     *error = "keyframe overlap " + std::to_string(keyframe_overlap) + " must be in (0.1, 1] and the minimum " +
@@ -327,6 +331,7 @@ struct Mosaicker::Impl {
 void Mosaicker::Impl::InitCamera(cv::Size size) {
   frame_size = size;
   K = pre.CameraMatrix(size);
+  summary.track_scale = tracker.options().ScaleFor(size);
   cv::Mat w = FeatherWeights(size, options.feather_sigma);
   if (!usable.empty() && usable.size() == size) w.setTo(0, usable == 0);  // overlays never blend
   weights = std::make_shared<const FeatherCode>(w);
@@ -781,8 +786,10 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
     keys.push_back(std::move(key));
     last = Placed{keys.back().index, to_patch, p, true, {}, blend};
   }
-  // Keyframes behind the recent ones are not followed from again: their pyramids go.
+  // Keyframes behind the recent ones are not followed from again: their pyramids go, also from
+  // the frame their job may still hold (it reads the image and features, never the pyramid).
   if (keys.size() > 3) {
+    if (keys[keys.size() - 4].frame) keys[keys.size() - 4].frame->track.reset();
     keys[keys.size() - 4].frame.reset();
     keys[keys.size() - 4].windows.reset();
   }

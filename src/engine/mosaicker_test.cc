@@ -220,15 +220,28 @@ TEST(Mosaicker, ReadsVideoAndFrameLists) {
   }
   video.release();
   list.close();
+  // A video codec's frames are followed halved (track_halve "auto"), stills at full size, when
+  // the frame holds no more than track_pixels and at least 0.4 of it.
+  MosaickerOptions o = FastOptions();
+  o.track_pixels = 0.3e6;
   Store from_video = Store::Create(dir / "v.rolamos");
-  MosaicSummary v = MosaicInput(dir / "dive.avi", from_video, FastOptions());
+  MosaicSummary v = MosaicInput(dir / "dive.avi", from_video, o);
   EXPECT_EQ(v.frames, 16);
   EXPECT_GE(v.stitched, 15);
+  EXPECT_EQ(v.track_scale, 0.5);
   EXPECT_EQ(Store::Open(dir / "v.rolamos").ReadSidecar(1).frames[3].source, "dive.avi#3");
   // ...and as a list of files relative to the list.
   Store from_list = Store::Create(dir / "l.rolamos");
-  MosaicSummary l = MosaicInput(dir / "frames.txt", from_list, FastOptions());
+  MosaicSummary l = MosaicInput(dir / "frames.txt", from_list, o);
   EXPECT_EQ(l.stitched, 16);
+  EXPECT_EQ(l.track_scale, 1.0);
+  // Asked for, either way whatever the input.
+  o.track_halve = "never";
+  Store video_full = Store::Create(dir / "vf.rolamos");
+  EXPECT_EQ(MosaicInput(dir / "dive.avi", video_full, o).track_scale, 1.0);
+  o.track_halve = "always";
+  Store list_halved = Store::Create(dir / "lh.rolamos");
+  EXPECT_EQ(MosaicInput(dir / "frames.txt", list_halved, o).track_scale, 0.5);
 }
 
 TEST(Mosaicker, AutoCalibrationIsEstimatedAndKeptInTheStore) {
@@ -257,6 +270,10 @@ TEST(Mosaicker, ImpossibleOptionsAndInputsAreRefused) {
   o = MosaickerOptions{};
   o.blend_overlap = 0;
   EXPECT_NE(test::ErrorOf([&] { Mosaicker(store, o); }).find("blend overlap"), std::string::npos);
+  o = MosaickerOptions{};
+  o.track_halve = "sometimes";
+  EXPECT_NE(test::ErrorOf([&] { Mosaicker(store, o); }).find("\"sometimes\" is none of auto, always, never"),
+            std::string::npos);
   o = MosaickerOptions{};
   o.calibration = dir / "missing.yml";
   EXPECT_THROW(Mosaicker(store, o), Error);

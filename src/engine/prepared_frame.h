@@ -17,6 +17,8 @@ struct PreparedFrame {
   std::string source, error;
   cv::Size size;
   cv::Mat image;  // BGR 8-bit, undistorted, not yet smoothed (only blended frames are)
+  // Released by the engine's thread once the frame is no longer followed from or into (a
+  // keyframe behind the recent ones); the keyframe job that may still hold the frame never reads it.
   std::shared_ptr<const TrackFrame> track;
   // SIFT features: found when first needed (keyframes, recovery), once, by whoever asks first.
   std::once_flag features_once;

@@ -59,6 +59,8 @@ TrackerOptions ToTrackerOptions(const MosaickerOptions& o) {
   t.track_pixels = o.track_pixels;
   t.max_points = o.track_points;
   t.turn_deg = o.track_turn_deg;
+  // "auto" is decided by the input before the engine; frames pushed to it count as images.
+  t.halve_once = o.track_halve == "always";
   return t;
 }
 

@@ -39,16 +39,13 @@ bool TrackerOptions::IsValid(std::string* error) const {
 }
 
 double TrackerOptions::ScaleFor(cv::Size frame) const {
-  // Halved (exact 2 x 2 averages) until the tracking image holds at most `track_pixels`, and
-  // at least once unless the frame is small (under 0.4 of it): a 21-pixel window then spans ~40
-  // frame pixels of ground, which follows dim, noisy or compressed texture better than a
-  // full-size window does (800 x 600: 0.16 instead of 0.20 px on JPEG frames, 0.55 instead of
-  // 0.69 px on MPEG-4 video; 640 x 480 under heavy noise: 1.1 instead of 2.4 px per patch),
-  // while a quarter-size image follows 1920 x 1080 frames too coarsely (0.22 against 0.11 px).
-  double area = std::max(1.0, double(frame.area()));
-  if (area < 0.4 * track_pixels) return 1.0;
-  double scale = 0.5;
-  for (area /= 4; area > track_pixels; area /= 4) scale /= 2;
+  // Exact 2 x 2 averages.
+  double area = std::max(1.0, double(frame.area())), scale = 1.0;
+  if (halve_once && area >= 0.4 * track_pixels) {
+    scale = 0.5;
+    area /= 4;
+  }
+  for (; area > track_pixels; area /= 4) scale /= 2;
   return scale;
 }
 

@@ -16,10 +16,16 @@ namespace rolamos {
 
 struct TrackerOptions {
   // Frames are followed at a reduced size: halved until the tracking image holds at most this
-  // many pixels, and at least once unless the frame holds less than 0.4 of it (480 x 360 at full
-  // size; 640 x 480 to 1920 x 1080 at half). The pyramid costs in proportion to it, a point's
-  // flow does not.
+  // many pixels (800 x 600 at full size; 1024 x 768 to 1920 x 1080 at half). The pyramid costs
+  // in proportion to it, a point's flow does not.
   double track_pixels = 0.6e6;
+  // Halved at least once all the same, unless the frame holds less than 0.4 of track_pixels
+  // (480 x 360): for frames from a video codec. Its blocks stay where the pixel grid is and its
+  // fine detail is gone; a window over twice the ground follows such frames better, and for a
+  // quarter of the pyramid (800 x 600 MPEG-4: 0.43 against 0.58 px per patch, 67 against 48
+  // frames/s). Stills lose by it (800 x 600 and 640 x 480: 0.71 against 1.23 px on strong
+  // noise and marine snow, 0.30 against 0.35 with lanes apart; bench/RESULTS.md).
+  bool halve_once = false;
   int max_points = 300;     // points a keyframe hands on
   int window = 21;          // Lucas-Kanade window, tracking pixels
   int levels = 3;           // pyramid levels above the tracking image

@@ -29,18 +29,25 @@ double Median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-// Frames are followed halved, at least once unless small, and until the tracking image holds at
-// most the pixels asked for: exact averages.
+// Frames are followed halved until the tracking image holds at most the pixels asked for (exact
+// averages), and, for a video codec's frames, at least once unless small.
 TEST(Tracker, ScaleHalvesUntilTheTrackingImageIsSmallEnough) {
   TrackerOptions o;
   o.track_pixels = 0.6e6;
   EXPECT_EQ(o.ScaleFor({480, 360}), 1.0);
-  EXPECT_EQ(o.ScaleFor({640, 480}), 0.5);
-  EXPECT_EQ(o.ScaleFor({800, 600}), 0.5);
+  EXPECT_EQ(o.ScaleFor({640, 480}), 1.0);
+  EXPECT_EQ(o.ScaleFor({800, 600}), 1.0);
+  EXPECT_EQ(o.ScaleFor({1024, 768}), 0.5);
   EXPECT_EQ(o.ScaleFor({1292, 964}), 0.5);
   EXPECT_EQ(o.ScaleFor({1920, 1080}), 0.5);
   EXPECT_EQ(o.ScaleFor({3840, 2160}), 0.25);
   EXPECT_EQ(o.ScaleFor({200, 100}), 1.0);  // never enlarged
+  o.halve_once = true;
+  EXPECT_EQ(o.ScaleFor({480, 360}), 1.0);  // under 0.4 of track_pixels
+  EXPECT_EQ(o.ScaleFor({640, 480}), 0.5);
+  EXPECT_EQ(o.ScaleFor({800, 600}), 0.5);
+  EXPECT_EQ(o.ScaleFor({1292, 964}), 0.5);
+  EXPECT_EQ(o.ScaleFor({3840, 2160}), 0.25);
   std::string error;
   EXPECT_TRUE(o.IsValid(&error)) << error;
   o.track_pixels = 10;

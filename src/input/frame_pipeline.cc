@@ -134,6 +134,7 @@ class HeldSource : public FrameSource {
     return true;
   }
   int count() const override { return source_->count(); }
+  bool coded_video() const override { return source_->coded_video(); }
   // Arrival of the frame Next returned last (live sources only).
   Clock::time_point arrival() const { return arrival_; }
   std::atomic<long>* in_flight = nullptr;  // live: frames taken and not yet mapped
@@ -271,6 +272,12 @@ double RunPipeline(FrameSource* source, Mosaicker& mosaicker,
   return 1e-9 * static_cast<double>(decode_ns.load());
 }
 
+// MosaickerOptions::track_halve's "auto", decided by what the frames are.
+std::string TrackHalving(const MosaickerOptions& options, const FrameSource& source) {
+  if (options.track_halve != "auto") return options.track_halve;
+  return source.coded_video() ? "always" : "never";
+}
+
 // The decoding time first among the stages: it is part of each frame's cost.
 void AddDecodeStage(MosaicSummary* summary, double seconds) {
   summary->stage_seconds.insert(summary->stage_seconds.begin(), {"decode", seconds});
@@ -286,6 +293,7 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
   const auto opened = FrameSource::Open(input);
   HeldSource source(opened.get());
   if (options.mask == "auto") options = AutoMask(&source, store, options, &mask_note);
+  options.track_halve = TrackHalving(options, source);
   Mosaicker mosaicker(store, options);
   const double decode = RunPipeline(&source, mosaicker, on_frame, nullptr);
   MosaicSummary summary = mosaicker.Finish();
@@ -377,6 +385,7 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
   // engine: its patch writer reports to it until the engine is gone.
   LiveStatusKeeper status(source.get(), live.max_waiting, on_status);
   options = LiveMask(options, store, source.get(), &feed, &mask_note);
+  options.track_halve = TrackHalving(options, *source);
   // Frames taken from the source and not yet mapped: with those waiting in the source, never
   // more than the backlog bound (the pipeline prepares at most one fewer ahead).
   std::atomic<long> in_flight{0};

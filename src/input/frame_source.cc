@@ -101,6 +101,7 @@ class VideoSource : public FrameSource {
     return true;
   }
   int count() const override { return count_ > 0 ? count_ : -1; }
+  bool coded_video() const override { return true; }
 
  private:
   std::string path_;

@@ -27,6 +27,8 @@ class FrameSource {
   virtual bool Next(InputFrame* frame) = 0;
   // Number of frames if known, -1 otherwise.
   virtual int count() const = 0;
+  // Frames from a video codec (a video file, a camera or network stream), not still images.
+  virtual bool coded_video() const { return false; }
   // Throws Error naming the input when it is none of the three kinds.
   static std::unique_ptr<FrameSource> Open(const std::string& input);
 };

@@ -235,6 +235,7 @@ class StreamSource : public LiveSource {
     shared_->source = this;
     reader_ = std::thread([shared = shared_] { Read(shared); });
   }
+  bool coded_video() const override { return true; }
   ~StreamSource() override {
     std::unique_lock<std::mutex> lock(shared_->mutex);
     shared_->source = nullptr;  // the reader no longer touches this source
