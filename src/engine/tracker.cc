@@ -10,6 +10,7 @@
 #include "engine/lucas_kanade.h"
 #include "engine/motion_gate.h"
 #include "rolamos/error.hpp"
+#include "util/homography.h"
 
 namespace rolamos {
 
@@ -60,11 +61,6 @@ cv::Point2f ToFull(cv::Point2f q, double s) {
 }
 cv::Matx33d ScaleMap(double s) {  // full -> tracking
   return cv::Matx33d(s, 0, 0.5 * (s - 1), 0, s, 0.5 * (s - 1), 0, 0, 1);
-}
-
-cv::Point2f Apply(const cv::Matx33d& H, cv::Point2f p) {
-  const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1);
-  return {float(q[0] / q[2]), float(q[1] / q[2])};
 }
 
 // The difference from the mean around each pixel, divided by the standard deviation around it
@@ -207,7 +203,7 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
   const cv::Matx33d G = ScaleMap(to.scale) * guess * ScaleMap(s).inv();
   for (const auto& p : points) {
     a.push_back(ToTrack(p, s));
-    b.push_back(Apply(G, a.back()));
+    b.push_back(cv::Point2f(ApplyHomography(G, a.back())));
   }
   std::vector<uchar> forward, backward;
   const cv::Size win(options_.window, options_.window);
@@ -235,7 +231,7 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
   // Where the points landed in `to` (`b` is in the target's pixels, which are `from`'s if turned).
   std::vector<cv::Point2f> in_to = b;
   if (target == &turned)
-    for (auto& q : in_to) q = Apply(G, q);
+    for (auto& q : in_to) q = cv::Point2f(ApplyHomography(G, q));
   // Back only from where the forward pass landed on usable ground: the others are lost anyway.
   const cv::Size t = to.pyramid[0].size();
   std::vector<size_t> landed;
