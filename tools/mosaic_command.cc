@@ -266,7 +266,6 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--track-halve", o.track_halve,
                   "halve frames for following at least once all the same: always (video codecs), never (stills), "
                   "auto (always for a video file or stream)")
-      ->check(CLI::IsMember({"auto", "always", "never"}))
       ->capture_default_str();
   cmd->add_option("--track-points", o.track_points, "points a keyframe hands on to the frames after it")
       ->capture_default_str();
