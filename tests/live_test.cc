@@ -227,6 +227,39 @@ TEST_F(LiveTest, MosaicLiveServesTheOpenPatchAndThePatchesBeneathIt) {
   ASSERT_EQ(r.exit_code, 0) << r.output;
 }
 
+// A feed that pauses: the preview's image catches up with the last frame once no frame has come
+// for the preview interval, so the page does not follow the vehicle beyond the seafloor it shows.
+// (CI caught the viewer's live page looking at an empty canvas after the feed's last frames.)
+TEST_F(LiveTest, APausedFeedIsPreviewedUpToItsLastFrame) {
+  const std::string store = dir_ / "paused.rolamos";
+  fs::create_directories(dir_ / "incoming");
+  // An interval longer than the feed: only the patch's first frame would be imaged without the
+  // idle refresh.
+  test::RunShell(std::string(ROLAMOS_CLI) + " mosaic -q " + (dir_ / "incoming") + " -o " + store +
+                 " --live --mask none --preview-interval 3 > " + (dir_ / "run.log") + " 2>&1 & echo $! > " + (dir_ / "run.pid"));
+  Feed(dir_ / "survey/frames", dir_ / "incoming", 10, 0, 12);
+  nlohmann::json preview = nlohmann::json::object();
+  for (int i = 0; i < 150; ++i) {  // up to 15 s: the interval, the engine's backlog and a write
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    std::ifstream in(fs::path(store) / "live/preview.json");
+    if (!in) continue;
+    try {
+      const auto read = nlohmann::json::parse(in);
+      if (read.is_object()) preview = read;
+    } catch (const nlohmann::json::exception&) {
+      continue;
+    }
+    if (preview.value("frames", 0) == 12 && preview.value("image_frames", 0) == 12) break;
+  }
+  test::RunShell("kill -INT $(cat " + (dir_ / "run.pid") + ")");
+  while (test::RunShell("kill -0 $(cat " + (dir_ / "run.pid") + ") 2>/dev/null").exit_code == 0)
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  const std::string log = test::RunShell("cat " + (dir_ / "run.log")).output;
+  EXPECT_EQ(preview.value("frames", 0), 12) << preview.dump() << "\n" << log;
+  EXPECT_EQ(preview.value("image_frames", 0), 12) << "the image shows fewer frames than the patch holds\n"
+                                                  << preview.dump() << "\n" << log;
+}
+
 // Navigation that arrives with the frames (a CSV the vehicle appends to, as compose --navigation
 // reads it, with a line that does not parse) georeferences the live view: the current frame's
 // centre lands where the navigation puts it; the bad line is named in a warning and the run goes on.

@@ -172,7 +172,8 @@ namespace {
 // Returns the seconds spent decoding (all threads).
 double RunPipeline(FrameSource* source, Mosaicker& mosaicker,
                    const std::function<void(const FrameReport&, int)>& on_frame,
-                   const std::function<void(long)>& on_taken, long max_ahead = 0) {
+                   const std::function<void(long)>& on_taken, long max_ahead = 0,
+                   const std::function<void()>& on_idle = nullptr, double idle_s = 0) {
   // Frames are decoded and prepared (undistorted, the tracking pyramid) by one worker per core,
   // several at once, while this thread integrates them in order (tracking, registration, gate,
   // ECC, blending); keyframes are filtered and described on the engine's workers, and closed
@@ -247,7 +248,15 @@ double RunPipeline(FrameSource* source, Mosaicker& mosaicker,
       std::shared_ptr<PreparedFrame> next;
       {
         std::unique_lock<std::mutex> lock(mutex);
-        changed.wait(lock, [&] { return failure || ready.count(integrated) || integrated == total; });
+        const auto work = [&] { return failure || ready.count(integrated) || integrated == total; };
+        // A live feed that pauses: what waits for a quiet moment (the preview of the last frames)
+        // runs on this thread, where the engine may be called.
+        while (on_idle && idle_s > 0 && !changed.wait_for(lock, std::chrono::duration<double>(idle_s), work)) {
+          lock.unlock();
+          on_idle();
+          lock.lock();
+        }
+        changed.wait(lock, work);
         if (failure || integrated == total) break;
         next = std::move(ready[integrated]);
         ready.erase(integrated);
@@ -357,8 +366,18 @@ class PreviewOffers {
     const bool image = std::chrono::duration<double>(now - last_image_).count() >= every_s_ ||
                        (r.patch_id != writer_->imaged_patch() && r.patch_id > 0);
     if (image) last_image_ = now;
+    stale_ = !image;
     writer_->Offer(mosaicker.Preview(0.5, 2.0, image));
   }
+  // No frame for a while (a feed that pauses or ends): the image catches up with the last frames,
+  // or the page would follow the vehicle beyond the seafloor it shows.
+  void Idle(const Mosaicker& mosaicker) {
+    if (!writer_ || !stale_) return;
+    last_image_ = std::chrono::steady_clock::now();
+    stale_ = false;
+    writer_->Offer(mosaicker.Preview(0.5, 2.0, true));
+  }
+  double every_s() const { return writer_ ? every_s_ : 0; }
   // Writes the last one offered and says that no patch is open; returns what went wrong, if anything.
   std::string Close() {
     if (!writer_) return "";
@@ -369,6 +388,7 @@ class PreviewOffers {
 
  private:
   double every_s_;
+  bool stale_ = false;  // frames offered since the last image
   std::optional<LivePreviewWriter> writer_;
   std::chrono::steady_clock::time_point last_image_ = std::chrono::steady_clock::now();
 };
@@ -413,7 +433,8 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
           preview.After(r, mosaicker);
           if (on_frame) on_frame(r, total);
         },
-        [&](long index) { status.Taken(index, feed.arrival()); }, std::max(1, live.max_waiting - 1));
+        [&](long index) { status.Taken(index, feed.arrival()); }, std::max(1, live.max_waiting - 1),
+        [&] { preview.Idle(mosaicker); }, preview.every_s());
     summary = mosaicker.Finish();
   } catch (const Error& e) {
     // A write failed (a full disk): what was written stays a valid store; say what it holds and

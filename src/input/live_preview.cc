@@ -50,7 +50,7 @@ LivePreviewWriter::~LivePreviewWriter() {
   thread_.join();
   // The run is over: its patches are written, nothing is open.
   try {
-    Write(LivePreview{});
+    Write(LivePreview{}, 0);
   } catch (...) {
   }
 }
@@ -63,6 +63,8 @@ void LivePreviewWriter::Offer(LivePreview preview) {
     if (pending_ && !pending_->image.empty() && preview.image.empty() && pending_->patch_id == preview.patch_id) {
       preview.image = pending_->image;
       preview.patch_to_image = pending_->patch_to_image;
+    } else if (!preview.image.empty()) {
+      pending_image_frames_ = preview.frames;
     }
     pending_ = std::move(preview);
   }
@@ -77,15 +79,17 @@ std::string LivePreviewWriter::problem() const {
 void LivePreviewWriter::Run() {
   for (;;) {
     LivePreview p;
+    int image_frames = 0;
     {
       std::unique_lock<std::mutex> lock(mutex_);
       changed_.wait(lock, [&] { return closing_ || pending_; });
       if (!pending_) return;
       p = std::move(*pending_);
       pending_.reset();
+      image_frames = pending_image_frames_;
     }
     try {
-      Write(p);
+      Write(p, image_frames);
     } catch (const std::exception& e) {
       std::lock_guard<std::mutex> lock(mutex_);
       if (problem_.empty()) problem_ = e.what();
@@ -96,7 +100,7 @@ void LivePreviewWriter::Run() {
   }
 }
 
-void LivePreviewWriter::Write(const LivePreview& p) {
+void LivePreviewWriter::Write(const LivePreview& p, int image_frames) {
   nlohmann::json j = {{"format", "rolamos-live-preview"}, {"version", 1}, {"patch", p.patch_id},
                       {"updated", UnixNow()}};
   if (p.patch_id > 0 && !p.image.empty()) {
@@ -108,13 +112,14 @@ void LivePreviewWriter::Write(const LivePreview& p) {
     o.quality = 80;
     o.threads = 1;  // the engine has the cores
     WritePyramidTiff(dir_ + "/" + VersionName(v), p.image, o);
-    written_ = {p.patch_id, "live/" + VersionName(v), p.image.cols, p.image.rows, p.patch_to_image};
+    written_ = {p.patch_id, "live/" + VersionName(v), p.image.cols, p.image.rows, image_frames, p.patch_to_image};
   }
   if (p.patch_id > 0 && written_.patch == p.patch_id) {
     j["image"] = written_.image;
     j["width"] = written_.width;
     j["height"] = written_.height;
     j["patch_to_image"] = ToArray9(written_.patch_to_image);
+    j["image_frames"] = written_.frames;
   }
   if (p.patch_id > 0) {
     j["frames"] = p.frames;

@@ -34,18 +34,20 @@ class LivePreviewWriter {
 
  private:
   void Run();
-  void Write(const LivePreview& p);
+  void Write(const LivePreview& p, int image_frames);  // the patch's frames when the image was rendered
 
   std::string dir_;
   mutable std::mutex mutex_;
   std::condition_variable changed_;
   std::optional<LivePreview> pending_;
+  int pending_image_frames_ = 0;  // the frames placed when pending_'s image was rendered
   int imaged_patch_ = 0;   // Offer's thread
   // The last image written (writer's thread): what a preview without one is shown with.
   struct Written {
     int patch = 0;
     std::string image;
     int width = 0, height = 0;
+    int frames = 0;  // the patch's frames placed when it was rendered
     cv::Matx33d patch_to_image = cv::Matx33d::eye();
   } written_;
   bool closing_ = false;

@@ -99,12 +99,14 @@ try {
   check(Math.max(...patches) > Math.min(...patches), 'the patch count grows (' + Math.min(...patches) + ' -> ' + Math.max(...patches) + ')');
   check(during.some((s) => s.footprint === 1), 'the current frame\'s footprint is drawn');
   check(during.some((s) => s.items >= 2), 'closed patches are shown beneath the open one (' + Math.max(...during.map((s) => s.items)) + ' layers)');
-  // The preview is seafloor: the view's centre (the vehicle, when following) is not empty.
-  await page.waitForFunction(() => window.rolamos.liveView && window.rolamos.liveView.preview &&
-    window.rolamos.liveView.preview.getFullyLoaded(), null, { timeout: 20000 }).catch(() => {});
-  const shot = path.join(artefacts, 'viewer-live.png');
-  await page.screenshot({ path: shot });
-  const centre = await page.evaluate(() => {
+  // The preview is seafloor: the view's centre (the vehicle, when following) is not empty. The
+  // page rebuilds its world when a patch opens and refreshes the preview once a second, so the
+  // centre is looked at until the page has settled on the last frames (CI once caught it between
+  // a new patch's world and its first tiles); it must show texture within 20 s of the feed's end.
+  await logger;
+  const centreOf = () => page.evaluate(() => {
+    const lv = window.rolamos.liveView;
+    if (!lv || !lv.preview || !lv.preview.getFullyLoaded()) return null;
     const c = document.querySelector('#map canvas');
     const g = c.getContext('2d');
     const d = g.getImageData(c.width / 2 - 40, c.height / 2 - 40, 80, 80).data;
@@ -113,6 +115,14 @@ try {
     const mean = sum / n;
     return { mean, sd: Math.sqrt(Math.max(0, sum2 / n - mean * mean)) };
   });
+  let centre = { sd: 0 };
+  for (let waited = 0; waited < 20000; waited += 250) {
+    centre = (await centreOf()) || { sd: 0 };
+    if (centre.sd > 5) break;
+    await sleep(250);
+  }
+  const shot = path.join(artefacts, 'viewer-live.png');
+  await page.screenshot({ path: shot });
   check(centre.sd > 5, 'the view around the vehicle shows textured seafloor (grey sd ' + centre.sd.toFixed(1) + ')');
   check(errors.length === 0, 'no page errors' + (errors.length ? ': ' + errors.join('; ') : ''));
   console.log('last sample: ' + JSON.stringify(seen[seen.length - 1]));
