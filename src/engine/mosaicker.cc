@@ -124,6 +124,8 @@ struct Mosaicker::Impl {
   FeatureExtractor coarse_extractor;
   // Both with fewer features, for keyframes that frames were followed into (followed_features).
   FeatureExtractor followed_extractor, coarse_followed_extractor;
+  // Recovery's last try, on frames that overlap little: three times the features.
+  FeatureExtractor dense_extractor;
   FrameTracker tracker;
   EgomotionOptions ego_options;
   EccOptions ecc_options;
@@ -158,6 +160,7 @@ struct Mosaicker::Impl {
     KeyframeFuture products;
     bool described = true;                 // its features are found (products.features)
     bool blended = true;                   // in the patch image (else it links and places only)
+    std::shared_ptr<const Features> dense;  // found when recovery first needs them (Recover, 3.)
   };
   // The frame placed last, keyframe or not.
   struct Placed {
@@ -234,6 +237,7 @@ struct Mosaicker::Impl {
         coarse_extractor(CoarseFeatureOptions(o)),
         followed_extractor(FollowedFeatureOptions(ToFeatureOptions(o), o)),
         coarse_followed_extractor(FollowedFeatureOptions(CoarseFeatureOptions(o), o)),
+        dense_extractor(DenseFeatureOptions(o)),
         tracker(ToTrackerOptions(o)),
         ego_options(ToEgomotionOptions(o)),
         ecc_options(ToEccOptions(o)),
@@ -272,6 +276,11 @@ struct Mosaicker::Impl {
 
   void InitCamera(cv::Size size);
   std::shared_ptr<const Features> FeaturesOf(PreparedFrame& p);
+  // The frame's features by `ex`, without the static overlays and the specks the detection image
+  // leaves out.
+  Features Describe(const cv::Mat& image, const FeatureExtractor& ex);
+  // Recovery's last try: the frame and the last keyframe described three times as densely.
+  std::optional<Candidate> RecoverDensely(const PreparedFrame& p, const Features& capped);
   // SIFT as the frame asks: halved (coarse_features), fewer (followed_features), both or neither.
   const FeatureExtractor& ExtractorFor(const PreparedFrame& p) const;
   FrameMotion MotionFromLast(const cv::Matx33d& to_patch) const {
@@ -345,19 +354,23 @@ const FeatureExtractor& Mosaicker::Impl::ExtractorFor(const PreparedFrame& p) co
   return p.followed_features ? followed_extractor : extractor;
 }
 
+Features Mosaicker::Impl::Describe(const cv::Mat& image, const FeatureExtractor& ex) {
+  const double scale = ex.options().ScaleFor(image.size());
+  cv::Mat specks;
+  const cv::Mat detect = pre.DetectionImage(image, scale, &specks);
+  cv::Mat mask = specks;
+  {
+    std::lock_guard<std::mutex> lock(mask_mutex);
+    if (!usable_small.empty() && usable_small.size() == detect.size())
+      mask = mask.empty() ? usable_small : (mask & usable_small);
+  }
+  return ex.ExtractScaled(detect, scale, mask);
+}
+
 std::shared_ptr<const Features> Mosaicker::Impl::FeaturesOf(PreparedFrame& p) {
   std::call_once(p.features_once, [&] {
     Laps lap{this, {}};
-    const double scale = extractor.options().ScaleFor(p.size);
-    cv::Mat specks;
-    const cv::Mat detect = pre.DetectionImage(p.image, scale, &specks);
-    cv::Mat mask = specks;
-    {
-      std::lock_guard<std::mutex> lock(mask_mutex);
-      if (!usable_small.empty() && usable_small.size() == detect.size())
-        mask = mask.empty() ? usable_small : (mask & usable_small);
-    }
-    p.features = std::make_shared<const Features>(ExtractorFor(p).ExtractScaled(detect, scale, mask));
+    p.features = std::make_shared<const Features>(Describe(p.image, ExtractorFor(p)));
     lap(kFeatures);
   });
   return p.features;
@@ -483,6 +496,23 @@ std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const std::shar
   }
   lap(kRecovery);
   return found;
+}
+
+std::optional<Mosaicker::Impl::Candidate> Mosaicker::Impl::RecoverDensely(const PreparedFrame& p,
+                                                                         const Features& capped) {
+  if (keys.empty() || static_cast<int>(capped.points.size()) < ExtractorFor(p).options().max_features)
+    return std::nullopt;
+  Key& key = keys.back();
+  if (!key.dense) {
+    const cv::Mat& image = key.frame && !key.frame->image.empty() ? key.frame->image : key.products.get().image;
+    if (image.empty() || image.size() != frame_size) return std::nullopt;
+    key.dense = std::make_shared<const Features>(Describe(image, dense_extractor));
+  }
+  const Features mine = Describe(p.image, dense_extractor);
+  const Matches m = MatchFeatures(mine, *key.dense, dense_extractor.options());
+  Candidate c = Assess(EstimateEgomotion(m.from, m.to, K, ego_options), key.to_patch, "dense_features", key.index);
+  if (!c.ego.ok) return std::nullopt;
+  return c;
 }
 
 // A strong registration stands even when unpredicted (a real change of course); a weak one (few
@@ -1159,6 +1189,15 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
       std::vector<Impl::Candidate> more = m.Recover(p, lap);
       if (best.ego.ok) more.push_back(best);
       if (const Impl::Candidate* pick = m.Pick(more)) best = *pick;
+      // 3. Frames that overlap little (stills from an AUV, a gap in the track): of a frame's
+      //    max_features, the strip it shares with the last keyframe may hold too few for enough
+      //    inliers. When nothing else placed the frame, and its features were capped (there are
+      //    more to find), it and the last keyframe are described three times as densely.
+      if (!m.Usable(best)) {
+        std::optional<Impl::Candidate> dense = m.RecoverDensely(*p, *f);
+        lap(Impl::kRecovery);
+        if (dense && m.Usable(*dense)) best = std::move(*dense);
+      }
     }
   }
   if (!m.Usable(best)) {

@@ -22,6 +22,12 @@ FeatureOptions CoarseFeatureOptions(const MosaickerOptions& o) {
   return f;
 }
 
+FeatureOptions DenseFeatureOptions(const MosaickerOptions& o) {
+  FeatureOptions f = ToFeatureOptions(o);
+  f.max_features = 3 * f.max_features;
+  return f;
+}
+
 FeatureOptions FollowedFeatureOptions(FeatureOptions f, const MosaickerOptions& o) {
   f.max_features = std::min(f.max_features, o.followed_max_features);
   return f;

@@ -13,6 +13,8 @@ namespace rolamos {
 FeatureOptions ToFeatureOptions(const MosaickerOptions& o);
 // The same without SIFT's doubled first octave: for keyframes that link but are not blended.
 FeatureOptions CoarseFeatureOptions(const MosaickerOptions& o);
+// Recovery's last try on frames that overlap little: three times max_features.
+FeatureOptions DenseFeatureOptions(const MosaickerOptions& o);
 // `f` for keyframes that frames were followed into (MosaickerOptions::followed_max_features).
 FeatureOptions FollowedFeatureOptions(FeatureOptions f, const MosaickerOptions& o);
 EgomotionOptions ToEgomotionOptions(const MosaickerOptions& o);
