@@ -281,6 +281,8 @@ struct Mosaicker::Impl {
   Features Describe(const cv::Mat& image, const FeatureExtractor& ex);
   // Recovery's last try: the frame and the last keyframe described three times as densely.
   std::optional<Candidate> RecoverDensely(const PreparedFrame& p, const Features& capped);
+  // The frame `c` placed across a thin overlap opens the next patch, joined to this one by `c`.
+  FrameReport JoinAcrossThinOverlap(const std::shared_ptr<PreparedFrame>& p, const Candidate& c, FrameReport r);
   // SIFT as the frame asks: halved (coarse_features), fewer (followed_features), both or neither.
   const FeatureExtractor& ExtractorFor(const PreparedFrame& p) const;
   FrameMotion MotionFromLast(const cv::Matx33d& to_patch) const {
@@ -937,6 +939,26 @@ bool Mosaicker::Impl::BreakAt(const std::shared_ptr<PreparedFrame>& p) {
   return false;
 }
 
+FrameReport Mosaicker::Impl::JoinAcrossThinOverlap(const std::shared_ptr<PreparedFrame>& p, const Candidate& c,
+                                                   FrameReport r) {
+  r.matches = c.ego.matches;
+  r.inliers = c.ego.inliers;
+  r.bilateral_error = c.ego.bilateral_error_mean;
+  // Adjusted with the patch it leaves as its closing frame, a leaf on one link: it cannot bend
+  // the frames before it.
+  ClosingFrame closing;
+  closing.index = r.index;
+  closing.to_patch = c.to_patch;
+  closing.links = c.Links(r.index);
+  PatchLink join;
+  join.previous_patch = patch_id;
+  link_to_first = c.to_patch;
+  ClosePatch("thin_overlap", closing);
+  StartPatch(p, r, join);
+  frames.back().registered_by = c.registered_by;
+  return r;
+}
+
 // Frames rejected earlier in this patch, tried again against the frame just placed: a frame that
 // failed against its predecessor (blur, a passing fish) often matches its successor.
 void Mosaicker::Impl::SecondChance(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, Laps& lap) {
@@ -1189,14 +1211,16 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
       std::vector<Impl::Candidate> more = m.Recover(p, lap);
       if (best.ego.ok) more.push_back(best);
       if (const Impl::Candidate* pick = m.Pick(more)) best = *pick;
-      // 3. Frames that overlap little (stills from an AUV, a gap in the track): of a frame's
-      //    max_features, the strip it shares with the last keyframe may hold too few for enough
-      //    inliers. When nothing else placed the frame, and its features were capped (there are
-      //    more to find), it and the last keyframe are described three times as densely.
+      // 3. Frames that overlap little (stills from an AUV, a lane joined without a turn): of a
+      //    frame's max_features, the strip it shares with the last keyframe may hold too few for
+      //    enough inliers. When nothing else placed the frame, and its features were capped
+      //    (there are more to find), it and the last keyframe are described three times as
+      //    densely. A strip is a weak hold for a whole patch (it bent lanes joined so by up to
+      //    3 px): the frame opens the next patch, joined to this one by that registration.
       if (!m.Usable(best)) {
         std::optional<Impl::Candidate> dense = m.RecoverDensely(*p, *f);
         lap(Impl::kRecovery);
-        if (dense && m.Usable(*dense)) best = std::move(*dense);
+        if (dense && m.Usable(*dense)) return done(m.JoinAcrossThinOverlap(p, std::move(*dense), r));
       }
     }
   }

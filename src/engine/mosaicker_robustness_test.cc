@@ -158,8 +158,9 @@ TEST(MosaickerRobustness, OpenWaterClosesThePatchAndTheSeafloorOpensANewOne) {
 // Real AUV stills that overlap little (IMOS test4, a reef at 1360 x 1024): the strip two frames
 // share holds too few of a frame's 1000 features for 25 inliers, and three frames in a row were
 // each rejected or left alone in a patch of their own. Recovery's last try describes the frame
-// and the last keyframe three times as densely: every frame is placed, and where the navigation
-// shipped with the frames puts a frame's centre in the next frame agrees with ours within the
+// and the last keyframe three times as densely: every frame is placed, each so placed opens a
+// patch joined to the one before, and where the navigation shipped with the frames puts a frame's
+// centre in the next frame agrees with ours, within patches and across the joins, within the
 // navigation's own scatter (SOURCE.txt: it disagrees with vision by a median 17-48 px there).
 TEST(MosaickerRobustness, RealStillsThatOverlapLittleAreAllPlaced) {
   const std::string data = test::SharedData();
@@ -186,23 +187,36 @@ TEST(MosaickerRobustness, RealStillsThatOverlapLittleAreAllPlaced) {
   const MosaicSummary sum = MosaicInput(frames, store, o);
   EXPECT_EQ(sum.rejected, 0);
   EXPECT_EQ(sum.stitched, 9);
-  int dense = 0, pairs = 0;
+  // Frame a's centre in frame b, by the engine (a_to_b) and by the navigation.
+  const cv::Point2d centre(679.5, 511.5);
+  auto check = [&](const FrameRecord& a, const FrameRecord& b, const cv::Matx33d& a_to_b) {
+    const std::string na = fs::path(a.source).filename(), nb = fs::path(b.source).filename();
+    const cv::Point2d theirs = ApplyHomography(nav[nb].inv() * nav[na], centre);
+    EXPECT_LT(cv::norm(ApplyHomography(a_to_b, centre) - theirs), 100.0) << na << " -> " << nb;
+  };
+  int dense = 0, pairs = 0, joins = 0;
   Store reopened = Store::Open(dir / "s.rolamos");
-  for (const auto& p : reopened.patches()) {
-    const PatchSidecar s = reopened.ReadSidecar(p.id);
+  std::map<int, PatchSidecar> patches;
+  for (const auto& p : reopened.patches()) patches[p.id] = reopened.ReadSidecar(p.id);
+  for (const auto& [id, s] : patches) {
     for (size_t k = 0; k < s.frames.size(); ++k) {
       dense += s.frames[k].registered_by.value_or("") == "dense_features";
       if (k == 0) continue;
-      const std::string a = fs::path(s.frames[k - 1].source).filename(), b = fs::path(s.frames[k].source).filename();
-      const cv::Point2d centre(679.5, 511.5);
-      const cv::Point2d ours = ApplyHomography(ToMatx(s.frames[k].frame_to_patch).inv() * ToMatx(s.frames[k - 1].frame_to_patch), centre);
-      const cv::Point2d theirs = ApplyHomography(nav[b].inv() * nav[a], centre);
-      EXPECT_LT(cv::norm(ours - theirs), 100.0) << a << " -> " << b;
+      check(s.frames[k - 1], s.frames[k], ToMatx(s.frames[k].frame_to_patch).inv() * ToMatx(s.frames[k - 1].frame_to_patch));
       ++pairs;
     }
+    // A frame placed across a thin overlap opens a patch joined to the one before.
+    if (s.frames.front().registered_by.value_or("") != "dense_features") continue;
+    ASSERT_TRUE(s.link.has_value()) << "patch " << id;
+    const PatchSidecar& before = patches.at(s.link->previous_patch);
+    EXPECT_EQ(before.closed_by.value_or(""), "thin_overlap");
+    check(s.frames.front(), before.frames.back(),
+          ToMatx(before.frames.back().frame_to_patch).inv() * ToMatx(s.link->to_previous) * ToMatx(s.frames.front().frame_to_patch));
+    ++joins;
   }
   EXPECT_GE(dense, 1) << "the frames placed only by the denser features";
-  EXPECT_GE(pairs, 5);
+  EXPECT_EQ(dense, joins);
+  EXPECT_GE(pairs + joins, 7);
 }
 
 TEST(MosaickerRobustness, RepeatedFramesArePlacedAndBlackFramesRejectedWithTheirReason) {
