@@ -2,8 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <map>
+#include <optional>
 #include <set>
 #include <sstream>
 
@@ -91,6 +93,45 @@ std::string Fingerprint(const std::vector<PlacedPatch>& placed, const ComposeRes
     f << " gain " << p.gain;
   }
   return FingerprintHex(f.str());
+}
+
+// A patch's first frame as `G` (patch -> global) draws it: its size against the frame's own (the
+// square root of the areas' ratio) and how uneven it is (the longest side against the one opposite).
+struct FirstFrameShape {
+  double scale = 1, uneven = 1;
+};
+std::optional<FirstFrameShape> FirstFrameUnder(const cv::Matx33d& G, const PatchSidecar& s) {
+  if (!s.frame_size || s.frames.empty()) return std::nullopt;
+  const double w = (*s.frame_size)[0], h = (*s.frame_size)[1];
+  const cv::Matx33d to_global = G * ToMatx(s.frames.front().frame_to_patch);
+  std::vector<cv::Point2d> q;
+  for (const cv::Point2d c : {cv::Point2d(0, 0), cv::Point2d(w, 0), cv::Point2d(w, h), cv::Point2d(0, h)})
+    q.push_back(ApplyHomography(to_global, c));
+  double area = 0;
+  for (size_t i = 0; i < 4; ++i) area += q[i].x * q[(i + 1) % 4].y - q[(i + 1) % 4].x * q[i].y;
+  const double a = cv::norm(q[0] - q[1]) / cv::norm(q[3] - q[2]), b = cv::norm(q[1] - q[2]) / cv::norm(q[0] - q[3]);
+  FirstFrameShape f;
+  f.scale = std::sqrt(std::abs(area) / 2 / (w * h));
+  f.uneven = std::max({a, 1 / a, b, 1 / b});
+  return f;
+}
+
+// Why a patch placed through its link is not to be trusted ("" when it is). A downward camera
+// draws a patch's first frame about the size of the patch before's first frame and as a
+// near-rectangle (altitude and tilt change little over one patch): a link that makes it more than
+// twice or less than half that size, or one side half as long again as the opposite one, chains
+// homographies fitted to ground they do not describe (uncalibrated frames over a reef drew nine
+// frames 20,000 px long). `align` places such a patch from its frames.
+std::string LinkProblem(const cv::Matx33d& G, const PatchSidecar& s, const std::optional<FirstFrameShape>& before) {
+  const auto mine = FirstFrameUnder(G, s);
+  if (!mine || !before) return "";
+  const double scale = mine->scale / before->scale;
+  if (std::isfinite(scale) && scale <= 2 && scale >= 0.5 && std::isfinite(mine->uneven) && mine->uneven <= 1.5) return "";
+  char why[240];
+  std::snprintf(why, sizeof why, "its link to patch %d draws its first frame %.2f times the size of that patch's first "
+                "frame, with sides %.2f times the opposite ones (at most 2 and 1.5 for a downward camera)",
+                s.link->previous_patch, scale, mine->uneven);
+  return why;
 }
 
 // Why a patch cannot be drawn ("" when it can): an image that does not open or disagrees with its
@@ -201,6 +242,7 @@ namespace {
 std::vector<PlacedPatch> PlacePatches(const Store& store, const std::shared_ptr<TileCache>& cache,
                                       std::map<int, cv::Matx33d>* to_global, ComposeResult* result) {
   std::vector<PlacedPatch> placed;
+  std::map<int, std::optional<FirstFrameShape>> first_frames;  // placed patches' first frames
   for (const auto& entry : store.patches()) {
     PatchSidecar s;
     try {
@@ -214,6 +256,10 @@ std::vector<PlacedPatch> PlacePatches(const Store& store, const std::shared_ptr<
       G = ToMatx(*s.patch_to_global);
     } else if (s.link && to_global->count(s.link->previous_patch)) {
       G = (*to_global)[s.link->previous_patch] * ToMatx(s.link->to_previous);
+      if (const std::string why = LinkProblem(G, s, first_frames[s.link->previous_patch]); !why.empty()) {
+        result->left_out.emplace_back(entry.id, why + "; left out until the map is aligned, not guessed");
+        continue;
+      }
     } else if (to_global->empty()) {
       G = cv::Matx33d::eye();  // the first patch defines the global frame
     } else {
@@ -247,6 +293,7 @@ std::vector<PlacedPatch> PlacePatches(const Store& store, const std::shared_ptr<
       p.local_sigma = 0.35 * std::max((*s.frame_size)[0], (*s.frame_size)[1]);
     }
     (*to_global)[entry.id] = G;
+    first_frames[entry.id] = FirstFrameUnder(G, s);
     placed.push_back(p);
   }
   return placed;

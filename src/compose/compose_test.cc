@@ -135,6 +135,32 @@ TEST_F(ComposeTest, APatchThatCannotBePlacedIsReportedNotGuessed) {
   EXPECT_GE(r.patches_used, 1);
 }
 
+// A link no downward camera gives (a homography fitted to a rugose reef without calibration drew
+// a patch's first frame twice its size): the patch is left out with the link's figures, and the
+// patches placed through it with it, until the map is aligned; a link that scales by 1.3 stands.
+TEST_F(ComposeTest, APatchWhoseLinkNoDownwardCameraGivesIsLeftOutNotDrawn) {
+  PatchSidecar second = store_->ReadSidecar(2);
+  ASSERT_TRUE(second.link.has_value());
+  const cv::Matx33d link = ToMatx(second.link->to_previous);
+  second.link->to_previous = ToArray9(link * cv::Matx33d(1.3, 0, 0, 0, 1.3, 0, 0, 0, 1));
+  store_->UpdateSidecar(second);
+  ComposeResult r = ComposeMosaic(*store_, ComposeOptions{});
+  EXPECT_TRUE(r.left_out.empty()) << r.left_out.front().second;
+  // compose stored every patch's placement; a fresh store's patches are placed by their links.
+  for (const auto& e : store_->patches()) {
+    PatchSidecar s = store_->ReadSidecar(e.id);
+    s.patch_to_global.reset();
+    if (e.id == 2) s.link->to_previous = ToArray9(link * cv::Matx33d(2.5, 0, 0, 0, 2.5, 0, 0, 0, 1));
+    store_->UpdateSidecar(s);
+  }
+  r = ComposeMosaic(*store_, ComposeOptions{});
+  ASSERT_FALSE(r.left_out.empty());
+  EXPECT_EQ(r.left_out.front().first, 2);
+  EXPECT_NE(r.left_out.front().second.find("link to patch 1 draws its first frame 2."), std::string::npos)
+      << r.left_out.front().second;
+  EXPECT_EQ(r.patches_used, 1);
+}
+
 // Killed half way (here: cancelled from the progress callback), the store still opens with its
 // previous mosaic; the re-run finishes only the chunks that were missing, and the mosaic is the
 // same as one composed in a single run.
