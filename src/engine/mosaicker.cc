@@ -273,6 +273,16 @@ struct Mosaicker::Impl {
       return {FrameLink{index, target, ego.inlier_from, ego.inlier_to}};
     }
   };
+  // A frame registered only across a thin overlap (Recover's third step), rejected for now: the
+  // usual recovery of the frame after it often places both within the patch (lanes joined
+  // without a turn). Joined, opening the next patch, only when that frame fails too.
+  struct Deferred {
+    std::shared_ptr<PreparedFrame> frame;
+    FrameReport report;
+    int patch = 0;
+    Candidate candidate;
+  };
+  std::optional<Deferred> deferred;
 
   void InitCamera(cv::Size size);
   std::shared_ptr<const Features> FeaturesOf(PreparedFrame& p);
@@ -1230,7 +1240,36 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
       if (!m.Usable(best)) {
         std::optional<Impl::Candidate> dense = m.RecoverDensely(*p, *f);
         lap(Impl::kRecovery);
-        if (dense && m.Usable(*dense)) return done(m.JoinAcrossThinOverlap(p, std::move(*dense), r));
+        // Only for the frame right after it, and while it waits (a second chance places it).
+        const bool waits = m.deferred && m.deferred->patch == m.patch_id && m.deferred->report.index == r.index - 1 &&
+                           std::any_of(m.pending.begin(), m.pending.end(), [&](const Impl::Pending& x) {
+                             return x.report.index == m.deferred->report.index;
+                           });
+        if (!waits) m.deferred.reset();
+        if (waits) {
+          // The frame after a thin overlap fails too: the deferred frame opens the next patch,
+          // and this one is tried against it.
+          Impl::Deferred d = std::move(*m.deferred);
+          m.deferred.reset();
+          m.Unreject(d.report.index);
+          m.pending.erase(std::remove_if(m.pending.begin(), m.pending.end(),
+                                         [&](const Impl::Pending& x) { return x.report.index == d.report.index; }),
+                          m.pending.end());
+          FrameReport opened = d.report;
+          opened.status = "stitched";
+          opened.reason.clear();
+          m.JoinAcrossThinOverlap(d.frame, d.candidate, opened);
+          m.gate->Predict(m.StepsSinceLast(*p, r.index));
+          Impl::Candidate again = m.Track(p, true);
+          if (m.Usable(again)) return done(m.Place(p, std::move(again), r, lap));
+          dense = m.RecoverDensely(*p, *f);
+        }
+        if (dense && m.Usable(*dense)) {
+          const std::string reason = best.ego.ok ? best.support.weakness : best.ego.failure;
+          FrameReport lost = m.Lost(p, r, reason.empty() ? "thin_overlap" : reason);
+          if (m.canvas) m.deferred = Impl::Deferred{p, lost, m.patch_id, std::move(*dense)};
+          return done(lost);
+        }
       }
     }
   }
