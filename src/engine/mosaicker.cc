@@ -160,7 +160,7 @@ struct Mosaicker::Impl {
     KeyframeFuture products;
     bool described = true;                 // its features are found (products.features)
     bool blended = true;                   // in the patch image (else it links and places only)
-    std::shared_ptr<const Features> dense;  // found when recovery first needs them (Recover, 3.)
+    std::shared_ptr<const Features> dense;  // found when recovery first needs them (RecoverDensely)
   };
   // The frame placed last, keyframe or not.
   struct Placed {
@@ -203,14 +203,6 @@ struct Mosaicker::Impl {
   }
   long long next_track = 0;
   int lost = 0;
-  // Frames rejected while this patch is open, kept for a second chance against later frames and
-  // to start the next patch from when tracking breaks.
-  struct Pending {
-    std::shared_ptr<PreparedFrame> frame;
-    FrameReport report;
-    int tries = 0;
-  };
-  std::deque<Pending> pending;
   MosaicSummary summary;
 
   // Stage timers, in the order of the pipeline; nanoseconds, added atomically (several threads).
@@ -273,16 +265,18 @@ struct Mosaicker::Impl {
       return {FrameLink{index, target, ego.inlier_from, ego.inlier_to}};
     }
   };
-  // A frame registered only across a thin overlap (Recover's third step), rejected for now: the
-  // usual recovery of the frame after it often places both within the patch (lanes joined
-  // without a turn). Joined, opening the next patch, only when that frame fails too.
-  struct Deferred {
+  // Frames rejected while this patch is open, kept for a second chance against later frames and
+  // to start the next patch from when tracking breaks.
+  struct Pending {
     std::shared_ptr<PreparedFrame> frame;
     FrameReport report;
-    int patch = 0;
-    Candidate candidate;
+    int tries = 0;
+    // Registered only across a thin overlap (RecoverDensely), and rejected for now: the usual
+    // recovery of the frame after it often places both within the patch (lanes joined without a
+    // turn). It opens the next patch, joined by this, only when the next frame fails too.
+    std::optional<Candidate> thin_overlap;
   };
-  std::optional<Deferred> deferred;
+  std::deque<Pending> pending;
 
   void InitCamera(cv::Size size);
   std::shared_ptr<const Features> FeaturesOf(PreparedFrame& p);
@@ -290,7 +284,12 @@ struct Mosaicker::Impl {
   // leaves out.
   Features Describe(const cv::Mat& image, const FeatureExtractor& ex);
   // Recovery's last try: the frame and the last keyframe described three times as densely.
-  std::optional<Candidate> RecoverDensely(const PreparedFrame& p, const Features& capped);
+  // `hint`: the frame's own features matched with the last keyframe's, when Recover did that.
+  std::optional<Candidate> RecoverDensely(PreparedFrame& p, const Features& capped, const Matches* hint);
+  // The frame nothing else placed, across a thin overlap (Integrate's step 3): a report when it
+  // was placed or waits, none when it is lost the usual way.
+  std::optional<FrameReport> RecoverAcrossThinOverlap(const std::shared_ptr<PreparedFrame>& p, const Candidate& best,
+                                                      const FrameReport& r, const Matches* hint, Laps& lap);
   // The frame `c` placed across a thin overlap opens the next patch, joined to this one by `c`.
   FrameReport JoinAcrossThinOverlap(const std::shared_ptr<PreparedFrame>& p, const Candidate& c, FrameReport r);
   // SIFT as the frame asks: halved (coarse_features), fewer (followed_features), both or neither.
@@ -300,7 +299,9 @@ struct Mosaicker::Impl {
   }
   Candidate Assess(EgomotionResult ego, const cv::Matx33d& target_to_patch, const std::string& by, int target);
   Candidate Track(const std::shared_ptr<PreparedFrame>& p, bool coarse);
-  std::vector<Candidate> Recover(const std::shared_ptr<PreparedFrame>& p, Laps& lap);
+  // `with_last_key`: set to the frame's matches with the last keyframe when they were made.
+  std::vector<Candidate> Recover(const std::shared_ptr<PreparedFrame>& p, Laps& lap,
+                                 std::optional<Matches>* with_last_key = nullptr);
   bool Usable(const Candidate& c) const;
   const Candidate* Pick(const std::vector<Candidate>& all) const;
   bool WantsKeyframe(const Candidate& c, const cv::Matx33d& to_patch) const;
@@ -466,7 +467,8 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<Prepared
 
 // The frame against the patch's keyframes (features: rotation and scale do not matter) and the
 // patch image around the last frame, when following it failed.
-std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const std::shared_ptr<PreparedFrame>& p, Laps& lap) {
+std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const std::shared_ptr<PreparedFrame>& p, Laps& lap,
+                                                                 std::optional<Matches>* with_last_key) {
   std::vector<Candidate> found;
   const auto f = FeaturesOf(*p);
   lap.Restart();  // FeaturesOf timed itself (counting it here too counted the features twice)
@@ -478,6 +480,7 @@ std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const std::shar
     const auto& theirs = it->products.get().features;
     if (!theirs) continue;
     const Matches m = MatchFeatures(*f, *theirs, extractor.options());
+    if (with_last_key && it == keys.rbegin()) *with_last_key = m;
     Candidate c = Assess(EstimateEgomotion(m.from, m.to, K, ego_options), it->to_patch, "keyframe", it->index);
     if (c.ego.ok) found.push_back(std::move(c));
     if (!found.empty() && found.back().support.strong && found.back().verdict.consistent) break;
@@ -510,8 +513,8 @@ std::vector<Mosaicker::Impl::Candidate> Mosaicker::Impl::Recover(const std::shar
   return found;
 }
 
-std::optional<Mosaicker::Impl::Candidate> Mosaicker::Impl::RecoverDensely(const PreparedFrame& p,
-                                                                         const Features& capped) {
+std::optional<Mosaicker::Impl::Candidate> Mosaicker::Impl::RecoverDensely(PreparedFrame& p, const Features& capped,
+                                                                         const Matches* hint) {
   if (keys.empty() || static_cast<int>(capped.points.size()) < ExtractorFor(p).options().max_features)
     return std::nullopt;
   Key& key = keys.back();
@@ -519,22 +522,57 @@ std::optional<Mosaicker::Impl::Candidate> Mosaicker::Impl::RecoverDensely(const 
   // Frames with nothing in common (the next lane apart) then cost a match, not two descriptions
   // (those made light-cone's and lanes-apart's lane starts 12 % slower to map).
   if (const auto& theirs = key.products.get().features) {
-    const Matches m = MatchFeatures(capped, *theirs, extractor.options());
+    const Matches m = hint ? *hint : MatchFeatures(capped, *theirs, extractor.options());
     if (m.from.size() < 8) return std::nullopt;
     std::vector<uchar> inliers;
     cv::findHomography(m.from, m.to, cv::USAC_MAGSAC, ego_options.homography_threshold_px, inliers, 2000, 0.999);
     if (std::count(inliers.begin(), inliers.end(), 1) < std::max(8, 2 * options.min_inliers / 5)) return std::nullopt;
   }
   if (!key.dense) {
-    const cv::Mat& image = key.frame && !key.frame->image.empty() ? key.frame->image : key.products.get().image;
-    if (image.empty() || image.size() != frame_size) return std::nullopt;
-    key.dense = std::make_shared<const Features>(Describe(image, dense_extractor));
+    if (key.frame && key.frame->dense_features) {
+      key.dense = key.frame->dense_features;  // it waited, and opened this patch
+    } else {
+      const cv::Mat& image = key.frame && !key.frame->image.empty() ? key.frame->image : key.products.get().image;
+      if (image.empty() || image.size() != frame_size) return std::nullopt;
+      key.dense = std::make_shared<const Features>(Describe(image, dense_extractor));
+    }
   }
-  const Features mine = Describe(p.image, dense_extractor);
-  const Matches m = MatchFeatures(mine, *key.dense, dense_extractor.options());
+  if (!p.dense_features) p.dense_features = std::make_shared<const Features>(Describe(p.image, dense_extractor));
+  const Matches m = MatchFeatures(*p.dense_features, *key.dense, dense_extractor.options());
   Candidate c = Assess(EstimateEgomotion(m.from, m.to, K, ego_options), key.to_patch, "dense_features", key.index);
   if (!c.ego.ok) return std::nullopt;
   return c;
+}
+
+// Only the frame right after a waiting one joins it; one placed after all (a second chance) no
+// longer waits.
+std::optional<FrameReport> Mosaicker::Impl::RecoverAcrossThinOverlap(const std::shared_ptr<PreparedFrame>& p,
+                                                                     const Candidate& best, const FrameReport& r,
+                                                                     const Matches* hint, Laps& lap) {
+  const auto f = FeaturesOf(*p);
+  const bool waits = !pending.empty() && pending.back().thin_overlap && pending.back().report.index == r.index - 1;
+  if (waits) {
+    // The frame after a thin overlap fails too: the waiting frame opens the next patch, joined
+    // to this one, and this frame is tried against it.
+    Pending w = std::move(pending.back());
+    pending.pop_back();
+    Unreject(w.report.index);
+    FrameReport opened = w.report;
+    opened.status = "stitched";
+    opened.reason.clear();
+    JoinAcrossThinOverlap(w.frame, *w.thin_overlap, opened);
+    gate->Predict(StepsSinceLast(*p, r.index));
+    Candidate again = Track(p, true);
+    if (Usable(again)) return Place(p, std::move(again), r, lap);
+    hint = nullptr;  // the last keyframe is now the one that waited
+  }
+  std::optional<Candidate> dense = RecoverDensely(*p, *f, hint);
+  lap(kRecovery);
+  if (!dense || !Usable(*dense)) return std::nullopt;
+  const std::string reason = best.ego.ok ? best.support.weakness : best.ego.failure;
+  FrameReport lost = Lost(p, r, reason.empty() ? "thin_overlap" : reason);
+  if (canvas && !pending.empty() && pending.back().report.index == r.index) pending.back().thin_overlap = std::move(dense);
+  return lost;
 }
 
 // A strong registration stands even when unpredicted (a real change of course); a weak one (few
@@ -908,13 +946,14 @@ FrameReport Mosaicker::Impl::Lost(const std::shared_ptr<PreparedFrame>& p, Frame
   FrameReport rep = Reject(r, reason);
   if (gate) gate->Skip();
   if (canvas && options.recover && reason != "featureless") {
-    pending.push_back({p, rep, 0});
+    pending.push_back({p, rep, 0, std::nullopt});
     if (pending.size() > 6) pending.pop_front();
   }
   if (++lost >= options.max_lost_frames && canvas) {
     // The thread is lost: the waiting frames may start the next patch (BreakAt), not this one.
     // The waiting frames' rejections go with whatever comes next, which they may yet open.
     auto waiting = std::move(pending);
+    for (auto& w : waiting) w.thin_overlap.reset();  // placements in the patch that closes
     std::vector<RejectedFrame> carried;
     for (const auto& w : waiting)
       for (auto it = rejected.begin(); it != rejected.end(); ++it)
@@ -1228,7 +1267,8 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
     const auto f = m.FeaturesOf(*p);
     if (f->strong < m.options.min_inliers) return done(m.Lost(p, r, "featureless"));
     if (m.options.recover) {
-      std::vector<Impl::Candidate> more = m.Recover(p, lap);
+      std::optional<Matches> with_last_key;
+      std::vector<Impl::Candidate> more = m.Recover(p, lap, &with_last_key);
       if (best.ego.ok) more.push_back(best);
       if (const Impl::Candidate* pick = m.Pick(more)) best = *pick;
       // 3. Frames that overlap little (stills from an AUV, a lane joined without a turn): of a
@@ -1237,40 +1277,9 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
       //    (there are more to find), it and the last keyframe are described three times as
       //    densely. A strip is a weak hold for a whole patch (it bent lanes joined so by up to
       //    3 px): the frame opens the next patch, joined to this one by that registration.
-      if (!m.Usable(best)) {
-        std::optional<Impl::Candidate> dense = m.RecoverDensely(*p, *f);
-        lap(Impl::kRecovery);
-        // Only for the frame right after it, and while it waits (a second chance places it).
-        const bool waits = m.deferred && m.deferred->patch == m.patch_id && m.deferred->report.index == r.index - 1 &&
-                           std::any_of(m.pending.begin(), m.pending.end(), [&](const Impl::Pending& x) {
-                             return x.report.index == m.deferred->report.index;
-                           });
-        if (!waits) m.deferred.reset();
-        if (waits) {
-          // The frame after a thin overlap fails too: the deferred frame opens the next patch,
-          // and this one is tried against it.
-          Impl::Deferred d = std::move(*m.deferred);
-          m.deferred.reset();
-          m.Unreject(d.report.index);
-          m.pending.erase(std::remove_if(m.pending.begin(), m.pending.end(),
-                                         [&](const Impl::Pending& x) { return x.report.index == d.report.index; }),
-                          m.pending.end());
-          FrameReport opened = d.report;
-          opened.status = "stitched";
-          opened.reason.clear();
-          m.JoinAcrossThinOverlap(d.frame, d.candidate, opened);
-          m.gate->Predict(m.StepsSinceLast(*p, r.index));
-          Impl::Candidate again = m.Track(p, true);
-          if (m.Usable(again)) return done(m.Place(p, std::move(again), r, lap));
-          dense = m.RecoverDensely(*p, *f);
-        }
-        if (dense && m.Usable(*dense)) {
-          const std::string reason = best.ego.ok ? best.support.weakness : best.ego.failure;
-          FrameReport lost = m.Lost(p, r, reason.empty() ? "thin_overlap" : reason);
-          if (m.canvas) m.deferred = Impl::Deferred{p, lost, m.patch_id, std::move(*dense)};
-          return done(lost);
-        }
-      }
+      if (!m.Usable(best))
+        if (auto rep = m.RecoverAcrossThinOverlap(p, best, r, with_last_key ? &*with_last_key : nullptr, lap))
+          return done(*rep);
     }
   }
   if (!m.Usable(best)) {

@@ -219,6 +219,87 @@ TEST(MosaickerRobustness, RealStillsThatOverlapLittleAreAllPlaced) {
   EXPECT_GE(pairs + joins, 7);
 }
 
+// Frames cut from one seafloor at these x offsets (pure translation), pushed in order. Few
+// features a frame (300), so that a thin strip holds too few of them for enough inliers.
+struct StripRun {
+  std::vector<FrameReport> reports;
+  std::map<int, PatchSidecar> patches;
+};
+StripRun PushStrip(const test::ScratchDir& dir, const std::vector<int>& xs) {
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaickerOptions o = Options();
+  o.max_features = 300;
+  StripRun run;
+  {
+    Mosaicker m(store, o);
+    for (size_t i = 0; i < xs.size(); ++i)
+      run.reports.push_back(m.Push(RenderSeafloor(xs[i], 0, 480, 360), "frame_" + std::to_string(i) + ".png"));
+    m.Finish();
+  }
+  Store reopened = Store::Open(dir / "s.rolamos");
+  for (const auto& p : reopened.patches()) run.patches[p.id] = reopened.ReadSidecar(p.id);
+  return run;
+}
+
+// Where frame `index` lies right of frame 0, in pixels, by the sidecars and the links between
+// the patches (each linked to the one before); NaN when it was not placed.
+double PlacedX(const StripRun& run, int index) {
+  auto corner = [&](int i) {
+    cv::Matx33d to_first = cv::Matx33d::eye();  // patch pixels -> the first patch's
+    for (const auto& [id, s] : run.patches) {
+      if (s.link) to_first = to_first * ToMatx(s.link->to_previous);
+      for (const auto& f : s.frames)
+        if (f.index == i) return ApplyHomography(to_first * ToMatx(f.frame_to_patch), cv::Point2d(0, 0)).x;
+    }
+    return std::nan("");
+  };
+  return corner(index) - corner(0);
+}
+
+// A frame that only a strip ties to the patch (a lane joined without a turn) waits one frame.
+// When the frame after it is placed, the waiting frame is placed too, in the same patch (its
+// second chance). Only when the frame after it fails as well does it open the next patch, joined
+// to this one across the strip.
+TEST(MosaickerRobustness, AFrameHeldOnlyByAStripWaitsOneFrameBeforeItOpensAPatch) {
+  // Frames 0-3 at 70 % overlap; frame 4 shares a strip of 62 px (13 %) with frame 3: too few
+  // of its 300 features for the usual registration, enough of three times as many.
+  const std::vector<int> lane = {0, 144, 288, 432, 850};
+  {
+    // The vehicle comes back: frame 5 overlaps frames 3 and 4 by 56 %.
+    test::ScratchDir dir;
+    std::vector<int> xs = lane;
+    xs.push_back(640);
+    const StripRun run = PushStrip(dir, xs);
+    EXPECT_EQ(run.reports[4].status, "rejected") << "frame 4 waits";
+    ASSERT_EQ(run.patches.size(), 1u);
+    const PatchSidecar& s = run.patches.begin()->second;
+    ASSERT_EQ(s.frames.size(), xs.size());
+    for (size_t i = 0; i < xs.size(); ++i) EXPECT_NEAR(PlacedX(run, int(i)), xs[i], 1.0) << "frame " << i;
+    for (const auto& f : s.frames)
+      if (f.index == 4) EXPECT_EQ(f.registered_by.value_or(""), "second_chance");
+    EXPECT_NE(s.closed_by.value_or(""), "thin_overlap");
+  }
+  {
+    // The vehicle goes on: frames 5-7 overlap frame 4 at 70 %, and nothing before it.
+    test::ScratchDir dir;
+    std::vector<int> xs = lane;
+    for (int k = 1; k <= 3; ++k) xs.push_back(lane.back() + 144 * k);
+    const StripRun run = PushStrip(dir, xs);
+    EXPECT_EQ(run.reports[4].status, "rejected") << "frame 4 waits";
+    ASSERT_EQ(run.patches.size(), 2u);
+    const PatchSidecar& first = run.patches.begin()->second;
+    const PatchSidecar& second = std::next(run.patches.begin())->second;
+    EXPECT_EQ(first.closed_by.value_or(""), "thin_overlap");
+    EXPECT_EQ(first.frames.size(), 4u);
+    ASSERT_TRUE(second.link.has_value());
+    EXPECT_EQ(second.link->previous_patch, first.id);
+    ASSERT_EQ(second.frames.size(), 4u);
+    EXPECT_EQ(second.frames.front().index, 4);
+    EXPECT_EQ(second.frames.front().registered_by.value_or(""), "dense_features");
+    for (size_t i = 0; i < xs.size(); ++i) EXPECT_NEAR(PlacedX(run, int(i)), xs[i], 1.0) << "frame " << i;
+  }
+}
+
 TEST(MosaickerRobustness, RepeatedFramesArePlacedAndBlackFramesRejectedWithTheirReason) {
   test::ScratchDir dir;
   WriteSurvey(test::SmallSurvey(16), dir / "survey");

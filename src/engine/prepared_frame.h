@@ -23,6 +23,9 @@ struct PreparedFrame {
   // SIFT features: found when first needed (keyframes, recovery), once, by whoever asks first.
   std::once_flag features_once;
   std::shared_ptr<const Features> features;
+  // Described three times as densely, when recovery's last try needed it (engine thread only):
+  // kept, for the frame may be tried again as the keyframe the next one is matched with.
+  std::shared_ptr<const Features> dense_features;
   // Set before they are found: a keyframe that links but is not blended is described by SIFT
   // without its doubled first octave (half the time; its links are held by its neighbours').
   bool coarse_features = false;
