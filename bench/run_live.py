@@ -12,7 +12,8 @@ about as fast as the feed.
 
 The surveys are the spread's (bench/run_engine_spread.py writes them): still frames at 70 %
 overlap fed at 10 frames/s (a stills camera is slower), and camera-rate frames (95 % overlap) fed
-at 30 frames/s, at 800 x 600 and 1292 x 964.
+at 30 frames/s, at 800 x 600 and 1292 x 964. Two more stills feeds make recovery work: lanes that
+do not overlap, and dim, degraded 640 x 480 frames.
 
   bench/run_live.py [--spread bench/out/spread] [--feeds name,...] [--frames 150] [--runs 3]
                     [--cli OLD,build/rolamos --names before,after] [--fps F] [--load 0.5]
@@ -32,6 +33,10 @@ FEEDS = {
     "stills-800-10fps": ("lawn-noturn", 10),
     "video-800-30fps": ("video-800", 30),
     "video-1292-30fps": ("video-1292", 30),
+    # Lanes that do not overlap, and dim, degraded stills: frames that recovery must place (the
+    # failure path runs on the engine's thread).
+    "lanes-apart-10fps": ("lanes-apart", 10),
+    "degraded-640-10fps": ("small-degraded", 10),
 }
 
 

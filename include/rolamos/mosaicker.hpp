@@ -305,7 +305,8 @@ class Mosaicker {
   // Load shedding, for a live run behind its feed: while on, keyframes integrated are described
   // at `describe_overlap` when that is below MosaickerOptions::describe_overlap (SIFT is most of
   // a still keyframe's cost). Off: as the options say. (Leaving out the search of the patch image
-  // for frames that cannot be followed as well lost more frames than it saved, session 12.)
+  // for frames that cannot be followed as well lost more frames than it saved, session 12.) While
+  // on, recovery's last try (the frame and the last keyframe described densely) is left out.
   // Same thread as Integrate. Throws Error when `describe_overlap` is outside (0, 1].
   void ShedLoad(bool on, double describe_overlap = 0.5);
   // Called (from the writer thread) after each patch is committed to the store.
