@@ -235,8 +235,9 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
       ->capture_default_str();
   cmd->add_option("--shed-overlap", s->live_options.shed_describe_overlap,
                   "live: while the engine is behind (half the backlog), keyframes are described only when they "
-                  "overlap the last described one less than this, instead of --describe-overlap: frames are "
-                  "mapped faster, at some cost in accuracy, rather than skipped; 1 = never")
+                  "overlap the last described one less than this, instead of --describe-overlap, and recovery's dense "
+                  "last try is left out: frames are mapped faster, at some cost in accuracy, rather than skipped; 1 = "
+                  "never")
       ->capture_default_str();
   cmd->add_option("--preview-interval", s->live_options.preview_s,
                   "live: seconds between previews of the open patch (STORE/live/preview.json; 0 = none)")
