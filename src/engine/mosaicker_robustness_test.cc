@@ -225,13 +225,14 @@ struct StripRun {
   std::vector<FrameReport> reports;
   std::map<int, PatchSidecar> patches;
 };
-StripRun PushStrip(const test::ScratchDir& dir, const std::vector<int>& xs) {
+StripRun PushStrip(const test::ScratchDir& dir, const std::vector<int>& xs, bool shed_load = false) {
   Store store = Store::Create(dir / "s.rolamos");
   MosaickerOptions o = Options();
   o.max_features = 300;
   StripRun run;
   {
     Mosaicker m(store, o);
+    m.ShedLoad(shed_load);
     for (size_t i = 0; i < xs.size(); ++i)
       run.reports.push_back(m.Push(RenderSeafloor(xs[i], 0, 480, 360), "frame_" + std::to_string(i) + ".png"));
     m.Finish();
@@ -259,7 +260,7 @@ double PlacedX(const StripRun& run, int index) {
 // A frame that only a strip ties to the patch (a lane joined without a turn) waits one frame.
 // When the frame after it is placed, the waiting frame is placed too, in the same patch (its
 // second chance). Only when the frame after it fails as well does it open the next patch, joined
-// to this one across the strip.
+// to this one across the strip. Behind a live feed that denser description is left out.
 TEST(MosaickerRobustness, AFrameHeldOnlyByAStripWaitsOneFrameBeforeItOpensAPatch) {
   // Frames 0-3 at 70 % overlap; frame 4 shares a strip of 62 px (13 %) with frame 3: too few
   // of its 300 features for the usual registration, enough of three times as many.
@@ -297,6 +298,22 @@ TEST(MosaickerRobustness, AFrameHeldOnlyByAStripWaitsOneFrameBeforeItOpensAPatch
     EXPECT_EQ(second.frames.front().index, 4);
     EXPECT_EQ(second.frames.front().registered_by.value_or(""), "dense_features");
     for (size_t i = 0; i < xs.size(); ++i) EXPECT_NEAR(PlacedX(run, int(i)), xs[i], 1.0) << "frame " << i;
+  }
+  {
+    // The same behind a live feed (load shed): no dense descriptions. Frame 4 is not placed
+    // across the strip; frame 5 registers to it, and the two open an unjoined patch.
+    test::ScratchDir dir;
+    std::vector<int> xs = lane;
+    for (int k = 1; k <= 3; ++k) xs.push_back(lane.back() + 144 * k);
+    const StripRun run = PushStrip(dir, xs, true);
+    ASSERT_EQ(run.patches.size(), 2u);
+    const PatchSidecar& first = run.patches.begin()->second;
+    const PatchSidecar& second = std::next(run.patches.begin())->second;
+    EXPECT_EQ(first.closed_by.value_or(""), "lost_tracking");
+    EXPECT_FALSE(second.link.has_value());
+    ASSERT_EQ(second.frames.size(), 4u);
+    EXPECT_EQ(second.frames.front().index, 4);
+    EXPECT_EQ(second.frames.front().registered_by.value_or(""), "second_chance");
   }
 }
 
