@@ -286,6 +286,10 @@ struct Mosaicker::Impl {
   // Recovery's last try: the frame and the last keyframe described three times as densely.
   // `hint`: the frame's own features matched with the last keyframe's, when Recover did that.
   std::optional<Candidate> RecoverDensely(PreparedFrame& p, const Features& capped, const Matches* hint);
+  // A frame of another size than the survey's: a report when that is all it gets (rejected, or
+  // opening the patch of the new size), none when it goes on into the patch just opened.
+  std::optional<FrameReport> FollowSizeChange(const std::shared_ptr<PreparedFrame>& p, FrameReport& r);
+  FrameReport OpenPatch(const std::shared_ptr<PreparedFrame>& p, FrameReport r, Laps& lap);
   // The frame nothing else placed, across a thin overlap (Integrate's step 3): a report when it
   // was placed or waits, none when it is lost the usual way.
   std::optional<FrameReport> RecoverAcrossThinOverlap(const std::shared_ptr<PreparedFrame>& p, const Candidate& best,
@@ -1135,6 +1139,42 @@ FrameReport Mosaicker::Impl::Place(const std::shared_ptr<PreparedFrame>& p, Cand
   return r;
 }
 
+// One frame of another size is rejected; two in a row mean the camera changed: the patch closes
+// and the frames go on at the new size, the first of them no longer rejected.
+std::optional<FrameReport> Mosaicker::Impl::FollowSizeChange(const std::shared_ptr<PreparedFrame>& p, FrameReport& r) {
+  if (!resized || resized->size != p->size) {
+    resized = p;
+    resized_report = Reject(r, "size_changed: " + SizeText(p->size) + ", the survey is " + SizeText(frame_size));
+    return resized_report;
+  }
+  Unreject(resized_report.index);
+  ClosePatch("size_changed");
+  InitCamera(p->size);
+  FrameReport first = resized_report;
+  first.reason.clear();
+  if (FeaturesOf(*resized)->strong >= options.min_inliers) StartPatch(resized, first, std::nullopt);
+  else Reject(first, "featureless");
+  resized.reset();
+  if (canvas) return std::nullopt;  // this frame follows the first of its size
+  if (FeaturesOf(*p)->strong < options.min_inliers) return Lost(p, r, "featureless");
+  StartPatch(p, r, std::nullopt);
+  return r;
+}
+
+// No patch is open: the frame opens one, unless a frame rejected before it (the thread was
+// lost) registers to it and opens it instead, this frame then placed in it.
+FrameReport Mosaicker::Impl::OpenPatch(const std::shared_ptr<PreparedFrame>& p, FrameReport r, Laps& lap) {
+  if (FeaturesOf(*p)->strong < options.min_inliers) return Lost(p, r, "featureless");
+  if (BreakAt(p)) {
+    gate->Predict(StepsSinceLast(*p, r.index));
+    Candidate again = Track(p, true);
+    if (Usable(again)) return Place(p, std::move(again), r, lap);
+    ClosePatch("lost_tracking");
+  }
+  StartPatch(p, r, std::nullopt);
+  return r;
+}
+
 Mosaicker::Mosaicker(Store store, const MosaickerOptions& options) {
   std::string error;
   if (!options.IsValid(&error)) Fail("mosaic options", error);
@@ -1213,46 +1253,10 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   };
   if (!p->error.empty()) return done(m.Reject(r, p->error));
   if (m.frame_size.area() == 0) m.InitCamera(p->size);
-  if (p->size != m.frame_size) {
-    // One frame of another size is rejected; two in a row mean the camera changed: the patch
-    // closes and the frames go on at the new size.
-    const bool again = m.resized && m.resized->size == p->size;
-    if (!again) {
-      m.resized = p;
-      m.resized_report = m.Reject(r, "size_changed: " + SizeText(p->size) + ", the survey is " + SizeText(m.frame_size));
-      return done(m.resized_report);
-    }
-    m.Unreject(m.resized_report.index);
-    m.ClosePatch("size_changed");
-    m.InitCamera(p->size);
-    FrameReport first = m.resized_report;
-    first.reason.clear();
-    const auto f = m.FeaturesOf(*m.resized);
-    if (f->strong >= m.options.min_inliers) {
-      m.StartPatch(m.resized, first, std::nullopt);
-    } else {
-      m.Reject(first, "featureless");
-    }
-    m.resized.reset();
-    if (!m.canvas) {
-      if (m.FeaturesOf(*p)->strong < m.options.min_inliers) return done(m.Lost(p, r, "featureless"));
-      m.StartPatch(p, r, std::nullopt);
-      return done(r);
-    }
-  }
+  if (p->size != m.frame_size)
+    if (auto rep = m.FollowSizeChange(p, r)) return done(*rep);
   m.resized.reset();
-  if (!m.canvas) {
-    const auto f = m.FeaturesOf(*p);
-    if (f->strong < m.options.min_inliers) return done(m.Lost(p, r, "featureless"));
-    if (m.BreakAt(p)) {  // a frame rejected before it opens the patch
-      m.gate->Predict(m.StepsSinceLast(*p, r.index));
-      Impl::Candidate again = m.Track(p, true);
-      if (m.Usable(again)) return done(m.Place(p, std::move(again), r, lap));
-      m.ClosePatch("lost_tracking");
-    }
-    m.StartPatch(p, r, std::nullopt);
-    return done(r);
-  }
+  if (!m.canvas) return done(m.OpenPatch(p, r, lap));
   m.gate->Predict(m.StepsSinceLast(*p, r.index));
   // 1. Followed from the current keyframe, from where the motion model expects it; again from a
   //    coarse correlation when that failed. (Correlating first saves a second follow on half the
