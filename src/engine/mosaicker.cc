@@ -292,8 +292,13 @@ struct Mosaicker::Impl {
   FrameReport OpenPatch(const std::shared_ptr<PreparedFrame>& p, FrameReport r, Laps& lap);
   // The frame nothing else placed, across a thin overlap (Integrate's step 3): a report when it
   // was placed or waits, none when it is lost the usual way.
-  std::optional<FrameReport> RecoverAcrossThinOverlap(const std::shared_ptr<PreparedFrame>& p, const Candidate& best,
-                                                      const FrameReport& r, const Matches* hint, Laps& lap);
+  std::optional<FrameReport> RecoverAcrossThinOverlap(const std::shared_ptr<PreparedFrame>& p, const Features& f,
+                                                      const Candidate& best, const FrameReport& r, const Matches* hint,
+                                                      Laps& lap);
+  // The patch closes (`why`) with frame `p` as its closing frame, placed at `to_patch` and adjusted
+  // with its keyframes through `links`; `p` opens the next patch, linked to this one through it.
+  void OpenJoinedPatch(const std::shared_ptr<PreparedFrame>& p, FrameReport& r, const cv::Matx33d& to_patch,
+                       std::vector<FrameLink> links, const std::string& why);
   // The frame `c` placed across a thin overlap opens the next patch, joined to this one by `c`.
   FrameReport JoinAcrossThinOverlap(const std::shared_ptr<PreparedFrame>& p, const Candidate& c, FrameReport r);
   // SIFT as the frame asks: halved (coarse_features), fewer (followed_features), both or neither.
@@ -342,7 +347,9 @@ struct Mosaicker::Impl {
   void SecondChance(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, Laps& lap);
   FrameReport Place(const std::shared_ptr<PreparedFrame>& p, Candidate best, FrameReport r, Laps& lap);
   FrameRecord RecordOf(const FrameReport& r, const cv::Matx33d& to_patch) const;
-  void Unreject(int index);
+  // A rejected frame placed after all: out of the rejected list, counted as recovered; its report
+  // as stitched.
+  FrameReport Unreject(const FrameReport& rejected);
   // The overlay mask at detection scale `s` (empty when there is none).
   cv::Mat ScaledUsable(double s) {
     std::lock_guard<std::mutex> lock(mask_mutex);
@@ -402,11 +409,16 @@ FrameReport Mosaicker::Impl::Reject(FrameReport r, const std::string& reason) {
   return r;
 }
 
-void Mosaicker::Impl::Unreject(int index) {
-  rejected.erase(std::remove_if(rejected.begin(), rejected.end(), [&](const RejectedFrame& x) { return x.index == index; }),
+FrameReport Mosaicker::Impl::Unreject(const FrameReport& report) {
+  rejected.erase(std::remove_if(rejected.begin(), rejected.end(),
+                                [&](const RejectedFrame& x) { return x.index == report.index; }),
                  rejected.end());
   --summary.rejected;
   ++summary.recovered;
+  FrameReport r = report;
+  r.status = "stitched";
+  r.reason.clear();
+  return r;
 }
 
 FrameRecord Mosaicker::Impl::RecordOf(const FrameReport& r, const cv::Matx33d& to_patch) const {
@@ -553,26 +565,22 @@ std::optional<Mosaicker::Impl::Candidate> Mosaicker::Impl::RecoverDensely(Prepar
 // Only the frame right after a waiting one joins it; one placed after all (a second chance) no
 // longer waits.
 std::optional<FrameReport> Mosaicker::Impl::RecoverAcrossThinOverlap(const std::shared_ptr<PreparedFrame>& p,
-                                                                     const Candidate& best, const FrameReport& r,
-                                                                     const Matches* hint, Laps& lap) {
-  const auto f = FeaturesOf(*p);
+                                                                     const Features& f, const Candidate& best,
+                                                                     const FrameReport& r, const Matches* hint,
+                                                                     Laps& lap) {
   const bool waits = !pending.empty() && pending.back().thin_overlap && pending.back().report.index == r.index - 1;
   if (waits) {
     // The frame after a thin overlap fails too: the waiting frame opens the next patch, joined
     // to this one, and this frame is tried against it.
     Pending w = std::move(pending.back());
     pending.pop_back();
-    Unreject(w.report.index);
-    FrameReport opened = w.report;
-    opened.status = "stitched";
-    opened.reason.clear();
-    JoinAcrossThinOverlap(w.frame, *w.thin_overlap, opened);
+    JoinAcrossThinOverlap(w.frame, *w.thin_overlap, Unreject(w.report));
     gate->Predict(StepsSinceLast(*p, r.index));
     Candidate again = Track(p, true);
     if (Usable(again)) return Place(p, std::move(again), r, lap);
     hint = nullptr;  // the last keyframe is now the one that waited
   }
-  std::optional<Candidate> dense = RecoverDensely(*p, *f, hint);
+  std::optional<Candidate> dense = RecoverDensely(*p, f, hint);
   lap(kRecovery);
   if (!dense || !Usable(*dense)) return std::nullopt;
   const std::string reason = best.ego.ok ? best.support.weakness : best.ego.failure;
@@ -992,11 +1000,8 @@ bool Mosaicker::Impl::BreakAt(const std::shared_ptr<PreparedFrame>& p) {
     // The frames before this one stay rejected from the old patch; this one opens the next.
     Pending start = *it;
     pending.clear();  // the frames before it stay rejected where they were
-    Unreject(start.report.index);
+    FrameReport r = Unreject(start.report);
     if (canvas) ClosePatch("lost_tracking");
-    FrameReport r = start.report;
-    r.status = "stitched";
-    r.reason.clear();
     StartPatch(start.frame, r, std::nullopt);
     frames.back().registered_by = "second_chance";
     return true;
@@ -1011,17 +1016,23 @@ FrameReport Mosaicker::Impl::JoinAcrossThinOverlap(const std::shared_ptr<Prepare
   r.bilateral_error = c.ego.bilateral_error_mean;
   // Adjusted with the patch it leaves as its closing frame, a leaf on one link: it cannot bend
   // the frames before it.
-  ClosingFrame closing;
-  closing.index = r.index;
-  closing.to_patch = c.to_patch;
-  closing.links = c.Links(r.index);
-  PatchLink join;
-  join.previous_patch = patch_id;
-  link_to_first = c.to_patch;
-  ClosePatch("thin_overlap", closing);
-  StartPatch(p, r, join);
+  OpenJoinedPatch(p, r, c.to_patch, c.Links(r.index), "thin_overlap");
   frames.back().registered_by = c.registered_by;
   return r;
+}
+
+void Mosaicker::Impl::OpenJoinedPatch(const std::shared_ptr<PreparedFrame>& p, FrameReport& r,
+                                      const cv::Matx33d& to_patch, std::vector<FrameLink> links,
+                                      const std::string& why) {
+  ClosingFrame closing;
+  closing.index = r.index;
+  closing.to_patch = to_patch;
+  closing.links = std::move(links);
+  PatchLink join;
+  join.previous_patch = patch_id;
+  link_to_first = to_patch;  // the closing frame is the next patch's first
+  ClosePatch(why, closing);
+  StartPatch(p, r, join);
 }
 
 // Frames rejected earlier in this patch, tried again against the frame just placed: a frame that
@@ -1038,16 +1049,13 @@ void Mosaicker::Impl::SecondChance(const std::shared_ptr<PreparedFrame>& p, cons
       it = ++it->tries >= 2 ? pending.erase(it) : std::next(it);
       continue;
     }
-    FrameReport r = it->report;
-    r.status = "stitched";
-    r.reason.clear();
+    FrameReport r = Unreject(it->report);
     r.matches = c.ego.matches;
     r.inliers = c.ego.inliers;
     FrameRecord rec = RecordOf(r, c.to_patch);
     rec.registered_by = "second_chance";
     std::vector<FrameLink> found = c.Links(r.index);
     for (auto& l : found) l.b = last.index;
-    Unreject(r.index);
     AddKeyframe(it->frame, c.to_patch, nullptr, std::move(found), std::move(rec), false);
     it = pending.erase(it);
   }
@@ -1102,15 +1110,8 @@ FrameReport Mosaicker::Impl::Place(const std::shared_ptr<PreparedFrame>& p, Cand
   if (memory_full || checkpoint || !canvas->Fits(PatchCanvas::FrameBounds(to_patch, frame_size))) {
     // The pixel budget is reached: close the patch, start the next one with this frame, and
     // remember how the two join (this frame, adjusted with both).
-    ClosingFrame closing;
-    closing.index = r.index;
-    closing.to_patch = to_patch;
-    closing.links = found;
-    PatchLink join;
-    join.previous_patch = patch_id;
-    link_to_first = to_patch;  // the closing frame is the next patch's first
-    ClosePatch(memory_full ? "frame_memory" : checkpoint ? "checkpoint" : "pixel_budget", closing);
-    StartPatch(p, r, join);
+    OpenJoinedPatch(p, r, to_patch, std::move(found),
+                    memory_full ? "frame_memory" : checkpoint ? "checkpoint" : "pixel_budget");
     return r;
   }
   // ECC aligns a keyframe with the patch image it is blended into; the others are placed by the
@@ -1147,11 +1148,9 @@ std::optional<FrameReport> Mosaicker::Impl::FollowSizeChange(const std::shared_p
     resized_report = Reject(r, "size_changed: " + SizeText(p->size) + ", the survey is " + SizeText(frame_size));
     return resized_report;
   }
-  Unreject(resized_report.index);
+  FrameReport first = Unreject(resized_report);
   ClosePatch("size_changed");
   InitCamera(p->size);
-  FrameReport first = resized_report;
-  first.reason.clear();
   if (FeaturesOf(*resized)->strong >= options.min_inliers) StartPatch(resized, first, std::nullopt);
   else Reject(first, "featureless");
   resized.reset();
@@ -1284,7 +1283,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
       //    densely. A strip is a weak hold for a whole patch (it bent lanes joined so by up to
       //    3 px): the frame opens the next patch, joined to this one by that registration.
       if (!m.Usable(best))
-        if (auto rep = m.RecoverAcrossThinOverlap(p, best, r, with_last_key ? &*with_last_key : nullptr, lap))
+        if (auto rep = m.RecoverAcrossThinOverlap(p, *f, best, r, with_last_key ? &*with_last_key : nullptr, lap))
           return done(*rep);
     }
   }
