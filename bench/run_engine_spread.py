@@ -81,9 +81,22 @@ KINDS = {
                     ["PHOTO7", "--width", "800", "--height", "600", "--frames", "300", "--fov", "70", "--lanes", "2",
                      "--overlap", "0.95", "--gsd", "0.8", "--attitude-jitter", "0.3", "--tilt", "1", "--seed", "3",
                      "--video", "video.mp4"]),
+    # Session 17's look at kinds the spread lacked: the lights on video, and small frames of a
+    # narrow camera under strong lights over lanes that do not overlap. Both are far above 0.5 px;
+    # the first from its JPEG frames is not (video-1292-lights-jpeg): MPEG-4 flattens dark ground.
+    "video-1292-lights": ("video 1292 x 964 at 30 frames/s, 65 deg, the lights' cone, strong vignetting, "
+                          "exposure jitter, MPEG-4, 300 frames",
+                          ["PHOTO2", "--frames", "300", "--fov", "65", "--lanes", "2", "--overlap", "0.95", "--gsd", "0.7",
+                           "--light-cone", "0.8", "--vignetting", "0.7", "--exposure-jitter", "0.08",
+                           "--attitude-jitter", "0.3", "--tilt", "1", "--seed", "9", "--video", "video.mp4"]),
+    "small-narrow-lights": ("lawnmower 640 x 480, 50 deg, lanes that do not overlap, the lights' cone, strong "
+                            "vignetting, 150 frames",
+                            ["PHOTO3", "--width", "640", "--height", "480", "--fov", "50", "--frames", "150", "--lanes", "5",
+                             "--no-turns", "--overlap", "0.7", "--side-overlap", "0", "--gsd", "1.0", "--vignetting", "0.8",
+                             "--light-cone", "0.8", "--noise", "4", "--attitude-jitter", "1", "--seed", "11"]),
 }
 # The video surveys' JPEG frames (same survey, no video codec).
-SAME_SURVEY = {"video-1292-jpeg": "video-1292", "video-800-jpeg": "video-800"}
+SAME_SURVEY = {"video-1292-jpeg": "video-1292", "video-800-jpeg": "video-800", "video-1292-lights-jpeg": "video-1292-lights"}
 for _name, _of in SAME_SURVEY.items():
     KINDS[_name] = (KINDS[_of][0].replace("MPEG-4", "its JPEG frames"), KINDS[_of][1])
 
