@@ -268,7 +268,11 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
                   "halve frames for following at least once all the same: always (video codecs), never (stills), "
                   "auto (always for a video file or stream)")
       ->capture_default_str();
-  cmd->add_option("--track-points", o.track_points, "points a keyframe hands on to the frames after it")
+  cmd->add_option("--video-track-pixels", o.video_track_pixels,
+                  "frames halved for following (--track-halve) are then halved until they hold at most this many "
+                  "pixels: large video frames at a quarter")
+      ->capture_default_str();
+  cmd->add_option("--track-points", o.track_points, "points a keyframe hands on to the frames after it (twice as many on video followed at a quarter)")
       ->capture_default_str();
   cmd->add_option("--track-turn", o.track_turn_deg,
                   "a frame turned more than this many degrees from the one it is followed from is followed in a "

@@ -53,7 +53,12 @@ struct MosaickerOptions {
   // "auto": always for a video file or stream, never for images (MosaicInput and MosaicLive
   // decide from the input; frames pushed one by one count as images).
   std::string track_halve = "auto";
-  int track_points = 300;       // points a keyframe hands on
+  // Frames halved so (a video's) are then halved until they hold at most this many pixels (or
+  // track_pixels, the smaller): 1292 x 964 and 1920 x 1080 at a quarter, 1280 x 720 and smaller at
+  // half. A codec leaves large frames little fine detail to follow; at a quarter, with twice the
+  // track_points, they are followed better and faster (bench/RESULTS.md, session 17).
+  double video_track_pixels = 0.25e6;
+  int track_points = 300;       // points a keyframe hands on (twice as many on video followed at a quarter)
   // A frame turned more than this (degrees) from the frame it is followed from is followed in a
   // copy warped back by the predicted motion (Lucas-Kanade's windows do not turn). 0 = never.
   double track_turn_deg = 2.0;

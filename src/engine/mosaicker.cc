@@ -138,6 +138,7 @@ struct Mosaicker::Impl {
 
   // The first frame fixes the size and the camera.
   cv::Size frame_size;
+  int track_points = 0;  // what a keyframe hands on at this frame size (InitCamera)
   cv::Matx33d K = cv::Matx33d::eye();
   std::shared_ptr<const FeatherCode> weights;
   // Static overlays: 255 where the frame is usable (full size), and at the detection scale.
@@ -365,6 +366,10 @@ void Mosaicker::Impl::InitCamera(cv::Size size) {
   frame_size = size;
   K = pre.CameraMatrix(size);
   summary.track_scale = tracker.options().ScaleFor(size);
+  // Video followed at a quarter (video_track_pixels) hands on twice the points: its pyramid is a
+  // quarter of the half-size one's and a point costs what it did; twice the points place the
+  // frames better than half size did, and still faster (bench/RESULTS.md, session 17).
+  track_points = options.track_points * (tracker.options().halve_once && summary.track_scale <= 0.25 ? 2 : 1);
   cv::Mat w = FeatherWeights(size, options.feather_sigma);
   if (!usable.empty() && usable.size() == size) w.setTo(0, usable == 0);  // overlays never blend
   weights = std::make_shared<const FeatherCode>(w);
@@ -844,8 +849,8 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
     key.points = c->at;
     key.ids = c->ids;
   }
-  const int wanted = options.track_points - static_cast<int>(key.points.size());
-  if (wanted > options.track_points / 8)
+  const int wanted = track_points - static_cast<int>(key.points.size());
+  if (wanted > track_points / 8)
     for (const auto& q : tracker.Corners(*p->track, key.points, wanted)) {
       key.points.push_back(q);
       key.ids.push_back(next_track++);

@@ -242,6 +242,16 @@ TEST(Mosaicker, ReadsVideoAndFrameLists) {
   o.track_halve = "always";
   Store list_halved = Store::Create(dir / "lh.rolamos");
   EXPECT_EQ(MosaicInput(dir / "frames.txt", list_halved, o).track_scale, 0.5);
+  // A video's frames go on down to video_track_pixels (1292 x 964 video at a quarter by default;
+  // these small frames when asked); stills do not.
+  o.track_halve = "auto";
+  o.video_track_pixels = 0.03e6;
+  Store video_quarter = Store::Create(dir / "vq.rolamos");
+  const MosaicSummary q = MosaicInput(dir / "dive.avi", video_quarter, o);
+  EXPECT_EQ(q.track_scale, 0.25);
+  EXPECT_GE(q.stitched, 15);
+  Store list_full = Store::Create(dir / "lf.rolamos");
+  EXPECT_EQ(MosaicInput(dir / "frames.txt", list_full, o).track_scale, 1.0);
 }
 
 TEST(Mosaicker, AutoCalibrationIsEstimatedAndKeptInTheStore) {

@@ -63,6 +63,7 @@ EccOptions ToEccOptions(const MosaickerOptions& o) {
 TrackerOptions ToTrackerOptions(const MosaickerOptions& o) {
   TrackerOptions t;
   t.track_pixels = o.track_pixels;
+  t.codec_pixels = o.video_track_pixels;
   t.max_points = o.track_points;
   t.turn_deg = o.track_turn_deg;
   // "auto" is decided by the input before the engine; frames pushed to it count as images.

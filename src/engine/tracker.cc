@@ -19,6 +19,10 @@ bool TrackerOptions::IsValid(std::string* error) const {
     *error = "tracking image size " + std::to_string(track_pixels) + " pixels is outside 2e4..1e8";
     return false;
   }
+  if (!(codec_pixels >= 2e4 && codec_pixels <= 1e8)) {
+    *error = "tracking image size for video " + std::to_string(codec_pixels) + " pixels is outside 2e4..1e8";
+    return false;
+  }
   if (max_points < 30 || window < 5 || window > 61 || levels < 0 || levels > 6) {
     *error = "tracker settings are out of range (points >= 30, window 5..61, levels 0..6)";
     return false;
@@ -46,7 +50,8 @@ double TrackerOptions::ScaleFor(cv::Size frame) const {
     scale = 0.5;
     area /= 4;
   }
-  for (; area > track_pixels; area /= 4) scale /= 2;
+  const double most = halve_once ? std::min(track_pixels, codec_pixels) : track_pixels;
+  for (; area > most; area /= 4) scale /= 2;
   return scale;
 }
 

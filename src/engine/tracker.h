@@ -26,6 +26,13 @@ struct TrackerOptions {
   // frames/s). Stills lose by it (800 x 600 and 640 x 480: 0.71 against 1.23 px on strong
   // noise and marine snow, 0.30 against 0.35 with lanes apart; bench/RESULTS.md).
   bool halve_once = false;
+  // Such frames are then halved until they hold at most this many pixels (with track_pixels, the
+  // smaller): 1292 x 964 and 1920 x 1080 at a quarter, 1280 x 720 and smaller at half. What a
+  // codec left of large frames is followed over four times the ground, in a sixteenth of the
+  // pyramid; the engine hands on twice the points there (MosaickerOptions::track_points). MPEG-4
+  // at 1292 x 964: 0.26 against 0.32 px per patch, dark under the lights' cone 0.63 against 0.99,
+  // 1920 x 1080 0.12 against 0.16, and faster (bench/RESULTS.md, session 17).
+  double codec_pixels = 0.25e6;
   int max_points = 300;     // points a keyframe hands on
   int window = 21;          // Lucas-Kanade window, tracking pixels
   int levels = 3;           // pyramid levels above the tracking image

@@ -46,6 +46,12 @@ TEST(Tracker, ScaleHalvesUntilTheTrackingImageIsSmallEnough) {
   EXPECT_EQ(o.ScaleFor({480, 360}), 1.0);  // under 0.4 of track_pixels
   EXPECT_EQ(o.ScaleFor({640, 480}), 0.5);
   EXPECT_EQ(o.ScaleFor({800, 600}), 0.5);
+  EXPECT_EQ(o.ScaleFor({1280, 720}), 0.5);
+  // Large video frames then go on down to codec_pixels.
+  EXPECT_EQ(o.ScaleFor({1292, 964}), 0.25);
+  EXPECT_EQ(o.ScaleFor({1920, 1080}), 0.25);
+  EXPECT_EQ(o.ScaleFor({3840, 2160}), 0.125);
+  o.codec_pixels = 1e6;  // or track_pixels, the smaller
   EXPECT_EQ(o.ScaleFor({1292, 964}), 0.5);
   EXPECT_EQ(o.ScaleFor({3840, 2160}), 0.25);
   std::string error;
