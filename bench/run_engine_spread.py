@@ -94,6 +94,15 @@ KINDS = {
                             ["PHOTO3", "--width", "640", "--height", "480", "--fov", "50", "--frames", "150", "--lanes", "5",
                              "--no-turns", "--overlap", "0.7", "--side-overlap", "0", "--gsd", "1.0", "--vignetting", "0.8",
                              "--light-cone", "0.8", "--noise", "4", "--attitude-jitter", "1", "--seed", "11"]),
+    # Large video frames, followed at a quarter since session 17: HD, and a random walk (turns).
+    "video-1920": ("video 1920 x 1080 at 30 frames/s, 80 deg, MPEG-4, 300 frames",
+                   ["PHOTO4", "--width", "1920", "--height", "1080", "--fov", "80", "--frames", "300", "--lanes", "2",
+                    "--overlap", "0.95", "--gsd", "0.6", "--attitude-jitter", "0.3", "--tilt", "1", "--seed", "12",
+                    "--video", "video.mp4"]),
+    "video-1292-random": ("video 1292 x 964 at 30 frames/s, random walk (turns up to 8 deg a frame), MPEG-4, 300 frames",
+                          ["PHOTO5", "--frames", "300", "--fov", "60", "--path", "random", "--max-turn", "8",
+                           "--overlap", "0.93", "--gsd", "0.8", "--attitude-jitter", "0.5", "--tilt", "1", "--seed", "14",
+                           "--video", "video.mp4"]),
 }
 # The video surveys' JPEG frames (same survey, no video codec).
 SAME_SURVEY = {"video-1292-jpeg": "video-1292", "video-800-jpeg": "video-800", "video-1292-lights-jpeg": "video-1292-lights"}
