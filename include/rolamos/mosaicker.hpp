@@ -53,9 +53,9 @@ struct MosaickerOptions {
   // "auto": always for a video file or stream, never for images (MosaicInput and MosaicLive
   // decide from the input; frames pushed one by one count as images).
   std::string track_halve = "auto";
-  // Frames halved so (a video's) are then halved until they hold at most this many pixels (or
-  // track_pixels, the smaller): 1292 x 964 and 1920 x 1080 at a quarter, 1280 x 720 and smaller at
-  // half. A codec leaves large frames little fine detail to follow; at a quarter, with twice the
+  // A video's frames, halved once by track_halve, are then halved until they hold at most this
+  // many pixels (or track_pixels, the smaller): 1292 x 964 and 1920 x 1080 at a quarter,
+  // 1280 x 720 and smaller at half. A codec leaves large frames little fine detail to follow; at a quarter, with twice the
   // track_points, they are followed better and faster (bench/RESULTS.md, session 17).
   double video_track_pixels = 0.25e6;
   int track_points = 300;       // points a keyframe hands on (twice as many on video followed at a quarter)
