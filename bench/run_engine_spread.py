@@ -104,6 +104,9 @@ KINDS = {
                            "--overlap", "0.93", "--gsd", "0.8", "--attitude-jitter", "0.5", "--tilt", "1", "--seed", "14",
                            "--video", "video.mp4"]),
 }
+# The paper's video again, encoded as a vehicle streams it (H.264 at libx264's default quality).
+KINDS["video-1292-h264"] = (KINDS["video-1292"][0].replace("MPEG-4", "H.264"),
+                            KINDS["video-1292"][1] + ["--video-codec", "h264"])
 # The video surveys' JPEG frames (same survey, no video codec).
 SAME_SURVEY = {"video-1292-jpeg": "video-1292", "video-800-jpeg": "video-800", "video-1292-lights-jpeg": "video-1292-lights"}
 for _name, _of in SAME_SURVEY.items():

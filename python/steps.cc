@@ -42,7 +42,8 @@ const OptionTable<SurveyOptions>& SurveyTable() {
         .Number("exposure_jitter", &SurveyOptions::exposure_jitter).Number("noise", &SurveyOptions::noise)
         .Integer("particles", &SurveyOptions::particles).Integer("jpeg", &SurveyOptions::jpeg_quality)
         .Custom("seed", [](SurveyOptions& o, const py::handle& v) { o.seed = v.cast<uint32_t>(); })
-        .Text("video", &SurveyOptions::video).Number("video_fps", &SurveyOptions::video_fps);
+        .Text("video", &SurveyOptions::video).Number("video_fps", &SurveyOptions::video_fps)
+        .Text("video_codec", &SurveyOptions::video_codec);
     return t;
   }();
   return t;
@@ -338,7 +339,7 @@ void BindSteps(py::module_& m) {
         "bands, or None: a procedural seafloor): frames/ and ground_truth.json in `output`. Options by the "
         "CLI's names: frames, path, width, height, focal, fov, gsd, overlap, side_overlap, tilt, "
         "attitude_jitter, turns, lanes, max_turn, overlay, altitude_jitter, attenuation, vignetting, "
-        "backscatter, light_cone, exposure_jitter, noise, particles, jpeg, seed, video, video_fps.");
+        "backscatter, light_cone, exposure_jitter, noise, particles, jpeg, seed, video, video_fps, video_codec.");
   m.def("mosaic", &Mosaic, py::arg("input"), py::arg("store"), py::kw_only(), py::arg("progress") = py::none(),
         "The online engine over a folder of frames, a .txt list or a video (rolamos mosaic), into `store` "
         "(created when new). Options as rolamos.Mosaicker's, with the CLI's defaults (mask='auto' finds a "

@@ -69,6 +69,8 @@ void AddSynthCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--seed", o.seed, "random seed")->capture_default_str();
   cmd->add_option("--video", o.video, "also write the frames as a video (.mp4 or .avi) in the survey directory");
   cmd->add_option("--video-fps", o.video_fps, "frame rate of --video")->capture_default_str();
+  cmd->add_option("--video-codec", o.video_codec,
+                  "codec of --video: mpeg4 or h264 (.mp4), mjpeg (.avi); default by the extension (.mp4 mpeg4)");
   cmd->add_flag("-q,--quiet", s->quiet, "no progress bar");
   cmd->callback([s, run] { *run = [s] { return RunSynth(*s); }; });
 }

@@ -51,6 +51,9 @@ struct SurveyOptions {
   // directory, at `video_fps` frames a second: what a camera feed looks like to `mosaic`.
   std::string video;
   double video_fps = 30;
+  // Its codec: "" by the extension (.mp4 MPEG-4 part 2, .avi Motion JPEG), or "mpeg4", "h264"
+  // (both .mp4; H.264 at libx264's default quality, as a vehicle streams), "mjpeg" (.avi).
+  std::string video_codec;
 
   bool IsValid(std::string* error) const;
   double Focal() const;  // pixels: from fov_deg when given, else focal_px

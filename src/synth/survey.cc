@@ -50,6 +50,10 @@ bool SurveyOptions::IsValid(std::string* error) const {
     const std::string ext = std::filesystem::path(video).extension().string();
     if (ext != ".mp4" && ext != ".avi") return bad("video \"" + video + "\" must end in .mp4 or .avi");
     if (!(video_fps >= 1 && video_fps <= 240)) return bad("video frame rate must be 1..240 frames a second");
+    const bool mp4 = ext == ".mp4";
+    if (!(video_codec.empty() || ((video_codec == "mpeg4" || video_codec == "h264") && mp4) ||
+          (video_codec == "mjpeg" && !mp4)))
+      return bad("video codec \"" + video_codec + "\" is not mpeg4 or h264 for .mp4, or mjpeg for .avi");
   }
   if (!(light_cone >= 0 && light_cone <= 1) || !(exposure_jitter >= 0 && exposure_jitter <= 0.5))
     return bad("light cone must be in [0, 1] and exposure jitter in [0, 0.5]");
@@ -294,8 +298,11 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
   cv::VideoWriter video;
   if (!o.video.empty()) {
     const std::string path = (fs::path(dir) / o.video).string();
-    const int fourcc = fs::path(o.video).extension() == ".avi" ? cv::VideoWriter::fourcc('M', 'J', 'P', 'G')
-                                                              : cv::VideoWriter::fourcc('m', 'p', '4', 'v');
+    const std::string codec =
+        !o.video_codec.empty() ? o.video_codec : fs::path(o.video).extension() == ".avi" ? "mjpeg" : "mpeg4";
+    const int fourcc = codec == "mjpeg"  ? cv::VideoWriter::fourcc('M', 'J', 'P', 'G')
+                       : codec == "h264" ? cv::VideoWriter::fourcc('a', 'v', 'c', '1')
+                                         : cv::VideoWriter::fourcc('m', 'p', '4', 'v');
     if (!video.open(path, cv::CAP_FFMPEG, fourcc, o.video_fps, survey.frame_size, true))
       Fail(path, "cannot be written (no video encoder for it in OpenCV's FFmpeg)");
   }

@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <opencv2/videoio.hpp>
 
 #include "rolamos/error.hpp"
 #include "test_support.h"
@@ -61,6 +62,39 @@ TEST(Synth, BadOptionsAreRefused) {
   o = Clean("lawnmower");
   o.frames = 1;
   EXPECT_THROW(WriteSurvey(o, dir.path()), Error);
+}
+
+// The frames also as a video, in each codec asked for: every frame in it, at the frames' size;
+// a codec that does not go with the container is refused before anything is written.
+TEST(Synth, WritesTheFramesAsAVideoInTheCodecAskedFor) {
+  for (const auto& [file, codec] : std::vector<std::pair<std::string, std::string>>{
+           {"v.mp4", ""}, {"v.mp4", "h264"}, {"v.avi", "mjpeg"}}) {
+    test::ScratchDir dir;
+    SurveyOptions o = Clean("lawnmower");
+    o.frames = 12;
+    o.video = file;
+    o.video_codec = codec;
+    WriteSurvey(o, dir.path());
+    cv::VideoCapture in(dir / file, cv::CAP_FFMPEG);
+    ASSERT_TRUE(in.isOpened()) << file << " " << codec;
+    const int tag = static_cast<int>(in.get(cv::CAP_PROP_FOURCC));
+    const std::string fourcc{char(tag & 255), char((tag >> 8) & 255), char((tag >> 16) & 255), char((tag >> 24) & 255)};
+    const std::string expected = codec == "h264" ? "h264" : codec == "mjpeg" ? "mjpg" : "mp4v";
+    std::string lower = fourcc;
+    for (char& c : lower) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    EXPECT_TRUE(lower == expected || (codec == "h264" && lower == "avc1")) << file << " " << codec << ": " << fourcc;
+    int n = 0;
+    for (cv::Mat f; in.read(f); ++n) ASSERT_EQ(f.size(), cv::Size(480, 360));
+    EXPECT_EQ(n, 12) << file << " " << codec;
+  }
+  SurveyOptions o = Clean("lawnmower");
+  o.video = "v.avi";
+  o.video_codec = "h264";
+  std::string error;
+  EXPECT_FALSE(o.IsValid(&error));
+  EXPECT_NE(error.find("h264"), std::string::npos);
+  o.video_codec = "vp9";
+  EXPECT_FALSE(o.IsValid(&error));
 }
 
 }  // namespace
