@@ -55,8 +55,9 @@ struct MosaickerOptions {
   std::string track_halve = "auto";
   // A video's frames, halved once by track_halve, are then halved until they hold at most this
   // many pixels (or track_pixels, the smaller): 1292 x 964 and 1920 x 1080 at a quarter,
-  // 1280 x 720 and smaller at half. A codec leaves large frames little fine detail to follow; at a quarter, with twice the
-  // track_points, they are followed better and faster (bench/RESULTS.md, session 17).
+  // 1280 x 720 and smaller at half. A codec leaves large frames little fine detail to follow: at
+  // a quarter, with twice the track_points, they are followed better at about the same speed
+  // (bench/RESULTS.md, session 17; a near-lossless stream loses a little).
   double video_track_pixels = 0.25e6;
   int track_points = 300;       // points a keyframe hands on (twice as many on video followed at a quarter)
   // A frame turned more than this (degrees) from the frame it is followed from is followed in a

@@ -31,7 +31,7 @@ struct TrackerOptions {
   // codec left of large frames is followed over four times the ground, in a sixteenth of the
   // pyramid; the engine hands on twice the points there (MosaickerOptions::track_points). MPEG-4
   // at 1292 x 964: 0.26 against 0.32 px per patch, dark under the lights' cone 0.63 against 0.99,
-  // 1920 x 1080 0.12 against 0.16, and faster (bench/RESULTS.md, session 17).
+  // 1920 x 1080 0.12 against 0.16, at about the speed of half size (bench/RESULTS.md, session 17).
   double codec_pixels = 0.25e6;
   int max_points = 300;     // points a keyframe hands on
   int window = 21;          // Lucas-Kanade window, tracking pixels
