@@ -272,7 +272,8 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
                   "frames halved for following (--track-halve) are then halved until they hold at most this many "
                   "pixels: large video frames at a quarter")
       ->capture_default_str();
-  cmd->add_option("--track-points", o.track_points, "points a keyframe hands on to the frames after it (twice as many on video followed at a quarter)")
+  cmd->add_option("--track-points", o.track_points,
+                  "points a keyframe hands on to the frames after it (twice as many on video followed at a quarter)")
       ->capture_default_str();
   cmd->add_option("--track-turn", o.track_turn_deg,
                   "a frame turned more than this many degrees from the one it is followed from is followed in a "

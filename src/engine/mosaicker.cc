@@ -366,10 +366,7 @@ void Mosaicker::Impl::InitCamera(cv::Size size) {
   frame_size = size;
   K = pre.CameraMatrix(size);
   summary.track_scale = tracker.options().ScaleFor(size);
-  // Video followed at a quarter (video_track_pixels) hands on twice the points: its pyramid is a
-  // quarter of the half-size one's and a point costs what it did; twice the points place the
-  // frames better than half size did, at about its speed (bench/RESULTS.md, session 17).
-  track_points = options.track_points * (tracker.options().halve_once && summary.track_scale <= 0.25 ? 2 : 1);
+  track_points = tracker.options().PointsFor(size);
   cv::Mat w = FeatherWeights(size, options.feather_sigma);
   if (!usable.empty() && usable.size() == size) w.setTo(0, usable == 0);  // overlays never blend
   weights = std::make_shared<const FeatherCode>(w);

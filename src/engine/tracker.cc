@@ -55,6 +55,10 @@ double TrackerOptions::ScaleFor(cv::Size frame) const {
   return scale;
 }
 
+int TrackerOptions::PointsFor(cv::Size frame) const {
+  return halve_once && ScaleFor(frame) <= 0.25 ? 2 * max_points : max_points;
+}
+
 namespace {
 
 // Full-resolution pixel <-> tracking pixel: q = (p + 0.5) s - 0.5.

@@ -33,7 +33,7 @@ struct TrackerOptions {
   // at 1292 x 964: 0.26 against 0.32 px per patch, dark under the lights' cone 0.63 against 0.99,
   // 1920 x 1080 0.12 against 0.16, at about the speed of half size (bench/RESULTS.md, session 17).
   double codec_pixels = 0.25e6;
-  int max_points = 300;     // points a keyframe hands on
+  int max_points = 300;     // points a keyframe hands on (PointsFor)
   int window = 21;          // Lucas-Kanade window, tracking pixels
   int levels = 3;           // pyramid levels above the tracking image
   double max_fb_px = 0.7;   // forward-backward disagreement allowed, tracking pixels
@@ -62,6 +62,10 @@ struct TrackerOptions {
 
   bool IsValid(std::string* error) const;
   double ScaleFor(cv::Size frame) const;
+  // The points a keyframe of `frame`'s size hands on: max_points, twice that for a codec's frames
+  // followed at a quarter or less (their pyramid is a quarter of the half-size one, a point costs
+  // what it did; bench/RESULTS.md, session 17).
+  int PointsFor(cv::Size frame) const;
 };
 
 // A frame as the tracker sees it: its grey image at the tracking scale and that image's pyramid

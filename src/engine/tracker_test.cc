@@ -42,6 +42,7 @@ TEST(Tracker, ScaleHalvesUntilTheTrackingImageIsSmallEnough) {
   EXPECT_EQ(o.ScaleFor({1920, 1080}), 0.5);
   EXPECT_EQ(o.ScaleFor({3840, 2160}), 0.25);
   EXPECT_EQ(o.ScaleFor({200, 100}), 1.0);  // never enlarged
+  EXPECT_EQ(o.PointsFor({3840, 2160}), o.max_points);  // stills at a quarter
   o.halve_once = true;
   EXPECT_EQ(o.ScaleFor({480, 360}), 1.0);  // under 0.4 of track_pixels
   EXPECT_EQ(o.ScaleFor({640, 480}), 0.5);
@@ -51,6 +52,10 @@ TEST(Tracker, ScaleHalvesUntilTheTrackingImageIsSmallEnough) {
   EXPECT_EQ(o.ScaleFor({1292, 964}), 0.25);
   EXPECT_EQ(o.ScaleFor({1920, 1080}), 0.25);
   EXPECT_EQ(o.ScaleFor({3840, 2160}), 0.125);
+  // ...and hand on twice the points there; at half size, and stills, the points asked for.
+  o.max_points = 300;
+  EXPECT_EQ(o.PointsFor({1292, 964}), 600);
+  EXPECT_EQ(o.PointsFor({800, 600}), 300);
   o.codec_pixels = 1e6;  // or track_pixels, the smaller
   EXPECT_EQ(o.ScaleFor({1292, 964}), 0.5);
   EXPECT_EQ(o.ScaleFor({3840, 2160}), 0.25);
