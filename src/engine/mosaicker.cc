@@ -308,7 +308,10 @@ struct Mosaicker::Impl {
     return MotionOf(last.to_patch.inv() * to_patch, frame_size);
   }
   Candidate Assess(EgomotionResult ego, const cv::Matx33d& target_to_patch, const std::string& by, int target);
-  Candidate Track(const std::shared_ptr<PreparedFrame>& p, bool coarse);
+  // Where following starts: where the motion model expects the frame, that moved by a coarse
+  // correlation, or where the last frame was, moved by the correlation (the model overshot).
+  enum class Start { kPredicted, kCorrelated, kUnmoved };
+  Candidate Track(const std::shared_ptr<PreparedFrame>& p, Start start);
   // `with_last_key`: set to the frame's matches with the last keyframe when they were made.
   std::vector<Candidate> Recover(const std::shared_ptr<PreparedFrame>& p, Laps& lap,
                                  std::optional<Matches>* with_last_key = nullptr);
@@ -451,15 +454,15 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Assess(EgomotionResult ego, const cv
 
 // The frame followed from the current keyframe, starting where the motion model puts it (or,
 // `coarse`, where one phase correlation of the coarsest levels does).
-Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<PreparedFrame>& p, bool coarse) {
+Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<PreparedFrame>& p, Start start) {
   Laps lap{this, {}};
   const Key& key = keys.back();
   // Where the frame is expected: the last placed frame moved by the predicted motion.
-  const std::optional<FrameMotion> predicted = gate->Predicted();
+  const std::optional<FrameMotion> predicted = start == Start::kUnmoved ? std::nullopt : gate->Predicted();
   cv::Matx33d frame_to_key = key.to_patch.inv() * last.to_patch;
   if (predicted) frame_to_key = frame_to_key * HomographyOf(*predicted, frame_size);
   cv::Matx33d guess = frame_to_key.inv();  // key -> frame
-  if (coarse || !predicted) {
+  if (start != Start::kPredicted || !predicted) {
     double response = 0;
     const cv::Matx33d shifted = tracker.CoarseShift(*key.frame->track, *p->track, guess, &response);
     if (response > 0.05 || !predicted) guess = shifted;
@@ -578,7 +581,7 @@ std::optional<FrameReport> Mosaicker::Impl::RecoverAcrossThinOverlap(const std::
     pending.pop_back();
     JoinAcrossThinOverlap(w.frame, *w.thin_overlap, Unreject(w.report));
     gate->Predict(StepsSinceLast(*p, r.index));
-    Candidate again = Track(p, true);
+    Candidate again = Track(p, Start::kCorrelated);
     if (Usable(again)) return Place(p, std::move(again), r, lap);
     hint = nullptr;  // the last keyframe is now the one that waited
   }
@@ -1168,7 +1171,7 @@ FrameReport Mosaicker::Impl::OpenPatch(const std::shared_ptr<PreparedFrame>& p, 
   if (FeaturesOf(*p)->strong < options.min_inliers) return Lost(p, r, "featureless");
   if (BreakAt(p)) {
     gate->Predict(StepsSinceLast(*p, r.index));
-    Candidate again = Track(p, true);
+    Candidate again = Track(p, Start::kCorrelated);
     if (Usable(again)) return Place(p, std::move(again), r, lap);
     ClosePatch("lost_tracking");
   }
@@ -1263,10 +1266,16 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   //    coarse correlation when that failed. (Correlating first saves a second follow on half the
   //    frames of a jittered survey, 3-7 % of the time, but places frames slightly worse: 0.40 ->
   //    0.45 px on lawn-984, 0.32 -> 0.37 on lanes-apart. Not worth it.)
-  Impl::Candidate best = m.Track(p, false);
-  if (!m.Usable(best) || !best.support.strong) {
-    Impl::Candidate coarse = m.Track(p, true);
-    if (m.Usable(coarse) && (!m.Usable(best) || coarse.support.strong)) best = std::move(coarse);
+  //    Then from where the last frame was: in turns that change from frame to frame (a random
+  //    walk) the model overshoots by a turn Lucas-Kanade's square windows cannot follow, and
+  //    recovery by SIFT made one frame in six a keyframe (video-1292-random: 50 of 300 frames
+  //    recovered; 11 now, bench/RESULTS.md, session 18).
+  using Start = Impl::Start;
+  Impl::Candidate best = m.Track(p, Start::kPredicted);
+  for (Start start : {Start::kCorrelated, Start::kUnmoved}) {
+    if (m.Usable(best) && best.support.strong) break;
+    Impl::Candidate again = m.Track(p, start);
+    if (m.Usable(again) && (!m.Usable(best) || again.support.strong)) best = std::move(again);
   }
   lap.Restart();  // Track timed itself
   // 2. The motion model arbitrates between what following and recovery found.
@@ -1295,7 +1304,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
     // The next lane, or the ground after a gap: it may join the frames rejected just before.
     if (m.BreakAt(p)) {
       m.gate->Predict(m.StepsSinceLast(*p, r.index));
-      Impl::Candidate again = m.Track(p, true);
+      Impl::Candidate again = m.Track(p, Start::kCorrelated);
       if (m.Usable(again)) return done(m.Place(p, std::move(again), r, lap));
     }
     return done(m.Lost(p, r, reason));
