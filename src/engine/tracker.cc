@@ -23,8 +23,9 @@ bool TrackerOptions::IsValid(std::string* error) const {
     *error = "tracking image size for video " + std::to_string(codec_pixels) + " pixels is outside 2e4..1e8";
     return false;
   }
-  if (max_points < 30 || window < 5 || window > 61 || levels < 0 || levels > 6) {
-    *error = "tracker settings are out of range (points >= 30, window 5..61, levels 0..6)";
+  if (max_points < 30 || window < 5 || window > 61 || quarter_window < 5 || quarter_window > 61 || levels < 0 ||
+      levels > 6) {
+    *error = "tracker settings are out of range (points >= 30, windows 5..61, levels 0..6)";
     return false;
   }
   if (max_iterations < 1 || !(min_step_px > 0)) {
@@ -57,6 +58,10 @@ double TrackerOptions::ScaleFor(cv::Size frame) const {
 
 int TrackerOptions::PointsFor(cv::Size frame) const {
   return halve_once && ScaleFor(frame) <= 0.25 ? 2 * max_points : max_points;
+}
+
+int TrackerOptions::WindowFor(cv::Size frame) const {
+  return halve_once && ScaleFor(frame) <= 0.25 ? quarter_window : window;
 }
 
 namespace {
@@ -117,11 +122,12 @@ std::shared_ptr<const TrackFrame> FrameTracker::Prepare(const cv::Mat& frame, co
     gray = small;
   }
   if (options_.normalize_sigma > 0) gray = LocalContrast(gray, options_.normalize_sigma);
-  cv::buildOpticalFlowPyramid(gray, t->pyramid, cv::Size(options_.window, options_.window), options_.levels, true);
+  const int window = options_.WindowFor(frame.size());
+  cv::buildOpticalFlowPyramid(gray, t->pyramid, cv::Size(window, window), options_.levels, true);
   if (!usable.empty()) {
     cv::resize(usable, t->usable, gray.size(), 0, 0, cv::INTER_NEAREST);
     // A window over an overlay's edge follows the overlay: keep a window's half away.
-    cv::erode(t->usable, t->usable, cv::Mat(), cv::Point(-1, -1), options_.window / 2);
+    cv::erode(t->usable, t->usable, cv::Mat(), cv::Point(-1, -1), window / 2);
   }
   return t;
 }
@@ -136,7 +142,7 @@ std::vector<cv::Point2f> FrameTracker::Corners(const TrackFrame& frame, const st
   cv::Mat eig, peaks;
   cv::cornerMinEigenVal(gray, eig, 3, 3);
   cv::dilate(eig, peaks, cv::Mat(), cv::Point(-1, -1), 2);
-  const int border = options_.window / 2 + 1;
+  const int border = options_.WindowFor(frame.size) / 2 + 1;
   // The scale: the 30th strongest local maximum.
   std::vector<float> tops;
   for (int y = border; y < gray.rows - border; ++y) {
@@ -215,7 +221,7 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
     b.push_back(cv::Point2f(ApplyHomography(G, a.back())));
   }
   std::vector<uchar> forward, backward;
-  const cv::Size win(options_.window, options_.window);
+  const cv::Size win(options_.WindowFor(from.size), options_.WindowFor(from.size));
   const cv::TermCriteria until(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, options_.max_iterations,
                                options_.min_step_px);
   constexpr double kMinEigen = 1e-4;

@@ -35,6 +35,12 @@ struct TrackerOptions {
   double codec_pixels = 0.25e6;
   int max_points = 300;     // points a keyframe hands on (PointsFor)
   int window = 21;          // Lucas-Kanade window, tracking pixels
+  // The window for a codec's frames followed at a quarter or less (PointsFor's frames): 21 there
+  // spans 84 frame pixels, twice the ground of the window at half size. At 13 the quarter-size
+  // video surveys are placed as well or better (1292 x 964 random walk 0.30 -> 0.27 px, H.264
+  // 0.85 -> 0.77, five others within 0.01) and followed 5-15 % faster (bench/RESULTS.md,
+  // session 18).
+  int quarter_window = 13;
   int levels = 3;           // pyramid levels above the tracking image
   double max_fb_px = 0.7;   // forward-backward disagreement allowed, tracking pixels
   // Lucas-Kanade stops at a level after this many steps, or once a step moves less than
@@ -66,6 +72,9 @@ struct TrackerOptions {
   // followed at a quarter or less (their pyramid is a quarter of the half-size one, a point costs
   // what it did; bench/RESULTS.md, session 17).
   int PointsFor(cv::Size frame) const;
+  // The Lucas-Kanade window (tracking pixels) for frames of `frame`'s size: window, or
+  // quarter_window for the frames PointsFor doubles.
+  int WindowFor(cv::Size frame) const;
 };
 
 // A frame as the tracker sees it: its grey image at the tracking scale and that image's pyramid

@@ -43,6 +43,7 @@ TEST(Tracker, ScaleHalvesUntilTheTrackingImageIsSmallEnough) {
   EXPECT_EQ(o.ScaleFor({3840, 2160}), 0.25);
   EXPECT_EQ(o.ScaleFor({200, 100}), 1.0);  // never enlarged
   EXPECT_EQ(o.PointsFor({3840, 2160}), o.max_points);  // stills at a quarter
+  EXPECT_EQ(o.WindowFor({3840, 2160}), o.window);
   o.halve_once = true;
   EXPECT_EQ(o.ScaleFor({480, 360}), 1.0);  // under 0.4 of track_pixels
   EXPECT_EQ(o.ScaleFor({640, 480}), 0.5);
@@ -52,15 +53,25 @@ TEST(Tracker, ScaleHalvesUntilTheTrackingImageIsSmallEnough) {
   EXPECT_EQ(o.ScaleFor({1292, 964}), 0.25);
   EXPECT_EQ(o.ScaleFor({1920, 1080}), 0.25);
   EXPECT_EQ(o.ScaleFor({3840, 2160}), 0.125);
-  // ...and hand on twice the points there; at half size, and stills, the points asked for.
+  // ...and hand on twice the points there, followed in smaller windows; at half size, and
+  // stills, the points and window asked for.
   o.max_points = 300;
   EXPECT_EQ(o.PointsFor({1292, 964}), 600);
   EXPECT_EQ(o.PointsFor({800, 600}), 300);
+  o.window = 21;
+  o.quarter_window = 13;
+  EXPECT_EQ(o.WindowFor({1292, 964}), 13);
+  EXPECT_EQ(o.WindowFor({1920, 1080}), 13);
+  EXPECT_EQ(o.WindowFor({800, 600}), 21);
+  EXPECT_EQ(o.WindowFor({1280, 720}), 21);
   o.codec_pixels = 1e6;  // or track_pixels, the smaller
   EXPECT_EQ(o.ScaleFor({1292, 964}), 0.5);
   EXPECT_EQ(o.ScaleFor({3840, 2160}), 0.25);
   std::string error;
   EXPECT_TRUE(o.IsValid(&error)) << error;
+  o.quarter_window = 3;
+  EXPECT_FALSE(o.IsValid(&error));
+  o.quarter_window = 13;
   o.track_pixels = 10;
   EXPECT_FALSE(o.IsValid(&error));
 }
