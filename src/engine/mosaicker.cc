@@ -452,8 +452,9 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Assess(EgomotionResult ego, const cv
   return c;
 }
 
-// The frame followed from the current keyframe, starting where the motion model puts it (or,
-// `coarse`, where one phase correlation of the coarsest levels does).
+// The frame followed from the current keyframe, starting where the motion model puts it, or
+// where one phase correlation of the coarsest levels moves that (kCorrelated) or the last frame's
+// place (kUnmoved). Without a prediction all three start from the correlation.
 Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<PreparedFrame>& p, Start start) {
   Laps lap{this, {}};
   const Key& key = keys.back();
@@ -1269,11 +1270,13 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   //    Then from where the last frame was: in turns that change from frame to frame (a random
   //    walk) the model overshoots by a turn Lucas-Kanade's square windows cannot follow, and
   //    recovery by SIFT made one frame in six a keyframe (video-1292-random: 50 of 300 frames
-  //    recovered; 11 now, bench/RESULTS.md, session 18).
+  //    recovered; 12 now, bench/RESULTS.md, session 18). Without a prediction the tries would
+  //    be the same one.
   using Start = Impl::Start;
   Impl::Candidate best = m.Track(p, Start::kPredicted);
+  const bool predicted = m.gate->Predicted().has_value();
   for (Start start : {Start::kCorrelated, Start::kUnmoved}) {
-    if (m.Usable(best) && best.support.strong) break;
+    if (!predicted || (m.Usable(best) && best.support.strong)) break;
     Impl::Candidate again = m.Track(p, start);
     if (m.Usable(again) && (!m.Usable(best) || again.support.strong)) best = std::move(again);
   }

@@ -38,7 +38,7 @@ struct TrackerOptions {
   // The window for a codec's frames followed at a quarter or less (PointsFor's frames): 21 there
   // spans 84 frame pixels, twice the ground of the window at half size. At 13 the quarter-size
   // video surveys are placed as well or better (1292 x 964 random walk 0.30 -> 0.27 px, H.264
-  // 0.85 -> 0.77, five others within 0.01) and followed 5-15 % faster (bench/RESULTS.md,
+  // 0.85 -> 0.77, five others within 0.01) and followed 4-16 % faster (bench/RESULTS.md,
   // session 18).
   int quarter_window = 13;
   int levels = 3;           // pyramid levels above the tracking image
