@@ -1,6 +1,6 @@
 // How far a video codec moves the texture of a synthetic survey's frames: each decoded frame of
 // SURVEY/video.mp4 against its original, SURVEY/frames/*.jpg, by Lucas-Kanade at points over the
-// frame (both contrast-normalised as the engine's tracker does, at `scale` of the frame size).
+// frame (both contrast-normalised by the engine's tracker, at `scale` of the frame size).
 // A codec predicts blocks from other frames by its own motion vectors and, where it spends no
 // bits on the difference (dark, flat ground), leaves the texture where its prediction put it:
 // the points of a region then move together, and no tracker can tell. Prints one JSON line:
@@ -19,6 +19,8 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 #include <opencv2/videoio.hpp>
+
+#include "engine/tracker.h"
 
 namespace {
 
@@ -40,15 +42,10 @@ cv::Mat LocalDeviation(const cv::Mat& grey, double sigma) {
   return var;
 }
 
-// Each pixel's difference from the mean around it over the deviation around it (as the tracker).
-cv::Mat Normalised(const cv::Mat& grey) {
-  cv::Mat f, mean;
-  grey.convertTo(f, CV_32F);
-  cv::GaussianBlur(f, mean, cv::Size(), 8);
-  const cv::Mat sd = cv::max(LocalDeviation(grey, 8), 1.0);
-  cv::Mat out;
-  cv::Mat((f - mean) / sd).convertTo(out, CV_8U, 40, 128);
-  return out;
+// The image the engine's tracker follows: contrast-normalised by FrameTracker::Prepare (at the
+// size given: the tracker is asked not to shrink it).
+cv::Mat Normalised(const rolamos::FrameTracker& tracker, const cv::Mat& grey) {
+  return tracker.Prepare(grey)->pyramid[0];
 }
 
 double Median(std::vector<double> v) {
@@ -75,6 +72,9 @@ int main(int argc, char** argv) {
                  dir.c_str());
     return 1;
   }
+  rolamos::TrackerOptions options;
+  options.track_pixels = 1e8;  // followed at the size given
+  const rolamos::FrameTracker tracker(options);
   constexpr int kCells = 4;
   double cell_sse = 0;
   int cell_count = 0, used = 0;
@@ -85,7 +85,7 @@ int main(int argc, char** argv) {
     if (!video.read(decoded)) break;
     const cv::Mat a = Grey(cv::imread(originals[size_t(i)]), scale), b = Grey(decoded, scale);
     const cv::Mat contrast = LocalDeviation(b, 4);
-    const cv::Mat na = Normalised(a), nb = Normalised(b);
+    const cv::Mat na = Normalised(tracker, a), nb = Normalised(tracker, b);
     std::vector<cv::Point2f> from, to;
     cv::goodFeaturesToTrack(na, from, 600, 0.001, 4);
     if (from.empty()) continue;

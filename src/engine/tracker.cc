@@ -56,13 +56,11 @@ double TrackerOptions::ScaleFor(cv::Size frame) const {
   return scale;
 }
 
-int TrackerOptions::PointsFor(cv::Size frame) const {
-  return halve_once && ScaleFor(frame) <= 0.25 ? 2 * max_points : max_points;
-}
+bool TrackerOptions::CodecAtAQuarter(cv::Size frame) const { return halve_once && ScaleFor(frame) <= 0.25; }
 
-int TrackerOptions::WindowFor(cv::Size frame) const {
-  return halve_once && ScaleFor(frame) <= 0.25 ? quarter_window : window;
-}
+int TrackerOptions::PointsFor(cv::Size frame) const { return CodecAtAQuarter(frame) ? 2 * max_points : max_points; }
+
+int TrackerOptions::WindowFor(cv::Size frame) const { return CodecAtAQuarter(frame) ? quarter_window : window; }
 
 namespace {
 

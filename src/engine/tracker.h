@@ -75,6 +75,9 @@ struct TrackerOptions {
   // The Lucas-Kanade window (tracking pixels) for frames of `frame`'s size: window, or
   // quarter_window for the frames PointsFor doubles.
   int WindowFor(cv::Size frame) const;
+  // A codec's frames followed at a quarter of their size or less: the frames both rules above
+  // are for.
+  bool CodecAtAQuarter(cv::Size frame) const;
 };
 
 // A frame as the tracker sees it: its grey image at the tracking scale and that image's pyramid
