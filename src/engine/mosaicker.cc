@@ -348,6 +348,9 @@ struct Mosaicker::Impl {
   FrameReport Reject(FrameReport r, const std::string& reason);
   FrameReport Lost(const std::shared_ptr<PreparedFrame>& p, FrameReport r, const std::string& reason);
   bool BreakAt(const std::shared_ptr<PreparedFrame>& p);
+  // Whether `to` is followed from `from` with strong support (corners of `from`, followed from
+  // a coarse correlation): two frames outside the patch, neither placed.
+  bool Follows(const PreparedFrame& from, const PreparedFrame& to) const;
   void SecondChance(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, Laps& lap);
   FrameReport Place(const std::shared_ptr<PreparedFrame>& p, Candidate best, FrameReport r, Laps& lap);
   FrameRecord RecordOf(const FrameReport& r, const cv::Matx33d& to_patch) const;
@@ -996,13 +999,21 @@ FrameReport Mosaicker::Impl::Lost(const std::shared_ptr<PreparedFrame>& p, Frame
 bool Mosaicker::Impl::BreakAt(const std::shared_ptr<PreparedFrame>& p) {
   if (pending.empty() || !options.recover) return false;
   const auto f = FeaturesOf(*p);
-  if (!f || f->strong < options.min_inliers) return false;
+  const bool described = f && f->strong >= options.min_inliers;
   for (auto it = pending.rbegin(); it != pending.rend(); ++it) {
-    const auto theirs = FeaturesOf(*it->frame);
-    if (!theirs || theirs->strong < options.min_inliers || it->frame->size != frame_size) continue;
-    const Matches m = MatchFeatures(*f, *theirs, extractor.options());
-    const EgomotionResult ego = EstimateEgomotion(m.from, m.to, K, ego_options);
-    if (!ego.ok || !AssessSupport(ego, frame_size, support_options).strong) continue;
+    if (it->frame->size != frame_size) continue;
+    bool joined = false;
+    if (described) {
+      const auto theirs = FeaturesOf(*it->frame);
+      if (theirs && theirs->strong >= options.min_inliers) {
+        const Matches m = MatchFeatures(*f, *theirs, extractor.options());
+        const EgomotionResult ego = EstimateEgomotion(m.from, m.to, K, ego_options);
+        joined = ego.ok && AssessSupport(ego, frame_size, support_options).strong;
+      }
+    }
+    // Dark ground at a lane's start can leave SIFT too few matches where following holds
+    // (small-narrow-lights: 16 matches, none kept, between a lane's first two frames).
+    if (!joined && !Follows(*it->frame, *p)) continue;
     // The frames before this one stay rejected from the old patch; this one opens the next.
     Pending start = *it;
     pending.clear();  // the frames before it stay rejected where they were
@@ -1013,6 +1024,22 @@ bool Mosaicker::Impl::BreakAt(const std::shared_ptr<PreparedFrame>& p) {
     return true;
   }
   return false;
+}
+
+bool Mosaicker::Impl::Follows(const PreparedFrame& from, const PreparedFrame& to) const {
+  if (!from.track || !to.track) return false;
+  const std::vector<cv::Point2f> corners = tracker.Corners(*from.track, {}, track_points);
+  double response = 0;
+  const cv::Matx33d guess = tracker.CoarseShift(*from.track, *to.track, cv::Matx33d::eye(), &response);
+  const TrackFlow flow = tracker.Follow(*from.track, *to.track, corners, guess);
+  std::vector<cv::Point2f> in_to, in_from;
+  for (size_t i = 0; i < corners.size(); ++i)
+    if (flow.ok[i]) {
+      in_to.push_back(flow.to[i]);
+      in_from.push_back(corners[i]);
+    }
+  const EgomotionResult ego = EstimateEgomotion(in_to, in_from, K, ego_options);
+  return ego.ok && AssessSupport(ego, frame_size, support_options).strong;
 }
 
 FrameReport Mosaicker::Impl::JoinAcrossThinOverlap(const std::shared_ptr<PreparedFrame>& p, const Candidate& c,

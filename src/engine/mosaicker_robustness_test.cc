@@ -722,3 +722,47 @@ TEST(MosaickerRobustness, FramesInTurnsThatChangeAreFollowedNotRecovered) {
 
 }  // namespace
 }  // namespace rolamos
+
+namespace rolamos {
+namespace {
+
+// Lanes apart (no side overlap, no turn frames) under strong lights, the next lane's first two
+// frames very dark: SIFT finds too few matches between them to start the lane from the first;
+// Lucas-Kanade on contrast-normalised frames follows one into the other. Before, the first was
+// left out (small-narrow-lights lost a lane's first frame so).
+TEST(MosaickerRobustness, ALaneThatStartsDarkLosesNoFrame) {
+  test::ScratchDir dir;
+  SurveyOptions so = test::SmallSurvey(40);
+  so.fov_deg = 50;
+  so.lanes = 2;
+  so.lane_turns = false;
+  so.forward_overlap = 0.7;
+  so.side_overlap = 0;
+  so.vignetting = 0.8;
+  so.light_cone = 0.8;
+  so.noise = 4;
+  so.attitude_jitter_deg = 1;
+  const Survey survey = WriteSurvey(so, dir / "survey");
+  // The second lane's first two frames (20 and 21: two lanes of 20) at 6 % of their light, with
+  // a grey level of sensor noise.
+  cv::RNG rng(7);
+  for (int i : {20, 21}) {
+    const std::string path = (fs::path(dir / "survey") / survey.frames[size_t(i)].file).string();
+    cv::Mat image = cv::imread(path), noise(image.size(), CV_32FC3);
+    ASSERT_FALSE(image.empty()) << path;
+    rng.fill(noise, cv::RNG::NORMAL, 0, 1);
+    image.convertTo(image, CV_32FC3, 0.06);
+    cv::Mat(image + noise).convertTo(image, CV_8UC3);
+    ASSERT_TRUE(cv::imwrite(path, image, {cv::IMWRITE_JPEG_QUALITY, 95}));
+  }
+  Store store = Store::Create(dir / "s.rolamos");
+  const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, Options());
+  EXPECT_EQ(sum.stitched, 40);
+  EXPECT_EQ(sum.rejected, 0);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  for (const auto& p : reopened.patches())
+    EXPECT_LT(PatchRms(reopened.ReadSidecar(p.id), survey), 0.5) << "patch " << p.id;
+}
+
+}  // namespace
+}  // namespace rolamos
