@@ -348,9 +348,15 @@ struct Mosaicker::Impl {
   FrameReport Reject(FrameReport r, const std::string& reason);
   FrameReport Lost(const std::shared_ptr<PreparedFrame>& p, FrameReport r, const std::string& reason);
   bool BreakAt(const std::shared_ptr<PreparedFrame>& p);
-  // Whether `to` is followed from `from` with strong support (corners of `from`, followed from
-  // a coarse correlation): two frames outside the patch, neither placed.
-  bool Follows(const PreparedFrame& from, const PreparedFrame& to) const;
+  // `frame` registered onto `onto` (frame pixels -> onto's pixels), two frames the patch's tracks
+  // do not join: by SIFT when both have features enough, otherwise or when that is not strong by
+  // following (FollowInto).
+  EgomotionResult RegisterPair(PreparedFrame& frame, PreparedFrame& onto);
+  // Corners of `from` followed into `to`, from a coarse correlation: `to` pixels -> `from`'s.
+  EgomotionResult FollowInto(const PreparedFrame& from, const PreparedFrame& to) const;
+  // The patch closes (`why`); the frames waiting for a second chance, and their rejections, go
+  // on with whatever comes next, which they may yet join.
+  void CloseKeepingWaiting(const std::string& why);
   void SecondChance(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, Laps& lap);
   FrameReport Place(const std::shared_ptr<PreparedFrame>& p, Candidate best, FrameReport r, Laps& lap);
   FrameRecord RecordOf(const FrameReport& r, const cv::Matx33d& to_patch) const;
@@ -968,29 +974,33 @@ void Mosaicker::Impl::BlendLastKeyframe() {
 FrameReport Mosaicker::Impl::Lost(const std::shared_ptr<PreparedFrame>& p, FrameReport r, const std::string& reason) {
   FrameReport rep = Reject(r, reason);
   if (gate) gate->Skip();
-  if (canvas && options.recover && reason != "featureless") {
+  // Featureless by SIFT too: dark ground may still be followed (BreakAt, SecondChance).
+  if (canvas && options.recover) {
     pending.push_back({p, rep, 0, std::nullopt});
     if (pending.size() > 6) pending.pop_front();
   }
   if (++lost >= options.max_lost_frames && canvas) {
     // The thread is lost: the waiting frames may start the next patch (BreakAt), not this one.
-    // The waiting frames' rejections go with whatever comes next, which they may yet open.
-    auto waiting = std::move(pending);
-    for (auto& w : waiting) w.thin_overlap.reset();  // placements in the patch that closes
-    std::vector<RejectedFrame> carried;
-    for (const auto& w : waiting)
-      for (auto it = rejected.begin(); it != rejected.end(); ++it)
-        if (it->index == w.report.index) {
-          carried.push_back(*it);
-          rejected.erase(it);
-          break;
-        }
-    ClosePatch("lost_tracking");
-    pending = std::move(waiting);
-    rejected = std::move(carried);
+    CloseKeepingWaiting("lost_tracking");
     lost = 0;
   }
   return rep;
+}
+
+void Mosaicker::Impl::CloseKeepingWaiting(const std::string& why) {
+  auto waiting = std::move(pending);
+  for (auto& w : waiting) w.thin_overlap.reset();  // placements in the patch that closes
+  std::vector<RejectedFrame> carried;
+  for (const auto& w : waiting)
+    for (auto it = rejected.begin(); it != rejected.end(); ++it)
+      if (it->index == w.report.index) {
+        carried.push_back(*it);
+        rejected.erase(it);
+        break;
+      }
+  ClosePatch(why);
+  pending = std::move(waiting);
+  rejected = std::move(carried);
 }
 
 // Tracking broke (the next lane does not overlap this one, a turn too sharp): when the frame
@@ -998,36 +1008,42 @@ FrameReport Mosaicker::Impl::Lost(const std::shared_ptr<PreparedFrame>& p, Frame
 // frame, so no frame is lost at a break. True when it did.
 bool Mosaicker::Impl::BreakAt(const std::shared_ptr<PreparedFrame>& p) {
   if (pending.empty() || !options.recover) return false;
-  const auto f = FeaturesOf(*p);
-  const bool described = f && f->strong >= options.min_inliers;
   for (auto it = pending.rbegin(); it != pending.rend(); ++it) {
     if (it->frame->size != frame_size) continue;
-    bool joined = false;
-    if (described) {
-      const auto theirs = FeaturesOf(*it->frame);
-      if (theirs && theirs->strong >= options.min_inliers) {
-        const Matches m = MatchFeatures(*f, *theirs, extractor.options());
-        const EgomotionResult ego = EstimateEgomotion(m.from, m.to, K, ego_options);
-        joined = ego.ok && AssessSupport(ego, frame_size, support_options).strong;
-      }
-    }
-    // Dark ground at a lane's start can leave SIFT too few matches where following holds
-    // (small-narrow-lights: 16 matches, none kept, between a lane's first two frames).
-    if (!joined && !Follows(*it->frame, *p)) continue;
-    // The frames before this one stay rejected from the old patch; this one opens the next.
+    // Following too: dark ground at a lane's start can leave SIFT too few matches where
+    // following holds (small-narrow-lights: 16 matches, none kept, between a lane's first two).
+    const EgomotionResult ego = RegisterPair(*p, *it->frame);
+    if (!ego.ok || !AssessSupport(ego, frame_size, support_options).strong) continue;
+    // This one opens the next patch; the others wait on: the frames before it may be the lane's
+    // first too, and are tried against it at once.
     Pending start = *it;
-    pending.clear();  // the frames before it stay rejected where they were
+    pending.erase(std::next(it).base());
     FrameReport r = Unreject(start.report);
-    if (canvas) ClosePatch("lost_tracking");
+    if (canvas) CloseKeepingWaiting("lost_tracking");
     StartPatch(start.frame, r, std::nullopt);
     frames.back().registered_by = "second_chance";
+    Laps lap{this, {}};
+    SecondChance(start.frame, keys.back().to_patch, lap);
     return true;
   }
   return false;
 }
 
-bool Mosaicker::Impl::Follows(const PreparedFrame& from, const PreparedFrame& to) const {
-  if (!from.track || !to.track) return false;
+EgomotionResult Mosaicker::Impl::RegisterPair(PreparedFrame& frame, PreparedFrame& onto) {
+  const auto a = FeaturesOf(frame), b = FeaturesOf(onto);
+  EgomotionResult by_features;
+  if (a && b && a->strong >= options.min_inliers && b->strong >= options.min_inliers) {
+    const Matches m = MatchFeatures(*a, *b, extractor.options());
+    by_features = EstimateEgomotion(m.from, m.to, K, ego_options);
+    if (by_features.ok && AssessSupport(by_features, frame_size, support_options).strong) return by_features;
+  }
+  EgomotionResult followed = FollowInto(onto, frame);
+  if (followed.ok && AssessSupport(followed, frame_size, support_options).strong) return followed;
+  return by_features.ok ? by_features : followed;
+}
+
+EgomotionResult Mosaicker::Impl::FollowInto(const PreparedFrame& from, const PreparedFrame& to) const {
+  if (!from.track || !to.track) return EgomotionResult{};
   const std::vector<cv::Point2f> corners = tracker.Corners(*from.track, {}, track_points);
   double response = 0;
   const cv::Matx33d guess = tracker.CoarseShift(*from.track, *to.track, cv::Matx33d::eye(), &response);
@@ -1038,8 +1054,7 @@ bool Mosaicker::Impl::Follows(const PreparedFrame& from, const PreparedFrame& to
       in_to.push_back(flow.to[i]);
       in_from.push_back(corners[i]);
     }
-  const EgomotionResult ego = EstimateEgomotion(in_to, in_from, K, ego_options);
-  return ego.ok && AssessSupport(ego, frame_size, support_options).strong;
+  return EstimateEgomotion(in_to, in_from, K, ego_options);
 }
 
 FrameReport Mosaicker::Impl::JoinAcrossThinOverlap(const std::shared_ptr<PreparedFrame>& p, const Candidate& c,
@@ -1072,11 +1087,8 @@ void Mosaicker::Impl::OpenJoinedPatch(const std::shared_ptr<PreparedFrame>& p, F
 // failed against its predecessor (blur, a passing fish) often matches its successor.
 void Mosaicker::Impl::SecondChance(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, Laps& lap) {
   if (pending.empty()) return;
-  const auto mine = FeaturesOf(*p);
   for (auto it = pending.begin(); it != pending.end();) {
-    const auto theirs = FeaturesOf(*it->frame);
-    const Matches m = MatchFeatures(*theirs, *mine, extractor.options());
-    Candidate c = Assess(EstimateEgomotion(m.from, m.to, K, ego_options), to_patch, "second_chance", -1);
+    Candidate c = Assess(RegisterPair(*it->frame, *p), to_patch, "second_chance", last.index);
     const bool fits = c.support.strong && canvas->Fits(PatchCanvas::FrameBounds(c.to_patch, frame_size));
     if (!fits) {
       it = ++it->tries >= 2 ? pending.erase(it) : std::next(it);
