@@ -1083,12 +1083,15 @@ void Mosaicker::Impl::OpenJoinedPatch(const std::shared_ptr<PreparedFrame>& p, F
   StartPatch(p, r, join);
 }
 
-// Frames rejected earlier in this patch, tried again against the frame just placed: a frame that
-// failed against its predecessor (blur, a passing fish) often matches its successor.
+// Frames rejected earlier in this patch, tried again against the frame just placed (RegisterPair):
+// a frame that failed against its predecessor (blur, a passing fish) often matches its
+// successor, and a lane's dark first frames the one that starts it.
 void Mosaicker::Impl::SecondChance(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, Laps& lap) {
   if (pending.empty()) return;
   for (auto it = pending.begin(); it != pending.end();) {
-    Candidate c = Assess(RegisterPair(*it->frame, *p), to_patch, "second_chance", last.index);
+    // Linked to the frame it was registered onto when that is a keyframe (the adjustment's
+    // frames); else tied by its placement.
+    Candidate c = Assess(RegisterPair(*it->frame, *p), to_patch, "second_chance", last.keyframe ? last.index : -1);
     const bool fits = c.support.strong && canvas->Fits(PatchCanvas::FrameBounds(c.to_patch, frame_size));
     if (!fits) {
       it = ++it->tries >= 2 ? pending.erase(it) : std::next(it);
