@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <map>
 #include <mutex>
+#include <optional>
 
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
@@ -350,10 +351,13 @@ struct Mosaicker::Impl {
   bool BreakAt(const std::shared_ptr<PreparedFrame>& p);
   // `frame` registered onto `onto` (frame pixels -> onto's pixels), two frames the patch's tracks
   // do not join: by SIFT when both have features enough, otherwise or when that is not strong by
-  // following (FollowInto).
-  EgomotionResult RegisterPair(PreparedFrame& frame, PreparedFrame& onto);
-  // Corners of `from` followed into `to`, from a coarse correlation: `to` pixels -> `from`'s.
-  EgomotionResult FollowInto(const PreparedFrame& from, const PreparedFrame& to) const;
+  // following `onto`'s corners into it (FollowInto). `onto_corners` keeps those corners for the
+  // next frame registered onto the same one (SecondChance tries several).
+  EgomotionResult RegisterPair(PreparedFrame& frame, PreparedFrame& onto,
+                               std::optional<std::vector<cv::Point2f>>* onto_corners = nullptr);
+  // `corners` of `from` followed into `to`, from a coarse correlation: `to` pixels -> `from`'s.
+  EgomotionResult FollowInto(const PreparedFrame& from, const PreparedFrame& to,
+                             const std::vector<cv::Point2f>& corners) const;
   // The patch closes (`why`); the frames waiting for a second chance, and their rejections, go
   // on with whatever comes next, which they may yet join.
   void CloseKeepingWaiting(const std::string& why);
@@ -1029,7 +1033,8 @@ bool Mosaicker::Impl::BreakAt(const std::shared_ptr<PreparedFrame>& p) {
   return false;
 }
 
-EgomotionResult Mosaicker::Impl::RegisterPair(PreparedFrame& frame, PreparedFrame& onto) {
+EgomotionResult Mosaicker::Impl::RegisterPair(PreparedFrame& frame, PreparedFrame& onto,
+                                              std::optional<std::vector<cv::Point2f>>* onto_corners) {
   const auto a = FeaturesOf(frame), b = FeaturesOf(onto);
   EgomotionResult by_features;
   if (a && b && a->strong >= options.min_inliers && b->strong >= options.min_inliers) {
@@ -1037,14 +1042,17 @@ EgomotionResult Mosaicker::Impl::RegisterPair(PreparedFrame& frame, PreparedFram
     by_features = EstimateEgomotion(m.from, m.to, K, ego_options);
     if (by_features.ok && AssessSupport(by_features, frame_size, support_options).strong) return by_features;
   }
-  EgomotionResult followed = FollowInto(onto, frame);
+  if (!onto.track || !frame.track) return by_features;
+  std::optional<std::vector<cv::Point2f>> found;
+  if (!onto_corners) onto_corners = &found;
+  if (!*onto_corners) *onto_corners = tracker.Corners(*onto.track, {}, track_points);
+  EgomotionResult followed = FollowInto(onto, frame, **onto_corners);
   if (followed.ok && AssessSupport(followed, frame_size, support_options).strong) return followed;
   return by_features.ok ? by_features : followed;
 }
 
-EgomotionResult Mosaicker::Impl::FollowInto(const PreparedFrame& from, const PreparedFrame& to) const {
-  if (!from.track || !to.track) return EgomotionResult{};
-  const std::vector<cv::Point2f> corners = tracker.Corners(*from.track, {}, track_points);
+EgomotionResult Mosaicker::Impl::FollowInto(const PreparedFrame& from, const PreparedFrame& to,
+                                            const std::vector<cv::Point2f>& corners) const {
   double response = 0;
   const cv::Matx33d guess = tracker.CoarseShift(*from.track, *to.track, cv::Matx33d::eye(), &response);
   const TrackFlow flow = tracker.Follow(*from.track, *to.track, corners, guess);
@@ -1088,10 +1096,12 @@ void Mosaicker::Impl::OpenJoinedPatch(const std::shared_ptr<PreparedFrame>& p, F
 // successor, and a lane's dark first frames the one that starts it.
 void Mosaicker::Impl::SecondChance(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, Laps& lap) {
   if (pending.empty()) return;
+  std::optional<std::vector<cv::Point2f>> corners;  // of `p`, found once for all the waiting frames
   for (auto it = pending.begin(); it != pending.end();) {
     // Linked to the frame it was registered onto when that is a keyframe (the adjustment's
     // frames); else tied by its placement.
-    Candidate c = Assess(RegisterPair(*it->frame, *p), to_patch, "second_chance", last.keyframe ? last.index : -1);
+    Candidate c = Assess(RegisterPair(*it->frame, *p, &corners), to_patch, "second_chance",
+                         last.keyframe ? last.index : -1);
     const bool fits = c.support.strong && canvas->Fits(PatchCanvas::FrameBounds(c.to_patch, frame_size));
     if (!fits) {
       it = ++it->tries >= 2 ? pending.erase(it) : std::next(it);
@@ -1102,9 +1112,7 @@ void Mosaicker::Impl::SecondChance(const std::shared_ptr<PreparedFrame>& p, cons
     r.inliers = c.ego.inliers;
     FrameRecord rec = RecordOf(r, c.to_patch);
     rec.registered_by = "second_chance";
-    std::vector<FrameLink> found = c.Links(r.index);
-    for (auto& l : found) l.b = last.index;
-    AddKeyframe(it->frame, c.to_patch, nullptr, std::move(found), std::move(rec), false);
+    AddKeyframe(it->frame, c.to_patch, nullptr, c.Links(r.index), std::move(rec), false);
     it = pending.erase(it);
   }
   lap(kRecovery);

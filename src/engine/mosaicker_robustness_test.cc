@@ -720,12 +720,6 @@ TEST(MosaickerRobustness, FramesInTurnsThatChangeAreFollowedNotRecovered) {
   EXPECT_LE(recovered, 3);
 }
 
-}  // namespace
-}  // namespace rolamos
-
-namespace rolamos {
-namespace {
-
 // Lanes apart (no side overlap, no turn frames) under strong lights, the next lane's first two
 // frames very dark: SIFT finds too few features in them (or too few matches between them) to
 // start the lane; Lucas-Kanade on contrast-normalised frames follows one into the other, and the
@@ -735,16 +729,13 @@ namespace {
 // to 0.53 px; linked, 0.37.
 TEST(MosaickerRobustness, ALaneThatStartsDarkLosesNoFrame) {
   test::ScratchDir dir;
-  SurveyOptions so = test::SmallSurvey(40);
+  SurveyOptions so = JitteredSurvey(40, 2);
   so.fov_deg = 50;
-  so.lanes = 2;
-  so.lane_turns = false;
-  so.forward_overlap = 0.7;
+  so.tilt_deg = 2;  // SmallSurvey's smooth roll and pitch, not the helper's 1
   so.side_overlap = 0;
   so.vignetting = 0.8;
   so.light_cone = 0.8;
   so.noise = 4;
-  so.attitude_jitter_deg = 1;
   const Survey survey = WriteSurvey(so, dir / "survey");
   // The second lane's first two frames (20 and 21: two lanes of 20) at 5 % of their light, with
   // a grey level of sensor noise.
