@@ -2,9 +2,13 @@
 
 #include <algorithm>
 #include <cmath>
+#include <vector>
+
+#include <immintrin.h>
 
 #include <opencv2/imgproc.hpp>
 
+#include "engine/bilinear_warp.h"
 #include "util/homography.h"
 
 namespace rolamos {
@@ -93,22 +97,44 @@ cv::Mat PatchCanvas::Interleave(const cv::Mat& frame, const cv::Mat& code) {
   return bgrw;
 }
 
+namespace {
+
+// One row of a frame's 8-bit channels times the colour correction (one factor per channel, or
+// none) and `scale`, rounded and saturated to 16 bits, as a flat run of values.
+void CorrectRowScalar(const uchar* p, const float* c, float s, int n, ushort* out) {
+  for (int i = 0; i < n; ++i) out[i] = cv::saturate_cast<ushort>(c ? float(p[i]) * c[i] * s : float(p[i]) * s);
+}
+
+__attribute__((target("avx2"))) void CorrectRowAvx2(const uchar* p, const float* c, float s, int n, ushort* out) {
+  const __m256 scale = _mm256_set1_ps(s);
+  int i = 0;
+  for (; i + 8 <= n; i += 8) {
+    __m256 v = _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p + i))));
+    if (c) v = _mm256_mul_ps(v, _mm256_loadu_ps(c + i));
+    // Rounded to nearest as cvRound; past 65535 saturated by the pack (values stay far below 2^31).
+    const __m256i q = _mm256_cvtps_epi32(_mm256_mul_ps(v, scale));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + i),
+                     _mm_packus_epi32(_mm256_castsi256_si128(q), _mm256_extracti128_si256(q, 1)));
+  }
+  CorrectRowScalar(p + i, c ? c + i : nullptr, s, n - i, out + i);
+}
+
+}  // namespace
+
 cv::Mat PatchCanvas::InterleaveDeep(const cv::Mat& frame, const cv::Mat& colour, double scale, const cv::Mat& code) {
   CV_Assert(frame.type() == CV_8UC3 && code.type() == CV_8U && code.size() == frame.size());
   CV_Assert(colour.empty() || (colour.type() == CV_32FC3 && colour.size() == frame.size()));
+  static const bool avx2 = __builtin_cpu_supports("avx2");
   cv::Mat bgrw(frame.size(), CV_16UC4);
   const float s = static_cast<float>(scale);
   cv::parallel_for_(cv::Range(0, frame.rows), [&](const cv::Range& range) {
+    std::vector<ushort> row(3 * static_cast<size_t>(frame.cols));
     for (int y = range.start; y < range.end; ++y) {
-      const cv::Vec3b* p = frame.ptr<cv::Vec3b>(y);
-      const cv::Vec3f* c = colour.empty() ? nullptr : colour.ptr<cv::Vec3f>(y);
+      const float* c = colour.empty() ? nullptr : colour.ptr<float>(y);
+      (avx2 ? CorrectRowAvx2 : CorrectRowScalar)(frame.ptr<uchar>(y), c, s, 3 * frame.cols, row.data());
       const uchar* w = code.ptr<uchar>(y);
       cv::Vec4w* o = bgrw.ptr<cv::Vec4w>(y);
-      for (int x = 0; x < frame.cols; ++x) {
-        for (int k = 0; k < 3; ++k)
-          o[x][k] = cv::saturate_cast<ushort>(c ? float(p[x][k]) * c[x][k] * s : float(p[x][k]) * s);
-        o[x][3] = w[x];
-      }
+      for (int x = 0; x < frame.cols; ++x) o[x] = cv::Vec4w(row[3 * x], row[3 * x + 1], row[3 * x + 2], w[x]);
     }
   });
   return bgrw;
@@ -156,8 +182,7 @@ void PatchCanvas::AddAtScale(const cv::Mat& bgrw, const std::array<float, 256>& 
   if (roi.empty()) return;
   cdata_ = cdata_.empty() ? roi : (cdata_ | roi);
   const cv::Matx33d T(1, 0, -roi.x, 0, 1, -roi.y, 0, 0, 1);
-  cv::Mat warped;
-  cv::warpPerspective(bgrw, warped, cv::Mat(T * H), roi.size(), cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+  const cv::Mat warped = WarpBilinear(bgrw, T * H, roi.size());
   // The blocks this frame touches (created here, on one thread), then filled in parallel.
   const int bx0 = FloorDiv(roi.x, kBlock), by0 = FloorDiv(roi.y, kBlock);
   const int bx1 = FloorDiv(roi.x + roi.width - 1, kBlock), by1 = FloorDiv(roi.y + roi.height - 1, kBlock);

@@ -1,0 +1,189 @@
+#include "engine/bilinear_warp.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+
+#include <immintrin.h>
+
+#include "rolamos/error.hpp"
+
+namespace rolamos {
+namespace {
+
+// Destination pixels whose source positions are found at once.
+constexpr int kRun = 8;
+// Source positions are found in double and rounded to 1/256 px (OpenCV: 1/32): a band of a frame
+// warped with its offset folded into the placement then samples exactly what the whole frame
+// does, so a patch written band by band is the patch rendered whole.
+constexpr int kSubBits = 8;
+constexpr double kSub = 1 << kSubBits;
+constexpr float kInvSub = 1.0f / (1 << kSubBits);
+
+struct Limits {
+  double lo_x, hi_x, lo_y, hi_y;
+  explicit Limits(const cv::Mat& src)
+      : lo_x(-2 * kSub), hi_x((src.cols + 1) * kSub), lo_y(-2 * kSub), hi_y((src.rows + 1) * kSub) {}
+};
+
+// One pixel by the book: taps clamped into the image (edge pixels repeated).
+template <typename T>
+void PixelClamped(const cv::Mat& src, int qx, int qy, T* out) {
+  const int x0 = qx >> kSubBits, y0 = qy >> kSubBits;
+  const float ax = (qx & ((1 << kSubBits) - 1)) * kInvSub, ay = (qy & ((1 << kSubBits) - 1)) * kInvSub;
+  const int xa = std::clamp(x0, 0, src.cols - 1), xb = std::clamp(x0 + 1, 0, src.cols - 1);
+  const int ya = std::clamp(y0, 0, src.rows - 1), yb = std::clamp(y0 + 1, 0, src.rows - 1);
+  const T* r0 = src.ptr<T>(ya);
+  const T* r1 = src.ptr<T>(yb);
+  for (int c = 0; c < 4; ++c) {
+    const float top = r0[4 * xa + c] + ax * (float(r0[4 * xb + c]) - float(r0[4 * xa + c]));
+    const float bottom = r1[4 * xa + c] + ax * (float(r1[4 * xb + c]) - float(r1[4 * xa + c]));
+    out[c] = cv::saturate_cast<T>(top + ay * (bottom - top));
+  }
+}
+
+// A pixel's four channels (the taps at `a` and `b` of a row) as eight floats: a's, then b's.
+__attribute__((target("avx2"))) inline __m256 Load2(const uint8_t* a, const uint8_t* b) {
+  int32_t wa, wb;
+  std::memcpy(&wa, a, 4);
+  std::memcpy(&wb, b, 4);
+  return _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_setr_epi32(wa, wb, 0, 0)));
+}
+__attribute__((target("avx2"))) inline __m256 Load2(const uint16_t* a, const uint16_t* b) {
+  const __m128i lo = _mm_loadl_epi64(reinterpret_cast<const __m128i*>(a));
+  const __m128i hi = _mm_loadl_epi64(reinterpret_cast<const __m128i*>(b));
+  return _mm256_cvtepi32_ps(_mm256_cvtepu16_epi32(_mm_unpacklo_epi64(lo, hi)));
+}
+__attribute__((target("avx2"))) inline void Store1(__m128i v, uint8_t* out) {
+  v = _mm_packus_epi32(v, v);
+  v = _mm_packus_epi16(v, v);
+  const int32_t word = _mm_cvtsi128_si32(v);
+  std::memcpy(out, &word, 4);
+}
+__attribute__((target("avx2"))) inline void Store1(__m128i v, uint16_t* out) {
+  _mm_storel_epi64(reinterpret_cast<__m128i*>(out), _mm_packus_epi32(v, v));
+}
+
+// Four positions along one axis: (a x + b) / w in 1/256 px, clamped (max(v, lo) is lo when v
+// is not a number), rounded.
+__attribute__((target("avx2,fma"))) inline __m128i Axis4(__m256d a, __m256d b, __m256d scale, __m256d xs,
+                                                         double lo, double hi) {
+  __m256d v = _mm256_mul_pd(_mm256_fmadd_pd(a, xs, b), scale);
+  v = _mm256_min_pd(_mm256_max_pd(v, _mm256_set1_pd(lo)), _mm256_set1_pd(hi));
+  return _mm256_cvtpd_epi32(_mm256_round_pd(v, _MM_FROUND_TO_NEAREST_INT | _MM_FROUND_NO_EXC));
+}
+
+__attribute__((target("avx2"))) inline __m256i Clamp(__m256i v, __m256i hi) {
+  return _mm256_min_epi32(_mm256_max_epi32(v, _mm256_setzero_si256()), hi);
+}
+
+// A run of pixels' taps: element offsets of the four neighbours (edge pixels repeated) and the
+// fractions between them.
+struct Taps {
+  alignas(32) int left[kRun], right[kRun], top[kRun], bottom[kRun];
+  alignas(32) float ax[kRun], ay[kRun];
+};
+
+__attribute__((target("avx2,fma"))) void TapsAvx2(const cv::Matx33d& m, int x, int y, const Limits& lim,
+                                                  int cols, int rows, int step, Taps* t) {
+  const __m256d ax = _mm256_set1_pd(m(0, 0)), bx = _mm256_set1_pd(m(0, 1) * y + m(0, 2));
+  const __m256d ay = _mm256_set1_pd(m(1, 0)), by = _mm256_set1_pd(m(1, 1) * y + m(1, 2));
+  const __m256d aw = _mm256_set1_pd(m(2, 0)), bw = _mm256_set1_pd(m(2, 1) * y + m(2, 2));
+  __m128i q[2][2];
+  for (int half = 0; half < 2; ++half) {
+    const __m256d xs = _mm256_add_pd(_mm256_set1_pd(x + 4 * half), _mm256_setr_pd(0, 1, 2, 3));
+    const __m256d scale = _mm256_div_pd(_mm256_set1_pd(kSub), _mm256_fmadd_pd(aw, xs, bw));
+    q[0][half] = Axis4(ax, bx, scale, xs, lim.lo_x, lim.hi_x);
+    q[1][half] = Axis4(ay, by, scale, xs, lim.lo_y, lim.hi_y);
+  }
+  const __m256i qx = _mm256_set_m128i(q[0][1], q[0][0]), qy = _mm256_set_m128i(q[1][1], q[1][0]);
+  const __m256i mask = _mm256_set1_epi32((1 << kSubBits) - 1);
+  const __m256 inv = _mm256_set1_ps(kInvSub);
+  _mm256_store_ps(t->ax, _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_and_si256(qx, mask)), inv));
+  _mm256_store_ps(t->ay, _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_and_si256(qy, mask)), inv));
+  const __m256i x0 = _mm256_srai_epi32(qx, kSubBits), y0 = _mm256_srai_epi32(qy, kSubBits);
+  const __m256i one = _mm256_set1_epi32(1), last_x = _mm256_set1_epi32(cols - 1), last_y = _mm256_set1_epi32(rows - 1);
+  const __m256i four = _mm256_set1_epi32(4), st = _mm256_set1_epi32(step);
+  _mm256_store_si256(reinterpret_cast<__m256i*>(t->left), _mm256_mullo_epi32(Clamp(x0, last_x), four));
+  _mm256_store_si256(reinterpret_cast<__m256i*>(t->right), _mm256_mullo_epi32(Clamp(_mm256_add_epi32(x0, one), last_x), four));
+  _mm256_store_si256(reinterpret_cast<__m256i*>(t->top), _mm256_mullo_epi32(Clamp(y0, last_y), st));
+  _mm256_store_si256(reinterpret_cast<__m256i*>(t->bottom), _mm256_mullo_epi32(Clamp(_mm256_add_epi32(y0, one), last_y), st));
+}
+
+template <typename T>
+__attribute__((target("avx2,fma"))) void RowAvx2(const cv::Mat& src, const cv::Matx33d& m, int y, int begin,
+                                                 int end, T* out) {
+  const Limits lim(src);
+  const int step = static_cast<int>(src.step / sizeof(T));
+  const T* base = src.ptr<T>(0);
+  Taps t;
+  for (int x = begin; x < end; x += kRun) {
+    TapsAvx2(m, x, y, lim, src.cols, src.rows, step, &t);
+    const int n = std::min(kRun, end - x);
+    for (int i = 0; i < n; ++i) {
+      const T* r0 = base + t.top[i];
+      const T* r1 = base + t.bottom[i];
+      const __m256 upper = Load2(r0 + t.left[i], r0 + t.right[i]);
+      const __m256 lower = Load2(r1 + t.left[i], r1 + t.right[i]);
+      const __m256 v = _mm256_fmadd_ps(_mm256_sub_ps(lower, upper), _mm256_set1_ps(t.ay[i]), upper);
+      const __m128 left = _mm256_castps256_ps128(v), right = _mm256_extractf128_ps(v, 1);
+      const __m128 px = _mm_fmadd_ps(_mm_sub_ps(right, left), _mm_set1_ps(t.ax[i]), left);
+      Store1(_mm_cvtps_epi32(px), out + 4 * (x - begin + i));
+    }
+  }
+}
+
+int Quantised(double v, double lo, double hi) {
+  return static_cast<int>(std::lround(std::isnan(v) ? lo : std::clamp(v, lo, hi)));
+}
+
+template <typename T>
+void RowScalar(const cv::Mat& src, const cv::Matx33d& m, int y, int begin, int end, T* out) {
+  const Limits lim(src);
+  for (int x = begin; x < end; ++x) {
+    const double scale = kSub / (m(2, 0) * x + m(2, 1) * y + m(2, 2));
+    const int qx = Quantised((m(0, 0) * x + m(0, 1) * y + m(0, 2)) * scale, lim.lo_x, lim.hi_x);
+    const int qy = Quantised((m(1, 0) * x + m(1, 1) * y + m(1, 2)) * scale, lim.lo_y, lim.hi_y);
+    PixelClamped(src, qx, qy, out + 4 * (x - begin));
+  }
+}
+
+template <typename T>
+void Warp(const cv::Mat& src, const cv::Matx33d& dst_to_src, cv::Mat& dst) {
+  static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  // Tiles of the output, so that the source pixels a tile reads stay in cache across its rows
+  // (a turned frame's rows cross many source rows).
+  constexpr int kTileRows = 32, kTileCols = 128;
+  const int across = (dst.cols + kTileCols - 1) / kTileCols, down = (dst.rows + kTileRows - 1) / kTileRows;
+  cv::parallel_for_(cv::Range(0, across * down), [&](const cv::Range& tiles) {
+    for (int tile = tiles.start; tile < tiles.end; ++tile) {
+      const int x0 = (tile % across) * kTileCols, x1 = std::min(dst.cols, x0 + kTileCols);
+      const int y0 = (tile / across) * kTileRows, y1 = std::min(dst.rows, y0 + kTileRows);
+      for (int y = y0; y < y1; ++y) {
+        T* out = dst.ptr<T>(y) + 4 * x0;
+        if (avx2)
+          RowAvx2<T>(src, dst_to_src, y, x0, x1, out);
+        else
+          RowScalar<T>(src, dst_to_src, y, x0, x1, out);
+      }
+    }
+  });
+}
+
+}  // namespace
+
+cv::Mat WarpBilinear(const cv::Mat& src, const cv::Matx33d& src_to_dst, cv::Size size) {
+  if (src.type() != CV_8UC4 && src.type() != CV_16UC4)
+    Fail("bilinear warp", "image type " + cv::typeToString(src.type()) + " is not 8- or 16-bit BGRW");
+  if (src.empty() || size.width <= 0 || size.height <= 0) return cv::Mat(std::max(size.height, 0), std::max(size.width, 0), src.type());
+  cv::Mat dst(size, src.type());
+  const cv::Matx33d dst_to_src = src_to_dst.inv();
+  if (src.depth() == CV_8U)
+    Warp<uint8_t>(src, dst_to_src, dst);
+  else
+    Warp<uint16_t>(src, dst_to_src, dst);
+  return dst;
+}
+
+}  // namespace rolamos

@@ -1,0 +1,143 @@
+#include "engine/bilinear_warp.h"
+
+#include <cmath>
+
+#include <gtest/gtest.h>
+#include <opencv2/imgproc.hpp>
+
+#include "rolamos/error.hpp"
+
+namespace rolamos {
+namespace {
+
+// A smooth BGRW image (the warp's error grows with the image's gradient) of `type`.
+cv::Mat SmoothImage(cv::Size size, int type, double top) {
+  cv::Mat noise(size, CV_32FC4);
+  cv::RNG rng(7);
+  rng.fill(noise, cv::RNG::UNIFORM, 0.0, top);
+  cv::GaussianBlur(noise, noise, cv::Size(), 6.0);
+  cv::normalize(noise.reshape(1), noise.reshape(1), 0, top, cv::NORM_MINMAX);
+  cv::Mat out;
+  noise.convertTo(out, type);
+  return out;
+}
+
+// Bilinear with edge pixels repeated, in double: what the warp must give.
+cv::Vec4d Reference(const cv::Mat& src, const cv::Matx33d& dst_to_src, int x, int y) {
+  const cv::Vec3d q = dst_to_src * cv::Vec3d(x, y, 1);
+  const double sx = q[0] / q[2], sy = q[1] / q[2];
+  const double fx = std::floor(sx), fy = std::floor(sy);
+  const auto at = [&](int xx, int yy, int c) {
+    xx = std::clamp(xx, 0, src.cols - 1);
+    yy = std::clamp(yy, 0, src.rows - 1);
+    return src.depth() == CV_8U ? double(src.at<cv::Vec4b>(yy, xx)[c]) : double(src.at<cv::Vec4w>(yy, xx)[c]);
+  };
+  cv::Vec4d v;
+  for (int c = 0; c < 4; ++c) {
+    const int x0 = int(fx), y0 = int(fy);
+    const double ax = sx - fx, ay = sy - fy;
+    v[c] = (1 - ay) * ((1 - ax) * at(x0, y0, c) + ax * at(x0 + 1, y0, c)) +
+           ay * ((1 - ax) * at(x0, y0 + 1, c) + ax * at(x0 + 1, y0 + 1, c));
+  }
+  return v;
+}
+
+// The largest change between neighbouring pixels, any channel: what a position error of e pixels
+// can change a bilinear value by, times e, per axis.
+double Steepest(const cv::Mat& image) {
+  cv::Mat f, dx, dy;
+  image.reshape(1).convertTo(f, CV_64F);
+  cv::absdiff(f.colRange(4, f.cols), f.colRange(0, f.cols - 4), dx);
+  cv::absdiff(f.rowRange(1, f.rows), f.rowRange(0, f.rows - 1), dy);
+  double mx = 0, my = 0;
+  cv::minMaxLoc(dx, nullptr, &mx);
+  cv::minMaxLoc(dy, nullptr, &my);
+  return mx + my;
+}
+
+double Value(const cv::Mat& m, int x, int y, int c) {
+  return m.depth() == CV_8U ? m.at<cv::Vec4b>(y, x)[c] : m.at<cv::Vec4w>(y, x)[c];
+}
+
+// Turned, scaled, tilted, and placed so that part of the output lies beyond the frame (edge
+// pixels repeated there).
+const cv::Matx33d kWarps[] = {
+    {1, 0, 0, 0, 1, 0, 0, 0, 1},
+    {0.97, -0.26, 40.3, 0.26, 0.97, -12.7, 0, 0, 1},
+    {1.21, 0.05, -30.5, -0.08, 1.17, 10.25, 2e-4, -1.5e-4, 1},
+    {0.6, 0.2, 300, -0.3, 0.7, 200, -3e-4, 1e-4, 1},
+};
+
+TEST(BilinearWarp, IsBilinearWithEdgePixelsRepeatedInBothDepths) {
+  for (const int type : {CV_8UC4, CV_16UC4}) {
+    const double top = type == CV_8UC4 ? 255 : 16320;  // 16 bits: 255 grey levels x 64
+    const cv::Mat src = SmoothImage({203, 151}, type, top);
+    for (const cv::Matx33d& m : kWarps) {
+      const cv::Size size(260, 230);
+      const cv::Mat out = WarpBilinear(src, m, size);
+      ASSERT_EQ(out.type(), type);
+      ASSERT_EQ(out.size(), size);
+      const cv::Matx33d back = m.inv();
+      double worst = 0;
+      for (int y = 0; y < size.height; ++y)
+        for (int x = 0; x < size.width; ++x) {
+          const cv::Vec4d want = Reference(src, back, x, y);
+          for (int c = 0; c < 4; ++c) worst = std::max(worst, std::abs(Value(out, x, y, c) - want[c]));
+        }
+      // Rounding to the nearest level, and positions rounded to 1/256 px.
+      EXPECT_LE(worst, 0.6 + Steepest(src) / 512) << cv::typeToString(type) << " warp " << m;
+    }
+  }
+}
+
+// The same as OpenCV's warp up to its positions rounded to 1/32 pixel.
+TEST(BilinearWarp, AgreesWithOpenCvsWarp) {
+  for (const int type : {CV_8UC4, CV_16UC4}) {
+    const double top = type == CV_8UC4 ? 255 : 16320;
+    const cv::Mat src = SmoothImage({320, 240}, type, top);
+    for (const cv::Matx33d& m : kWarps) {
+      const cv::Size size(400, 300);
+      cv::Mat theirs;
+      cv::warpPerspective(src, theirs, cv::Mat(m), size, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+      const cv::Mat ours = WarpBilinear(src, m, size);
+      cv::Mat diff;
+      cv::absdiff(ours.reshape(1), theirs.reshape(1), diff);
+      double worst = 0;
+      cv::minMaxLoc(diff, nullptr, &worst);
+      EXPECT_LE(cv::mean(diff)[0], 0.5 + top * 2e-4) << cv::typeToString(type) << " warp " << m;
+      EXPECT_LE(worst, 1 + top * 2e-3) << cv::typeToString(type) << " warp " << m;
+    }
+  }
+}
+
+// A placement that sends part of the output behind the camera (the denominator crosses zero):
+// positions that are not numbers or are huge must still give pixels, not a crash.
+TEST(BilinearWarp, SurvivesADegeneratePlacement) {
+  const cv::Mat src = SmoothImage({64, 48}, CV_8UC4, 255);
+  // w = 1 + 0.05 x crosses zero at x = -20 of the source: the output's left part comes from
+  // behind the camera, its right part from the frame as usual.
+  const cv::Matx33d m(1, 0, 0, 0, 1, 0, 0.05, 0, 1);
+  const cv::Mat out = WarpBilinear(src, m, {128, 96});
+  ASSERT_EQ(out.size(), cv::Size(128, 96));
+  const cv::Matx33d back = m.inv();
+  for (int y = 0; y < 20; ++y)
+    for (int x = 0; x < 20; ++x) {
+      const cv::Vec4d want = Reference(src, back, x, y);
+      for (int c = 0; c < 4; ++c) ASSERT_NEAR(Value(out, x, y, c), want[c], 0.6) << x << "," << y;
+    }
+  // Every pixel from a point at infinity.
+  EXPECT_NO_THROW(WarpBilinear(src, cv::Matx33d(1, 0, 0, 0, 1, 0, 0, 0, 1e-30), {16, 16}));
+}
+
+TEST(BilinearWarp, SaysWhichImageItCannotWarp) {
+  const cv::Mat grey(10, 10, CV_8UC1, cv::Scalar(0));
+  try {
+    WarpBilinear(grey, cv::Matx33d::eye(), {10, 10});
+    FAIL() << "a grey image was warped";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("8UC1"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace rolamos
