@@ -1,6 +1,7 @@
 #include "engine/bilinear_warp.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -29,7 +30,7 @@ struct Limits {
 
 // One pixel by the book: taps clamped into the image (edge pixels repeated).
 template <typename T>
-void PixelClamped(const cv::Mat& src, int qx, int qy, T* out) {
+void InterpolateClamped(const cv::Mat& src, int qx, int qy, float out[4]) {
   const int x0 = qx >> kSubBits, y0 = qy >> kSubBits;
   const float ax = (qx & ((1 << kSubBits) - 1)) * kInvSub, ay = (qy & ((1 << kSubBits) - 1)) * kInvSub;
   const int xa = std::clamp(x0, 0, src.cols - 1), xb = std::clamp(x0 + 1, 0, src.cols - 1);
@@ -39,7 +40,7 @@ void PixelClamped(const cv::Mat& src, int qx, int qy, T* out) {
   for (int c = 0; c < 4; ++c) {
     const float top = r0[4 * xa + c] + ax * (float(r0[4 * xb + c]) - float(r0[4 * xa + c]));
     const float bottom = r1[4 * xa + c] + ax * (float(r1[4 * xb + c]) - float(r1[4 * xa + c]));
-    out[c] = cv::saturate_cast<T>(top + ay * (bottom - top));
+    out[c] = top + ay * (bottom - top);
   }
 }
 
@@ -111,9 +112,10 @@ __attribute__((target("avx2,fma"))) void TapsAvx2(const cv::Matx33d& m, int x, i
   _mm256_store_si256(reinterpret_cast<__m256i*>(t->bottom), _mm256_mullo_epi32(Clamp(_mm256_add_epi32(y0, one), last_y), st));
 }
 
-template <typename T>
+// Pixels begin .. end - 1 of output row y, each handed to `sink` as four floats (B, G, R, code).
+template <typename T, typename Sink>
 __attribute__((target("avx2,fma"))) void RowAvx2(const cv::Mat& src, const cv::Matx33d& m, int y, int begin,
-                                                 int end, T* out) {
+                                                 int end, Sink& sink) {
   const Limits lim(src);
   const int step = static_cast<int>(src.step / sizeof(T));
   const T* base = src.ptr<T>(0);
@@ -128,8 +130,7 @@ __attribute__((target("avx2,fma"))) void RowAvx2(const cv::Mat& src, const cv::M
       const __m256 lower = Load2(r1 + t.left[i], r1 + t.right[i]);
       const __m256 v = _mm256_fmadd_ps(_mm256_sub_ps(lower, upper), _mm256_set1_ps(t.ay[i]), upper);
       const __m128 left = _mm256_castps256_ps128(v), right = _mm256_extractf128_ps(v, 1);
-      const __m128 px = _mm_fmadd_ps(_mm_sub_ps(right, left), _mm_set1_ps(t.ax[i]), left);
-      Store1(_mm_cvtps_epi32(px), out + 4 * (x - begin + i));
+      sink.Vector(x - begin + i, _mm_fmadd_ps(_mm_sub_ps(right, left), _mm_set1_ps(t.ax[i]), left));
     }
   }
 }
@@ -138,20 +139,62 @@ int Quantised(double v, double lo, double hi) {
   return static_cast<int>(std::lround(std::isnan(v) ? lo : std::clamp(v, lo, hi)));
 }
 
-template <typename T>
-void RowScalar(const cv::Mat& src, const cv::Matx33d& m, int y, int begin, int end, T* out) {
+template <typename T, typename Sink>
+void RowScalar(const cv::Mat& src, const cv::Matx33d& m, int y, int begin, int end, Sink& sink) {
   const Limits lim(src);
   for (int x = begin; x < end; ++x) {
     const double scale = kSub / (m(2, 0) * x + m(2, 1) * y + m(2, 2));
     const int qx = Quantised((m(0, 0) * x + m(0, 1) * y + m(0, 2)) * scale, lim.lo_x, lim.hi_x);
     const int qy = Quantised((m(1, 0) * x + m(1, 1) * y + m(1, 2)) * scale, lim.lo_y, lim.hi_y);
-    PixelClamped(src, qx, qy, out + 4 * (x - begin));
+    float v[4];
+    InterpolateClamped<T>(src, qx, qy, v);
+    sink.Scalar(x - begin, v);
   }
 }
 
+template <typename T, typename Sink>
+void Row(const cv::Mat& src, const cv::Matx33d& dst_to_src, int y, int begin, int end, Sink& sink) {
+  static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  if (avx2)
+    RowAvx2<T>(src, dst_to_src, y, begin, end, sink);
+  else
+    RowScalar<T>(src, dst_to_src, y, begin, end, sink);
+}
+
+// Writes each pixel, rounded, into an image row.
+template <typename T>
+struct StoreSink {
+  T* out;
+  __attribute__((target("avx2"))) void Vector(int x, __m128 v) { Store1(_mm_cvtps_epi32(v), out + 4 * x); }
+  void Scalar(int x, const float v[4]) {
+    for (int c = 0; c < 4; ++c) out[4 * x + c] = cv::saturate_cast<T>(v[c]);
+  }
+};
+
+// Adds each pixel to a canvas row: weight[code] x colour x unit to the sums, weight[code] to the
+// weights; code 0 (beyond the frame) adds nothing.
+struct AccumulateSink {
+  cv::Vec3f* sum;
+  float* weight_sum;
+  const float* weight;
+  float unit;
+  __attribute__((target("avx2"))) void Vector(int x, __m128 v) {
+    alignas(16) float f[4];
+    _mm_store_ps(f, v);
+    Scalar(x, f);
+  }
+  void Scalar(int x, const float v[4]) {
+    const int code = std::min(cvRound(v[3]), 255);
+    if (code <= 0) return;
+    const float a = weight[code];
+    const float k = a * unit;
+    sum[x] += cv::Vec3f(v[0] * k, v[1] * k, v[2] * k);
+    weight_sum[x] += a;
+  }
+};
+
 template <typename T>
 void Warp(const cv::Mat& src, const cv::Matx33d& dst_to_src, cv::Mat& dst) {
-  static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
   // Tiles of the output, so that the source pixels a tile reads stay in cache across its rows
   // (a turned frame's rows cross many source rows).
   constexpr int kTileRows = 32, kTileCols = 128;
@@ -161,21 +204,22 @@ void Warp(const cv::Mat& src, const cv::Matx33d& dst_to_src, cv::Mat& dst) {
       const int x0 = (tile % across) * kTileCols, x1 = std::min(dst.cols, x0 + kTileCols);
       const int y0 = (tile / across) * kTileRows, y1 = std::min(dst.rows, y0 + kTileRows);
       for (int y = y0; y < y1; ++y) {
-        T* out = dst.ptr<T>(y) + 4 * x0;
-        if (avx2)
-          RowAvx2<T>(src, dst_to_src, y, x0, x1, out);
-        else
-          RowScalar<T>(src, dst_to_src, y, x0, x1, out);
+        StoreSink<T> sink{dst.ptr<T>(y) + 4 * x0};
+        Row<T>(src, dst_to_src, y, x0, x1, sink);
       }
     }
   });
 }
 
+void CheckType(const cv::Mat& src, const char* what) {
+  if (src.type() != CV_8UC4 && src.type() != CV_16UC4)
+    Fail(what, "image type " + cv::typeToString(src.type()) + " is not 8- or 16-bit BGRW");
+}
+
 }  // namespace
 
 cv::Mat WarpBilinear(const cv::Mat& src, const cv::Matx33d& src_to_dst, cv::Size size) {
-  if (src.type() != CV_8UC4 && src.type() != CV_16UC4)
-    Fail("bilinear warp", "image type " + cv::typeToString(src.type()) + " is not 8- or 16-bit BGRW");
+  CheckType(src, "bilinear warp");
   if (src.empty() || size.width <= 0 || size.height <= 0) return cv::Mat(std::max(size.height, 0), std::max(size.width, 0), src.type());
   cv::Mat dst(size, src.type());
   const cv::Matx33d dst_to_src = src_to_dst.inv();
@@ -184,6 +228,21 @@ cv::Mat WarpBilinear(const cv::Mat& src, const cv::Matx33d& src_to_dst, cv::Size
   else
     Warp<uint16_t>(src, dst_to_src, dst);
   return dst;
+}
+
+void WarpAccumulate(const cv::Mat& src, const cv::Matx33d& src_to_dst, const std::array<float, 256>& weight,
+                    float unit, cv::Mat& sum, cv::Mat& weight_sum) {
+  CheckType(src, "bilinear warp into a canvas");
+  CV_Assert(sum.type() == CV_32FC3 && weight_sum.type() == CV_32F && sum.size() == weight_sum.size());
+  if (src.empty()) return;
+  const cv::Matx33d dst_to_src = src_to_dst.inv();
+  for (int y = 0; y < sum.rows; ++y) {
+    AccumulateSink sink{sum.ptr<cv::Vec3f>(y), weight_sum.ptr<float>(y), weight.data(), unit};
+    if (src.depth() == CV_8U)
+      Row<uint8_t>(src, dst_to_src, y, 0, sum.cols, sink);
+    else
+      Row<uint16_t>(src, dst_to_src, y, 0, sum.cols, sink);
+  }
 }
 
 }  // namespace rolamos

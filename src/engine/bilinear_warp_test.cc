@@ -1,5 +1,6 @@
 #include "engine/bilinear_warp.h"
 
+#include <array>
 #include <cmath>
 
 #include <gtest/gtest.h>
@@ -22,10 +23,12 @@ cv::Mat SmoothImage(cv::Size size, int type, double top) {
   return out;
 }
 
-// Bilinear with edge pixels repeated, in double: what the warp must give.
-cv::Vec4d Reference(const cv::Mat& src, const cv::Matx33d& dst_to_src, int x, int y) {
+// Bilinear with edge pixels repeated, in double: what the warp must give. `sub`: positions
+// rounded to 1/sub px first, as the warp rounds them.
+cv::Vec4d Reference(const cv::Mat& src, const cv::Matx33d& dst_to_src, int x, int y, double sub = 0) {
   const cv::Vec3d q = dst_to_src * cv::Vec3d(x, y, 1);
-  const double sx = q[0] / q[2], sy = q[1] / q[2];
+  double sx = q[0] / q[2], sy = q[1] / q[2];
+  if (sub > 0) sx = std::round(sx * sub) / sub, sy = std::round(sy * sub) / sub;
   const double fx = std::floor(sx), fy = std::floor(sy);
   const auto at = [&](int xx, int yy, int c) {
     xx = std::clamp(xx, 0, src.cols - 1);
@@ -127,6 +130,49 @@ TEST(BilinearWarp, SurvivesADegeneratePlacement) {
     }
   // Every pixel from a point at infinity.
   EXPECT_NO_THROW(WarpBilinear(src, cv::Matx33d(1, 0, 0, 0, 1, 0, 0, 0, 1e-30), {16, 16}));
+}
+
+// Blended straight into a canvas: each pixel adds weight[code] x colour x unit, and onto what
+// the canvas holds; the code rounded as the warped image would hold it, the colour not.
+TEST(BilinearWarp, AccumulatesWhatTheWarpedFrameWouldAdd) {
+  std::array<float, 256> table;
+  for (int c = 0; c < 256; ++c) table[size_t(c)] = c == 0 ? 0.0f : 0.01f + c / 255.0f;
+  for (const int type : {CV_8UC4, CV_16UC4}) {
+    const double top = type == CV_8UC4 ? 255 : 16320;
+    cv::Mat src = SmoothImage({203, 151}, type, top);
+    // The code channel: 0 on the outer ring, 1..255 inside, as a feather code is.
+    for (int y = 0; y < src.rows; ++y)
+      for (int x = 0; x < src.cols; ++x) {
+        const bool edge = x == 0 || y == 0 || x == src.cols - 1 || y == src.rows - 1;
+        const int code = edge ? 0 : 1 + (x + y) * 254 / (src.cols + src.rows);  // smooth
+        if (type == CV_8UC4) src.at<cv::Vec4b>(y, x)[3] = uchar(code);
+        else src.at<cv::Vec4w>(y, x)[3] = ushort(code);
+      }
+    const float unit = type == CV_8UC4 ? 1.0f : 1.0f / 64;
+    for (const cv::Matx33d& m : kWarps) {
+      const cv::Size size(260, 230);
+      cv::Mat sum(size, CV_32FC3, cv::Scalar::all(1)), weight(size, CV_32F, cv::Scalar(2));
+      WarpAccumulate(src, m, table, unit, sum, weight);
+      const cv::Matx33d back = m.inv();
+      int blended = 0;
+      for (int y = 0; y < size.height; ++y)
+        for (int x = 0; x < size.width; ++x) {
+          const cv::Vec4d want = Reference(src, back, x, y, 256);
+          const int code = std::min(255, int(std::lround(want[3])));
+          // A code on the edge of rounding may go either way.
+          if (std::abs(want[3] - std::floor(want[3]) - 0.5) < 0.01) continue;
+          const float a = table[size_t(std::max(code, 0))];
+          ASSERT_NEAR(weight.at<float>(y, x), 2 + a, 1e-5) << x << "," << y;
+          for (int c = 0; c < 3; ++c)
+            ASSERT_NEAR(sum.at<cv::Vec3f>(y, x)[c], 1 + a * want[c] * unit, 1e-4 * (1 + a * want[c] * unit))
+                << cv::typeToString(type) << " at " << x << "," << y;
+          blended += code > 0;
+        }
+      // The last placement puts the frame beyond this canvas: the sums stay as they were.
+      if (&m == &kWarps[3]) EXPECT_EQ(blended, 0);
+      else EXPECT_GT(blended, 1000) << cv::typeToString(type) << " warp " << m;
+    }
+  }
 }
 
 TEST(BilinearWarp, SaysWhichImageItCannotWarp) {

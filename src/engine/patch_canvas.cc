@@ -158,6 +158,30 @@ void PatchCanvas::AddInterleaved(const cv::Mat& bgrw, const std::array<float, 25
   AddAtScale(bgrw, weight, frame_to_patch, bgrw.size(), clip);
 }
 
+namespace {
+
+// Whether the convex quadrilateral `quad` meets the pixels of `r` (as the square extents of its
+// pixel centres), by separating axes: the rectangle's two and the quadrilateral's four.
+bool QuadMeets(const std::array<cv::Point2d, 4>& quad, const cv::Rect& r) {
+  const std::array<cv::Point2d, 4> box = {cv::Point2d(r.x - 0.5, r.y - 0.5), cv::Point2d(r.br().x - 0.5, r.y - 0.5),
+                                          cv::Point2d(r.br().x - 0.5, r.br().y - 0.5),
+                                          cv::Point2d(r.x - 0.5, r.br().y - 0.5)};
+  const auto apart = [](const std::array<cv::Point2d, 4>& a, const std::array<cv::Point2d, 4>& b, cv::Point2d axis) {
+    double a0 = 1e300, a1 = -1e300, b0 = 1e300, b1 = -1e300;
+    for (const auto& p : a) a0 = std::min(a0, axis.dot(p)), a1 = std::max(a1, axis.dot(p));
+    for (const auto& p : b) b0 = std::min(b0, axis.dot(p)), b1 = std::max(b1, axis.dot(p));
+    return a1 < b0 || b1 < a0;
+  };
+  if (apart(quad, box, {1, 0}) || apart(quad, box, {0, 1})) return false;
+  for (size_t i = 0; i < 4; ++i) {
+    const cv::Point2d edge = quad[(i + 1) % 4] - quad[i];
+    if (apart(quad, box, {-edge.y, edge.x})) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
 void PatchCanvas::AddAtScale(const cv::Mat& bgrw, const std::array<float, 256>& weight,
                              const cv::Matx33d& frame_to_patch, cv::Size frame, const cv::Rect& clip) {
   // 16-bit frames (colour-corrected, kDeepScale per grey level) only where nothing is reduced.
@@ -168,9 +192,9 @@ void PatchCanvas::AddAtScale(const cv::Mat& bgrw, const std::array<float, 256>& 
   if (!clip.empty()) patch_roi &= clip;
   if (patch_roi.empty()) return;
   data_ = data_.empty() ? patch_roi : (data_ | patch_roi);
-  // Colour and weight code travel together in one 4-channel warp into the ROI only:
-  // frame -> ROI pixel = T(-roi.tl) * H. Edge pixels repeat past the frame (colours are never
-  // mixed with black) while the weight code, 0 on the frame's outer ring, fades to nothing.
+  // Colour and weight code travel together in one 4-channel warp: frame -> canvas pixel = H.
+  // Edge pixels repeat past the frame (colours are never mixed with black) while the weight
+  // code, 0 on the frame's outer ring, fades to nothing.
   cv::Matx33d H = ToCanvas() * frame_to_patch;
   if (scale_ < 1) {
     const double c = scale_;
@@ -181,29 +205,65 @@ void PatchCanvas::AddAtScale(const cv::Mat& bgrw, const std::array<float, 256>& 
   if (!clip.empty()) roi &= clip;  // canvas pixels are patch coordinates at scale 1
   if (roi.empty()) return;
   cdata_ = cdata_.empty() ? roi : (cdata_ | roi);
-  const cv::Matx33d T(1, 0, -roi.x, 0, 1, -roi.y, 0, 0, 1);
-  const cv::Mat warped = WarpBilinear(bgrw, T * H, roi.size());
+  if (reduced_)
+    AddReduced(WarpBilinear(bgrw, cv::Matx33d(1, 0, -roi.x, 0, 1, -roi.y, 0, 0, 1) * H, roi.size()), weight, roi);
+  else
+    AddBlended(bgrw, weight, H, roi);
+}
+
+PatchCanvas::Block& PatchCanvas::BlockAt(int bx, int by) {
+  Block& b = blocks_[Key(bx, by)];
+  if (b.sum.empty()) {
+    b.sum = cv::Mat::zeros(kBlock, kBlock, CV_32FC3);
+    b.weight = cv::Mat::zeros(kBlock, kBlock, CV_32F);
+    if (reduced_) {
+      b.small_sum = cv::Mat::zeros(kBlock / kMirror, kBlock / kMirror, CV_32FC3);
+      b.small_weight = cv::Mat::zeros(kBlock / kMirror, kBlock / kMirror, CV_32F);
+    }
+  }
+  return b;
+}
+
+void PatchCanvas::AddBlended(const cv::Mat& bgrw, const std::array<float, 256>& weight, const cv::Matx33d& H,
+                             const cv::Rect& roi) {
+  // The blocks the frame's quadrilateral meets (created here, on one thread), then each blended
+  // into straight from the frame, in parallel: no warped copy of the frame in between.
+  std::array<cv::Point2d, 4> quad;
+  const cv::Point2d corners[] = {{-0.5, -0.5}, {bgrw.cols - 0.5, -0.5}, {bgrw.cols - 0.5, bgrw.rows - 0.5}, {-0.5, bgrw.rows - 0.5}};
+  for (size_t i = 0; i < 4; ++i) {
+    const cv::Vec3d q = H * cv::Vec3d(corners[i].x, corners[i].y, 1);
+    quad[i] = cv::Point2d(q[0] / q[2], q[1] / q[2]);
+  }
+  std::vector<std::pair<cv::Rect, Block*>> parts;  // (the frame's pixels in the block, the block)
+  for (int by = FloorDiv(roi.y, kBlock); by <= FloorDiv(roi.y + roi.height - 1, kBlock); ++by)
+    for (int bx = FloorDiv(roi.x, kBlock); bx <= FloorDiv(roi.x + roi.width - 1, kBlock); ++bx) {
+      const cv::Rect overlap = cv::Rect(bx * kBlock, by * kBlock, kBlock, kBlock) & roi;
+      if (!overlap.empty() && QuadMeets(quad, overlap)) parts.emplace_back(overlap, &BlockAt(bx, by));
+    }
+  const float unit = bgrw.depth() == CV_16U ? 1.0f / kDeepScale : 1.0f;
+  cv::parallel_for_(cv::Range(0, static_cast<int>(parts.size())), [&](const cv::Range& range) {
+    for (int i = range.start; i < range.end; ++i) {
+      const cv::Rect& overlap = parts[static_cast<size_t>(i)].first;
+      Block& b = *parts[static_cast<size_t>(i)].second;
+      const cv::Rect in_block(overlap.x - FloorDiv(overlap.x, kBlock) * kBlock,
+                              overlap.y - FloorDiv(overlap.y, kBlock) * kBlock, overlap.width, overlap.height);
+      cv::Mat sum = b.sum(in_block), weight_sum = b.weight(in_block);
+      WarpAccumulate(bgrw, cv::Matx33d(1, 0, -overlap.x, 0, 1, -overlap.y, 0, 0, 1) * H, weight, unit, sum, weight_sum);
+    }
+  });
+}
+
+void PatchCanvas::AddReduced(const cv::Mat& warped, const std::array<float, 256>& weight, const cv::Rect& roi) {
   // The blocks this frame touches (created here, on one thread), then filled in parallel.
   const int bx0 = FloorDiv(roi.x, kBlock), by0 = FloorDiv(roi.y, kBlock);
   const int bx1 = FloorDiv(roi.x + roi.width - 1, kBlock), by1 = FloorDiv(roi.y + roi.height - 1, kBlock);
-  std::vector<std::pair<cv::Rect, Block*>> parts;  // (block rect in patch coordinates, block)
+  std::vector<std::pair<cv::Rect, Block*>> parts;  // (block rect in canvas pixels, block)
   for (int by = by0; by <= by1; ++by) {
     for (int bx = bx0; bx <= bx1; ++bx) {
       const cv::Rect block_rect(bx * kBlock, by * kBlock, kBlock, kBlock);
       const cv::Rect overlap = block_rect & roi;
-      if (overlap.empty() || (deep ? !AnyWeight<cv::Vec4w>(warped(overlap - roi.tl()))
-                                   : !AnyWeight<cv::Vec4b>(warped(overlap - roi.tl()))))
-        continue;
-      Block& b = blocks_[Key(bx, by)];
-      if (b.sum.empty()) {
-        b.sum = cv::Mat::zeros(kBlock, kBlock, CV_32FC3);
-        b.weight = cv::Mat::zeros(kBlock, kBlock, CV_32F);
-        if (reduced_) {
-          b.small_sum = cv::Mat::zeros(kBlock / kMirror, kBlock / kMirror, CV_32FC3);
-          b.small_weight = cv::Mat::zeros(kBlock / kMirror, kBlock / kMirror, CV_32F);
-        }
-      }
-      parts.emplace_back(block_rect, &b);
+      if (overlap.empty() || !AnyWeight<cv::Vec4b>(warped(overlap - roi.tl()))) continue;
+      parts.emplace_back(block_rect, &BlockAt(bx, by));
     }
   }
   const float* table = weight.data();
@@ -218,27 +278,7 @@ void PatchCanvas::AddAtScale(const cv::Mat& bgrw, const std::array<float, 256>& 
         const int by = y - block_rect.y;
         cv::Vec3f* acc = b.sum.ptr<cv::Vec3f>(by) + bx;
         float* wsum = b.weight.ptr<float>(by) + bx;
-        if (deep) {
-          const cv::Vec4w* pw = warped.ptr<cv::Vec4w>(y - roi.y) + (overlap.x - roi.x);
-          constexpr float kInv = 1.0f / kDeepScale;
-          for (int x = 0; x < overlap.width; ++x) {
-            if (!pw[x][3]) continue;
-            const float a = table[std::min<int>(pw[x][3], 255)];
-            acc[x] += cv::Vec3f(a * pw[x][0] * kInv, a * pw[x][1] * kInv, a * pw[x][2] * kInv);
-            wsum[x] += a;
-          }
-          continue;
-        }
         const cv::Vec4b* px = warped.ptr<cv::Vec4b>(y - roi.y) + (overlap.x - roi.x);
-        if (!reduced_) {
-          for (int x = 0; x < overlap.width; ++x) {
-            if (!px[x][3]) continue;
-            const float a = table[px[x][3]];
-            acc[x] += cv::Vec3f(a * px[x][0], a * px[x][1], a * px[x][2]);
-            wsum[x] += a;
-          }
-          continue;
-        }
         cv::Vec3f* small = b.small_sum.ptr<cv::Vec3f>(by / kMirror);
         float* small_w = b.small_weight.ptr<float>(by / kMirror);
         for (int x = 0; x < overlap.width; ++x) {

@@ -86,6 +86,13 @@ class PatchCanvas {
     cv::Mat small_weight;  // CV_32F: 4 x 4 means of `weight`
   };
   static int64_t Key(int bx, int by) { return (int64_t(bx) << 32) ^ uint32_t(by); }
+  // The block at (bx, by), created (zero) if there is none yet.
+  Block& BlockAt(int bx, int by);
+  // AddAtScale's two ways of accumulating a frame placed by H (frame -> canvas pixels) over
+  // `roi` (canvas pixels): at full resolution blended straight from the frame; on the reduced
+  // working canvas from its warped copy (`warped`, roi's size), keeping the 2 x 2 means too.
+  void AddBlended(const cv::Mat& bgrw, const std::array<float, 256>& weight, const cv::Matx33d& H, const cv::Rect& roi);
+  void AddReduced(const cv::Mat& warped, const std::array<float, 256>& weight, const cv::Rect& roi);
   // Dense copies of the sums over `rect` (zeros where no block exists), reduced by `factor`
   // (1, 2, 4, ... up to the block size) with area averaging; `rect` must be aligned to it.
   void Dense(const cv::Rect& rect, cv::Mat* sum, cv::Mat* weight, int factor = 1) const;
