@@ -17,6 +17,9 @@ JPEG frames instead of the MPEG-4 file: the difference is what the video codec c
 kind, in the same run: frames each keeps, seconds, frames/s, peak RSS.
 
   bench/run_engine_spread.py [--kinds a,b] [--runs 1] [--peer N] [--cli OLD,build/rolamos --names before,after]
+
+Figures go to OUT/spread.md, OUT/results.json (this run's), and OUT/results/NAME/KIND.json (one
+file per binary and kind, kept across runs on other kinds).
                              [--out bench/out/spread] [-- extra mosaic flags]
 """
 import argparse, glob, json, os, re, statistics, subprocess, sys
@@ -216,6 +219,11 @@ def main():
             c = closures(store)
             f, w, m, u = (statistics.median(runs[cli][x]) for x in ("fps", "wall", "rss", "cpu"))
             results.setdefault(cli, {})[kind] = dict(e, fps=f, wall_fps=w, rss=m, closed=c, stages=runs[cli]["stages"])
+            # One file per binary and kind as well: a later run on other kinds or binaries leaves it
+            # be (results.json holds this run's only), so readers can name the engine they mean.
+            per = os.path.join(a.out, "results", re.sub(r"[^\w.-]", "_", names[n]))
+            os.makedirs(per, exist_ok=True)
+            json.dump(dict(results[cli][kind], cli=cli), open(os.path.join(per, f"{kind}.json"), "w"), indent=1)
             fmt = lambda v: "—" if v is None else f"{v:.2f}"
             closed = ", ".join(f"{k} {v}" for k, v in sorted(c.items()))
             keys = e.get("keyframes", e["stitched"])

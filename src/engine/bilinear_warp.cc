@@ -56,16 +56,6 @@ __attribute__((target("avx2"))) inline __m256 Load2(const uint16_t* a, const uin
   const __m128i hi = _mm_loadl_epi64(reinterpret_cast<const __m128i*>(b));
   return _mm256_cvtepi32_ps(_mm256_cvtepu16_epi32(_mm_unpacklo_epi64(lo, hi)));
 }
-__attribute__((target("avx2"))) inline void Store1(__m128i v, uint8_t* out) {
-  v = _mm_packus_epi32(v, v);
-  v = _mm_packus_epi16(v, v);
-  const int32_t word = _mm_cvtsi128_si32(v);
-  std::memcpy(out, &word, 4);
-}
-__attribute__((target("avx2"))) inline void Store1(__m128i v, uint16_t* out) {
-  _mm_storel_epi64(reinterpret_cast<__m128i*>(out), _mm_packus_epi32(v, v));
-}
-
 // Four positions along one axis: (a x + b) / w in 1/256 px, clamped (max(v, lo) is lo when v
 // is not a number), rounded.
 __attribute__((target("avx2,fma"))) inline __m128i Axis4(__m256d a, __m256d b, __m256d scale, __m256d xs,
@@ -161,16 +151,6 @@ void Row(const cv::Mat& src, const cv::Matx33d& dst_to_src, int y, int begin, in
     RowScalar<T>(src, dst_to_src, y, begin, end, sink);
 }
 
-// Writes each pixel, rounded, into an image row.
-template <typename T>
-struct StoreSink {
-  T* out;
-  __attribute__((target("avx2"))) void Vector(int x, __m128 v) { Store1(_mm_cvtps_epi32(v), out + 4 * x); }
-  void Scalar(int x, const float v[4]) {
-    for (int c = 0; c < 4; ++c) out[4 * x + c] = cv::saturate_cast<T>(v[c]);
-  }
-};
-
 // Adds each pixel to a canvas row: weight[code] x colour x unit to the sums, weight[code] to the
 // weights; code 0 (beyond the frame) adds nothing.
 struct AccumulateSink {
@@ -193,42 +173,12 @@ struct AccumulateSink {
   }
 };
 
-template <typename T>
-void Warp(const cv::Mat& src, const cv::Matx33d& dst_to_src, cv::Mat& dst) {
-  // Tiles of the output, so that the source pixels a tile reads stay in cache across its rows
-  // (a turned frame's rows cross many source rows).
-  constexpr int kTileRows = 32, kTileCols = 128;
-  const int across = (dst.cols + kTileCols - 1) / kTileCols, down = (dst.rows + kTileRows - 1) / kTileRows;
-  cv::parallel_for_(cv::Range(0, across * down), [&](const cv::Range& tiles) {
-    for (int tile = tiles.start; tile < tiles.end; ++tile) {
-      const int x0 = (tile % across) * kTileCols, x1 = std::min(dst.cols, x0 + kTileCols);
-      const int y0 = (tile / across) * kTileRows, y1 = std::min(dst.rows, y0 + kTileRows);
-      for (int y = y0; y < y1; ++y) {
-        StoreSink<T> sink{dst.ptr<T>(y) + 4 * x0};
-        Row<T>(src, dst_to_src, y, x0, x1, sink);
-      }
-    }
-  });
-}
-
 void CheckType(const cv::Mat& src, const char* what) {
   if (src.type() != CV_8UC4 && src.type() != CV_16UC4)
     Fail(what, "image type " + cv::typeToString(src.type()) + " is not 8- or 16-bit BGRW");
 }
 
 }  // namespace
-
-cv::Mat WarpBilinear(const cv::Mat& src, const cv::Matx33d& src_to_dst, cv::Size size) {
-  CheckType(src, "bilinear warp");
-  if (src.empty() || size.width <= 0 || size.height <= 0) return cv::Mat(std::max(size.height, 0), std::max(size.width, 0), src.type());
-  cv::Mat dst(size, src.type());
-  const cv::Matx33d dst_to_src = src_to_dst.inv();
-  if (src.depth() == CV_8U)
-    Warp<uint8_t>(src, dst_to_src, dst);
-  else
-    Warp<uint16_t>(src, dst_to_src, dst);
-  return dst;
-}
 
 void WarpAccumulate(const cv::Mat& src, const cv::Matx33d& src_to_dst, const std::array<float, 256>& weight,
                     float unit, cv::Mat& sum, cv::Mat& weight_sum) {
