@@ -120,6 +120,17 @@ class HeldSource : public FrameSource {
     first_.push_back({std::move(f), live_ ? live_->arrival() : Clock::time_point{}});
     return &first_.back().frame;
   }
+  // Reads up to n frames at once (in parallel where the source can) and holds them; returns them.
+  std::vector<const InputFrame*> HoldMany(int n) {
+    std::vector<InputFrame> taken;
+    source_->Take(n, &taken);
+    std::vector<const InputFrame*> held;
+    for (InputFrame& f : taken) {
+      first_.push_back({std::move(f), live_ ? live_->arrival() : Clock::time_point{}});
+      held.push_back(&first_.back().frame);
+    }
+    return held;
+  }
   size_t held() const { return first_.size(); }
   bool Next(InputFrame* f) override {
     if (!first_.empty()) {
@@ -155,7 +166,13 @@ class HeldSource : public FrameSource {
 MosaickerOptions AutoMask(HeldSource* source, const Store& store, MosaickerOptions options, std::string* note) {
   const StaticMaskOptions mo;
   std::vector<cv::Mat> frames;
-  for (int read = 0; static_cast<int>(frames.size()) < mo.frames && read < 3 * mo.frames; ++read) {
+  // The first frames at once (decoded on every core), then one by one past unreadable ones.
+  int read = 0;
+  for (const InputFrame* f : source->HoldMany(mo.frames)) {
+    ++read;
+    if (!f->image.empty()) frames.push_back(f->image);
+  }
+  for (; static_cast<int>(frames.size()) < mo.frames && read < 3 * mo.frames; ++read) {
     const InputFrame* f = source->HoldNext();
     if (!f) break;
     if (!f->image.empty()) frames.push_back(f->image);

@@ -64,6 +64,12 @@ cv::Mat ReadFrameImage(const std::string& path, std::string* error) {
   return m;
 }
 
+int FrameSource::Take(int n, std::vector<InputFrame>* frames) {
+  int read = 0;
+  for (InputFrame f; read < n && Next(&f); ++read) frames->push_back(std::move(f));
+  return read;
+}
+
 namespace {
 
 class FileListSource : public FrameSource {
@@ -71,16 +77,27 @@ class FileListSource : public FrameSource {
   explicit FileListSource(std::vector<std::string> paths) : paths_(std::move(paths)) {}
   bool Next(InputFrame* f) override {
     if (next_ >= paths_.size()) return false;
-    f->index = static_cast<int>(next_);
-    f->source = paths_[next_];
-    f->error.clear();
-    f->image = ReadFrameImage(paths_[next_], &f->error);
-    ++next_;
+    Read(next_++, f);
     return true;
+  }
+  int Take(int n, std::vector<InputFrame>* frames) override {
+    const size_t first = frames->size(), count = std::min<size_t>(std::max(n, 0), paths_.size() - next_);
+    frames->resize(first + count);
+    cv::parallel_for_(cv::Range(0, static_cast<int>(count)), [&](const cv::Range& r) {
+      for (int i = r.start; i < r.end; ++i) Read(next_ + size_t(i), &(*frames)[first + size_t(i)]);
+    });
+    next_ += count;
+    return static_cast<int>(count);
   }
   int count() const override { return static_cast<int>(paths_.size()); }
 
  private:
+  void Read(size_t i, InputFrame* f) const {
+    f->index = static_cast<int>(i);
+    f->source = paths_[i];
+    f->error.clear();
+    f->image = ReadFrameImage(paths_[i], &f->error);
+  }
   std::vector<std::string> paths_;
   size_t next_ = 0;
 };

@@ -5,6 +5,7 @@
 
 #include <memory>
 #include <string>
+#include <vector>
 
 #include <opencv2/core.hpp>
 
@@ -25,6 +26,10 @@ class FrameSource {
   virtual ~FrameSource() = default;
   // False at the end of the input.
   virtual bool Next(InputFrame* frame) = 0;
+  // Up to `n` next frames at once, appended to `frames`; how many were read (fewer at the end).
+  // Sources whose frames decode independently (image files) decode them in parallel: what reads
+  // the first frames before mapping starts (the overlay search) need not wait on one core.
+  virtual int Take(int n, std::vector<InputFrame>* frames);
   // Number of frames if known, -1 otherwise.
   virtual int count() const = 0;
   // Frames from a video codec (a video file, a camera or network stream), not still images.
