@@ -185,6 +185,10 @@ void WarpAccumulate(const cv::Mat& src, const cv::Matx33d& src_to_dst, const std
   CheckType(src, "bilinear warp into a canvas");
   CV_Assert(sum.type() == CV_32FC3 && weight_sum.type() == CV_32F && sum.size() == weight_sum.size());
   if (src.empty()) return;
+  // Taps are 32-bit element offsets from the image's first pixel.
+  if (static_cast<double>(src.step1()) * src.rows >= 2147483647.0)
+    Fail("bilinear warp into a canvas", "a frame of " + std::to_string(src.cols) + " x " + std::to_string(src.rows) +
+                                            " pixels is past 2^31 values");
   const cv::Matx33d dst_to_src = src_to_dst.inv();
   for (int y = 0; y < sum.rows; ++y) {
     AccumulateSink sink{sum.ptr<cv::Vec3f>(y), weight_sum.ptr<float>(y), weight.data(), unit};

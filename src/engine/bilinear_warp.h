@@ -4,9 +4,9 @@
 // image in between. OpenCV 4.6 warps a 16-bit 1292 x 964 frame onto 1500 x 1300 pixels in 22 ms
 // on one thread (it finds each pixel's source in double and rounds it to 1/32 px, and its
 // 16-bit remap is scalar); here sources are found eight at a time and each pixel is one vector
-// interpolation (AVX2 where the CPU has it): 11 ms with the image written out, less blended
-// straight into the sums. Sources are rounded to 1/256 px, so values differ from OpenCV's by
-// what the image changes over 1/64 px.
+// interpolation (AVX2 where the CPU has it): 11 ms for the same warp written out as an image,
+// less added straight into the sums. Sources are rounded to 1/256 px, so values differ from
+// OpenCV's by what the image changes over 1/64 px.
 #pragma once
 
 #include <array>

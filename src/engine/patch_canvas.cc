@@ -239,15 +239,17 @@ void PatchCanvas::AddBlended(const cv::Mat& bgrw, const std::array<float, 256>& 
   // into straight from the frame, in parallel: no warped copy of the frame in between.
   std::array<cv::Point2d, 4> quad;
   const cv::Point2d corners[] = {{-0.5, -0.5}, {bgrw.cols - 0.5, -0.5}, {bgrw.cols - 0.5, bgrw.rows - 0.5}, {-0.5, bgrw.rows - 0.5}};
+  bool convex = true;  // a corner behind the camera: the quadrilateral means nothing, take every block
   for (size_t i = 0; i < 4; ++i) {
     const cv::Vec3d q = H * cv::Vec3d(corners[i].x, corners[i].y, 1);
+    convex = convex && q[2] > 0;
     quad[i] = cv::Point2d(q[0] / q[2], q[1] / q[2]);
   }
   std::vector<std::pair<cv::Rect, Block*>> parts;  // (the frame's pixels in the block, the block)
   for (int by = FloorDiv(roi.y, kBlock); by <= FloorDiv(roi.y + roi.height - 1, kBlock); ++by)
     for (int bx = FloorDiv(roi.x, kBlock); bx <= FloorDiv(roi.x + roi.width - 1, kBlock); ++bx) {
       const cv::Rect overlap = cv::Rect(bx * kBlock, by * kBlock, kBlock, kBlock) & roi;
-      if (!overlap.empty() && QuadMeets(quad, overlap)) parts.emplace_back(overlap, &BlockAt(bx, by));
+      if (!overlap.empty() && (!convex || QuadMeets(quad, overlap))) parts.emplace_back(overlap, &BlockAt(bx, by));
     }
   const float unit = bgrw.depth() == CV_16U ? 1.0f / kDeepScale : 1.0f;
   cv::parallel_for_(cv::Range(0, static_cast<int>(parts.size())), [&](const cv::Range& range) {
