@@ -225,6 +225,7 @@ py::dict Align(const py::object& store, const py::object& navigation, double foc
   d["component_frames"] = r.component_frames;
   d["online_edges"] = r.online_edges;
   d["retrieval_edges"] = r.retrieval_edges;
+  d["rejoin_edges"] = r.rejoin_edges;
   d["loop_edges"] = r.loop_edges;
   d["edges_dropped"] = r.edges_dropped;
   d["rms_before_px"] = r.rms_before_px;

@@ -40,6 +40,9 @@ static int RunAlign(const AlignSwitches& s) {
     std::printf("%d frames had no stored features and were read and described again\n", r.frames_described);
   std::printf("edges: %d from the engine, %d of %d by appearance, %d of %d loop closures; %d found false and dropped\n",
               r.online_edges, r.retrieval_edges, r.retrieval_tried, r.loop_edges, r.loop_tried, r.edges_dropped);
+  if (r.rejoin_tried > 0)
+    std::printf("the map was in parts: %d of %d pairs across them matched again with fewer inliers asked\n",
+                r.rejoin_edges, r.rejoin_tried);
   if (r.chain_break_px > o.chain_break_px)
     std::printf("the engine's chain was broken by %.0f px (a group of frames pulled away by links that agree with "
                 "each other, not with it): solved again with the chain first\n", r.chain_break_px);
@@ -96,6 +99,12 @@ void AddAlignCommand(CLI::App& app, Runner* run) {
   cmd->add_option("--min-gap", s->options.min_index_gap, "frames of one patch closer in the sequence are not loop pairs")
       ->capture_default_str();
   cmd->add_option("--min-inliers", s->options.min_inliers, "RANSAC inliers an edge needs")->capture_default_str();
+  cmd->add_option("--rejoin-candidates", s->options.rejoin_candidates,
+                  "when the map is in parts, frames tried again per frame among the other parts' (0 = never)")
+      ->capture_default_str();
+  cmd->add_option("--rejoin-min-inliers", s->options.rejoin_min_inliers,
+                  "RANSAC inliers an edge between parts needs then")
+      ->capture_default_str();
   cmd->add_option("--pairs-per-edge", s->options.pairs_per_edge,
                   "matched pixels an edge's homography is fitted to: more are a truer map, for time")
       ->capture_default_str();

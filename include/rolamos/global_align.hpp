@@ -38,6 +38,12 @@ struct AlignOptions {
   double loop_overlap = 0.2;     // footprint overlap that makes two frames spatial neighbours
   int min_index_gap = 8;         // frames of one patch closer in the sequence are chain neighbours
   int min_inliers = 25;          // an edge needs this many RANSAC inliers
+  // When the engine's links and retrieval leave the map in parts (lanes joined only across the
+  // dark edges of a light cone, or a degraded lane): frames are matched again with frames of the
+  // other parts only, this many candidates each, an edge needing this many inliers. 0
+  // candidates = never.
+  int rejoin_candidates = 15;
+  int rejoin_min_inliers = 15;
   // Matched pixels kept per edge, spread over the overlap: the edge's measurement is the
   // homography they fit. The map's low-frequency shape (a bow across 80 lanes) is what the
   // pairs' noise adds up to, so more pairs are a truer map (bench/RESULTS.md, 2026-11-26 (4)).
@@ -90,6 +96,10 @@ struct AlignSummary {
   int frames_described = 0;      // read and described again (no stored features)
   int online_edges = 0;
   int retrieval_tried = 0, retrieval_edges = 0;
+  // When the engine's links and retrieval leave the map in parts: pairs of frames in different
+  // parts tried again with AlignOptions::rejoin_candidates and rejoin_min_inliers, and the edges
+  // found (checked for consistency like every appearance edge).
+  int rejoin_tried = 0, rejoin_edges = 0;
   int loop_tried = 0, loop_edges = 0;
   int edges_dropped = 0;          // found false by the optimisation
   // The worst engine link within a patch found false (frame pixels); past

@@ -4,7 +4,9 @@
 #include <atomic>
 #include <cmath>
 #include <filesystem>
+#include <functional>
 #include <numeric>
+#include <tuple>
 
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
@@ -185,17 +187,18 @@ FrameGraph LoadFrameGraph(const Store& store, const AlignOptions& o, AlignSummar
   return g;
 }
 
-void AddRetrievalEdges(FrameGraph& g, const AlignOptions& o, AlignSummary* summary, const ParallelForOptions& pfo) {
-  if (o.retrieval_candidates <= 0) return;
+namespace {
+
+// Retrieval's candidates that `allowed` lets through, verified, added as appearance edges;
+// returns (tried, added).
+std::pair<int, int> AddAppearanceEdges(FrameGraph& g, const AlignOptions& o, int candidates_per_frame,
+                                       const std::function<bool(int, int)>& allowed, const ParallelForOptions& pfo) {
   std::vector<cv::Mat> descriptors;
   for (const auto& n : g.nodes) descriptors.push_back(n.descriptors);
   RetrievalOptions ro;
   ro.words = o.vocabulary;
-  ro.candidates = o.retrieval_candidates;
-  const auto candidates = RetrieveSimilarFrames(descriptors, ro, [&](int i, int j) {
-    return !g.NearInSequence(i, j, o.min_index_gap) && !g.Linked(i, j);
-  });
-  summary->retrieval_tried = static_cast<int>(candidates.size());
+  ro.candidates = candidates_per_frame;
+  const auto candidates = RetrieveSimilarFrames(descriptors, ro, allowed);
   std::vector<GraphEdge> found(candidates.size());
   std::vector<char> ok(candidates.size(), 0);
   ParallelFor(static_cast<long long>(candidates.size()), [&](long long k, int) {
@@ -208,12 +211,38 @@ void AddRetrievalEdges(FrameGraph& g, const AlignOptions& o, AlignSummary* summa
     found[size_t(k)] = MeasureEdge(std::move(e), o, g.frame);
     ok[size_t(k)] = 1;
   }, pfo);
+  int added = 0;
   for (size_t k = 0; k < found.size(); ++k)
     if (ok[k]) {
       g.AddLinked(found[k].a, found[k].b);
       g.edges.push_back(std::move(found[k]));
-      ++summary->retrieval_edges;
+      ++added;
     }
+  return {static_cast<int>(candidates.size()), added};
+}
+
+}  // namespace
+
+void AddRetrievalEdges(FrameGraph& g, const AlignOptions& o, AlignSummary* summary, const ParallelForOptions& pfo) {
+  if (o.retrieval_candidates <= 0) return;
+  std::tie(summary->retrieval_tried, summary->retrieval_edges) =
+      AddAppearanceEdges(g, o, o.retrieval_candidates, [&](int i, int j) {
+        return !g.NearInSequence(i, j, o.min_index_gap) && !g.Linked(i, j);
+      }, pfo);
+}
+
+void AddRejoiningEdges(FrameGraph& g, const AlignOptions& o, AlignSummary* summary, const ParallelForOptions& pfo) {
+  if (o.rejoin_candidates <= 0 || o.retrieval_candidates <= 0) return;
+  UnionFind parts(g.nodes.size());
+  int count = g.size();
+  for (const auto& e : g.edges) count -= parts.Join(e.a, e.b) ? 1 : 0;
+  if (count <= 1) return;
+  AlignOptions relaxed = o;
+  relaxed.min_inliers = std::min(o.min_inliers, o.rejoin_min_inliers);
+  std::tie(summary->rejoin_tried, summary->rejoin_edges) =
+      AddAppearanceEdges(g, relaxed, o.rejoin_candidates, [&](int i, int j) {
+        return parts.Find(i) != parts.Find(j) && !g.Linked(i, j);
+      }, pfo);
 }
 
 bool VerifyPair(const GraphNode& a, const GraphNode& b, const cv::Matx33d* guess, cv::Size frame, const AlignOptions& o,

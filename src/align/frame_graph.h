@@ -88,6 +88,11 @@ FrameGraph LoadFrameGraph(const Store& store, const AlignOptions& o, AlignSummar
 
 // Stage 3: appearance retrieval over every frame, each candidate verified (kRetrieval edges).
 void AddRetrievalEdges(FrameGraph& g, const AlignOptions& o, AlignSummary* summary, const ParallelForOptions& pfo);
+// When the edges so far leave the graph in parts: retrieval again between frames of different
+// parts only, with AlignOptions::rejoin_candidates and rejoin_min_inliers (light-cone's lanes,
+// joined across the frames' dark edges, had 15-24 inliers where 25 are asked). The edges are
+// appearance edges like the others, checked for consistency after.
+void AddRejoiningEdges(FrameGraph& g, const AlignOptions& o, AlignSummary* summary, const ParallelForOptions& pfo);
 
 // At most `n` pairs spread over frame a (Thin's grid), as the optimisation wants them.
 GraphEdge ThinEdge(GraphEdge e, int n, cv::Size frame);

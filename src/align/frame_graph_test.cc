@@ -1,0 +1,88 @@
+#include "align/frame_graph.h"
+
+#include <algorithm>
+
+#include <gtest/gtest.h>
+
+namespace rolamos {
+namespace {
+
+// A frame of `count` random SIFT-like descriptors at points spread over 640 x 480.
+GraphNode RandomNode(int patch, int index, int count, cv::RNG& rng) {
+  GraphNode n;
+  n.patch = patch;
+  n.index = index;
+  n.descriptors = cv::Mat(count, 128, CV_8U);
+  rng.fill(n.descriptors, cv::RNG::UNIFORM, 0, 256);
+  for (int i = 0; i < count; ++i) n.points.emplace_back(rng.uniform(20.f, 620.f), rng.uniform(20.f, 460.f));
+  return n;
+}
+
+// Two frames of two patches no link joins, that share 20 features: fewer than the 25 inliers an
+// appearance edge needs, as across the dark edges of the lights' cone; and a third frame of a
+// third patch that shares none (retrieval wants three frames at least).
+FrameGraph TwoPartsSharing20() {
+  cv::RNG rng(5);
+  FrameGraph g;
+  g.frame = cv::Size(640, 480);
+  GraphNode a = RandomNode(1, 10, 100, rng), b = RandomNode(2, 40, 80, rng);  // retrieval wants 4 a word
+  for (int i = 0; i < 20; ++i) {
+    // Feature i of a seen again by b, 110 px to the left and 30 down.
+    cv::Mat row = a.descriptors.row(i).clone();
+    b.descriptors.push_back(row);
+    b.points.emplace_back(a.points[size_t(i)] + cv::Point2f(-110, 30));
+  }
+  g.nodes = {a, b, RandomNode(3, 70, 100, rng)};
+  g.node_of[{1, 10}] = 0;
+  g.node_of[{2, 40}] = 1;
+  g.node_of[{3, 70}] = 2;
+  return g;
+}
+
+TEST(FrameGraph, PartsLeftApartAreMatchedAgainWithFewerInliersAsked) {
+  FrameGraph g = TwoPartsSharing20();
+  const AlignOptions o;
+  ASSERT_EQ(o.min_inliers, 25);
+  AlignSummary s;
+  AddRetrievalEdges(g, o, &s, {});
+  EXPECT_EQ(s.retrieval_edges, 0);  // 20 shared features: not an edge at 25
+  AddRejoiningEdges(g, o, &s, {});
+  EXPECT_EQ(s.rejoin_tried, 3);  // every pair is across parts
+  ASSERT_EQ(s.rejoin_edges, 1);  // only the two that share ground
+  ASSERT_EQ(g.edges.size(), 1u);
+  const GraphEdge& e = g.edges[0];
+  EXPECT_EQ(std::min(e.a, e.b), 0);
+  EXPECT_EQ(std::max(e.a, e.b), 1);
+  EXPECT_EQ(e.kind, kRetrieval);  // checked for consistency after, like every appearance edge
+  EXPECT_TRUE(g.Linked(0, 1));
+  EXPECT_GE(e.Matches(), 15);
+}
+
+TEST(FrameGraph, NoRejoiningWhenTheMapIsOnePartOrItIsSwitchedOff) {
+  {
+    FrameGraph g = TwoPartsSharing20();
+    AlignOptions o;
+    o.rejoin_candidates = 0;
+    AlignSummary s;
+    AddRejoiningEdges(g, o, &s, {});
+    EXPECT_EQ(s.rejoin_tried, 0);
+    EXPECT_TRUE(g.edges.empty());
+  }
+  {
+    FrameGraph g = TwoPartsSharing20();
+    for (int other : {1, 2}) {  // the engine's links already join them all
+      GraphEdge joined;
+      joined.a = 0;
+      joined.b = other;
+      g.edges.push_back(joined);
+      g.AddLinked(0, other);
+    }
+    AlignSummary s;
+    AddRejoiningEdges(g, AlignOptions(), &s, {});
+    EXPECT_EQ(s.rejoin_tried, 0);
+    EXPECT_EQ(g.edges.size(), 2u);
+  }
+}
+
+}  // namespace
+}  // namespace rolamos
