@@ -193,12 +193,14 @@ namespace {
 // returns (tried, added).
 std::pair<int, int> AddAppearanceEdges(FrameGraph& g, const AlignOptions& o, int candidates_per_frame,
                                        const std::function<bool(int, int)>& allowed, const ParallelForOptions& pfo) {
-  std::vector<cv::Mat> descriptors;
-  for (const auto& n : g.nodes) descriptors.push_back(n.descriptors);
-  RetrievalOptions ro;
-  ro.words = o.vocabulary;
-  ro.candidates = candidates_per_frame;
-  const auto candidates = RetrieveSimilarFrames(descriptors, ro, allowed);
+  if (g.appearance.empty()) {
+    std::vector<cv::Mat> descriptors;
+    for (const auto& n : g.nodes) descriptors.push_back(n.descriptors);
+    RetrievalOptions ro;
+    ro.words = o.vocabulary;
+    g.appearance = DescribeFrames(descriptors, ro);
+  }
+  const auto candidates = MostSimilarPairs(g.appearance, candidates_per_frame, allowed);
   std::vector<GraphEdge> found(candidates.size());
   std::vector<char> ok(candidates.size(), 0);
   ParallelFor(static_cast<long long>(candidates.size()), [&](long long k, int) {

@@ -68,6 +68,7 @@ struct FrameGraph {
   std::vector<FollowedFrame> followed;
   std::vector<GraphEdge> edges;
   std::set<std::pair<int, int>> linked;  // node pairs with an edge, (low, high)
+  cv::Mat appearance;  // each node's appearance vector (DescribeFrames), once retrieval described them
   cv::Size frame;
   double focal = 0;
   cv::Matx33d K = cv::Matx33d::eye();

@@ -61,9 +61,7 @@ cv::Mat Vlad(const cv::Mat& descriptors, const cv::Mat& words) {
 
 }  // namespace
 
-std::vector<std::pair<int, int>> RetrieveSimilarFrames(const std::vector<cv::Mat>& descriptors,
-                                                       const RetrievalOptions& o,
-                                                       const std::function<bool(int, int)>& allowed) {
+cv::Mat DescribeFrames(const std::vector<cv::Mat>& descriptors, const RetrievalOptions& o) {
   std::string error;
   if (!o.IsValid(&error)) Fail("retrieval", error);
   const int n = static_cast<int>(descriptors.size());
@@ -93,21 +91,29 @@ std::vector<std::pair<int, int>> RetrieveSimilarFrames(const std::vector<cv::Mat
   cv::Mat learn_rows;
   for (int k = 0; k < learn; ++k) learn_rows.push_back(vlad.row(static_cast<int>((long long)k * n / learn)));
   const int dims = std::min({o.dimensions, learn - 1, vlad.cols});
-  Eigen::MatrixXf D(n, std::max(1, dims));
-  if (dims >= 2) {
-    cv::PCA pca(learn_rows, cv::Mat(), cv::PCA::DATA_AS_ROW, dims);
-    const cv::Mat projected = pca.project(vlad);
-    for (int i = 0; i < n; ++i) {
-      const float* p = projected.ptr<float>(i);
-      double norm = 0;
-      for (int k = 0; k < dims; ++k) norm += double(p[k]) * p[k];
-      norm = norm > 0 ? 1.0 / std::sqrt(norm) : 0.0;
-      for (int k = 0; k < dims; ++k) D(i, k) = static_cast<float>(p[k] * norm);
-    }
-  } else {
-    return {};
+  if (dims < 2) return {};
+  cv::Mat vectors(n, dims, CV_32F);
+  cv::PCA pca(learn_rows, cv::Mat(), cv::PCA::DATA_AS_ROW, dims);
+  const cv::Mat projected = pca.project(vlad);
+  for (int i = 0; i < n; ++i) {
+    const float* p = projected.ptr<float>(i);
+    double norm = 0;
+    for (int k = 0; k < dims; ++k) norm += double(p[k]) * p[k];
+    norm = norm > 0 ? 1.0 / std::sqrt(norm) : 0.0;
+    float* d = vectors.ptr<float>(i);
+    for (int k = 0; k < dims; ++k) d[k] = static_cast<float>(p[k] * norm);
   }
-  // 3. For every frame its most similar allowed others, block by block (memory stays small).
+  return vectors;
+}
+
+std::vector<std::pair<int, int>> MostSimilarPairs(const cv::Mat& vectors, int candidates,
+                                                  const std::function<bool(int, int)>& allowed) {
+  if (vectors.empty()) return {};
+  CV_Assert(vectors.type() == CV_32F && vectors.isContinuous());
+  const int n = vectors.rows;
+  const Eigen::Map<const Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> D(
+      vectors.ptr<float>(), vectors.rows, vectors.cols);
+  // For every frame its most similar allowed others, block by block (memory stays small).
   std::set<std::pair<int, int>> pairs;
   constexpr int kBlock = 512;
   for (int b0 = 0; b0 < n; b0 += kBlock) {
@@ -120,12 +126,18 @@ std::vector<std::pair<int, int>> RetrieveSimilarFrames(const std::vector<cv::Mat
         if (j == i || !allowed(i, j)) continue;
         best.emplace_back(S(r, j), j);
       }
-      const size_t k = std::min(best.size(), static_cast<size_t>(o.candidates));
+      const size_t k = std::min(best.size(), static_cast<size_t>(std::max(candidates, 0)));
       std::partial_sort(best.begin(), best.begin() + k, best.end(), std::greater<>());
       for (size_t t = 0; t < k; ++t) pairs.emplace(std::min(i, best[t].second), std::max(i, best[t].second));
     }
   }
   return {pairs.begin(), pairs.end()};
+}
+
+std::vector<std::pair<int, int>> RetrieveSimilarFrames(const std::vector<cv::Mat>& descriptors,
+                                                       const RetrievalOptions& o,
+                                                       const std::function<bool(int, int)>& allowed) {
+  return MostSimilarPairs(DescribeFrames(descriptors, o), o.candidates, allowed);
 }
 
 }  // namespace rolamos

@@ -4,7 +4,9 @@
 // anywhere in the survey this way, not only among the first frames of earlier patches.
 #pragma once
 
+#include <functional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -19,7 +21,18 @@ struct RetrievalOptions {
   bool IsValid(std::string* error) const;
 };
 
-// `descriptors[i]`: frame i's SIFT descriptors (CV_8U or CV_32F, n x 128; may be empty).
+// Each frame's appearance as one unit vector (a row of CV_32F: VLAD over the survey's own
+// vocabulary, reduced by PCA), from `descriptors[i]`, frame i's SIFT descriptors (CV_8U or CV_32F,
+// n x 128; may be empty). Empty when the survey is too small to learn from (fewer than three
+// frames, or fewer than four descriptors a word).
+cv::Mat DescribeFrames(const std::vector<cv::Mat>& descriptors, const RetrievalOptions& options);
+// For each frame (a row of DescribeFrames's) its `candidates` most similar others that `allowed`
+// lets through: pairs (i, j), i < j, each at most once. Several searches over one survey
+// describe it once.
+std::vector<std::pair<int, int>> MostSimilarPairs(const cv::Mat& vectors, int candidates,
+                                                  const std::function<bool(int, int)>& allowed);
+
+// Both at once. `descriptors[i]`: frame i's SIFT descriptors (CV_8U or CV_32F, n x 128; may be empty).
 // `allowed(i, j)` says whether the pair may be proposed (not the same frame, not neighbours in
 // the sequence, not linked already). Returns pairs (i, j), i < j, each at most once.
 std::vector<std::pair<int, int>> RetrieveSimilarFrames(const std::vector<cv::Mat>& descriptors,

@@ -115,19 +115,22 @@ class HeldSource : public FrameSource {
   explicit HeldSource(FrameSource* source) : source_(source), live_(dynamic_cast<const LiveSource*>(source)) {}
   // Reads the source's next frame and holds it (with its arrival, live); null at the end.
   const InputFrame* HoldNext() {
-    InputFrame f;
-    if (!source_->Next(&f)) return nullptr;
-    first_.push_back({std::move(f), live_ ? live_->arrival() : Clock::time_point{}});
-    return &first_.back().frame;
+    const auto held = HoldMany(1);
+    return held.empty() ? nullptr : held.front();
   }
-  // Reads up to n frames at once (in parallel where the source can) and holds them; returns them.
+  // Reads up to n frames at once (in parallel where the source can) and holds them; returns them
+  // (fewer at the end). A live source's are read one by one, each with its own arrival.
   std::vector<const InputFrame*> HoldMany(int n) {
-    std::vector<InputFrame> taken;
-    source_->Take(n, &taken);
     std::vector<const InputFrame*> held;
-    for (InputFrame& f : taken) {
-      first_.push_back({std::move(f), live_ ? live_->arrival() : Clock::time_point{}});
-      held.push_back(&first_.back().frame);
+    for (int want = n; want > 0;) {
+      std::vector<InputFrame> taken;
+      const int got = source_->Take(live_ ? 1 : want, &taken);
+      if (got == 0) break;
+      for (InputFrame& f : taken) {
+        first_.push_back({std::move(f), live_ ? live_->arrival() : Clock::time_point{}});
+        held.push_back(&first_.back().frame);
+      }
+      want -= got;
     }
     return held;
   }
@@ -166,16 +169,14 @@ class HeldSource : public FrameSource {
 MosaickerOptions AutoMask(HeldSource* source, const Store& store, MosaickerOptions options, std::string* note) {
   const StaticMaskOptions mo;
   std::vector<cv::Mat> frames;
-  // The first frames at once (decoded on every core), then one by one past unreadable ones.
-  int read = 0;
-  for (const InputFrame* f : source->HoldMany(mo.frames)) {
-    ++read;
-    if (!f->image.empty()) frames.push_back(f->image);
-  }
-  for (; static_cast<int>(frames.size()) < mo.frames && read < 3 * mo.frames; ++read) {
-    const InputFrame* f = source->HoldNext();
-    if (!f) break;
-    if (!f->image.empty()) frames.push_back(f->image);
+  // As many frames at once as are still wanted (decoded on every core), again past unreadable
+  // ones, up to three times as many as wanted.
+  for (int read = 0; static_cast<int>(frames.size()) < mo.frames && read < 3 * mo.frames;) {
+    const auto held = source->HoldMany(std::min(mo.frames - static_cast<int>(frames.size()), 3 * mo.frames - read));
+    if (held.empty()) break;
+    for (const InputFrame* f : held)
+      if (!f->image.empty()) frames.push_back(f->image);
+    read += static_cast<int>(held.size());
   }
   return MaskFromFrames(frames, store, options, note);
 }
