@@ -106,6 +106,17 @@ KINDS = {
                           ["PHOTO5", "--frames", "300", "--fov", "60", "--path", "random", "--max-turn", "8",
                            "--overlap", "0.93", "--gsd", "0.8", "--attitude-jitter", "0.5", "--tilt", "1", "--seed", "14",
                            "--video", "video.mp4"]),
+    # Session 21: a wide lens on a vehicle that rolls and pitches by 2 degrees anew at every frame
+    # (over 3 degrees of slow tilt): two frames in a row differ by up to 8 degrees of attitude.
+    "video-1292-jitter": ("video 1292 x 964 at 30 frames/s, 90 deg, roll and pitch jittered by 2 deg a frame, "
+                          "MPEG-4, 240 frames",
+                          ["PHOTO5", "--frames", "240", "--fov", "90", "--lanes", "2", "--overlap", "0.95", "--gsd", "0.7",
+                           "--attitude-jitter", "2", "--tilt", "3", "--seed", "7", "--video", "video.mp4"]),
+    "video-800-jitter": ("video 800 x 600 at 30 frames/s, 90 deg, roll and pitch jittered by 2 deg a frame, "
+                         "MPEG-4, 240 frames",
+                         ["PHOTO3", "--width", "800", "--height", "600", "--frames", "240", "--fov", "90", "--lanes", "2",
+                          "--overlap", "0.95", "--gsd", "0.8", "--attitude-jitter", "2", "--tilt", "3", "--seed", "9",
+                          "--video", "video.mp4"]),
 }
 # The paper's video again, encoded as a vehicle streams it (H.264 at libx264's default quality).
 KINDS["video-1292-h264"] = (KINDS["video-1292"][0].replace("MPEG-4", "H.264"),

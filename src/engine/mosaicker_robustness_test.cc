@@ -720,6 +720,32 @@ TEST(MosaickerRobustness, FramesInTurnsThatChangeAreFollowedNotRecovered) {
   EXPECT_LE(recovered, 3);
 }
 
+// A wide lens (90 degrees) on a vehicle that rolls and pitches by 2 degrees anew at every frame,
+// over 3 degrees of slow tilt, at video overlap: two frames in a row differ by up to 8 degrees,
+// which changes the scale across the frame by up to 40 % (the plausibility gate's perspective
+// term). Such frames were rejected as implausible, or followed only after recovery.
+TEST(MosaickerRobustness, AFrameTiltedFarFromTheOneBeforeIsPlacedNotRejected) {
+  test::ScratchDir dir;
+  SurveyOptions so = test::SmallSurvey(48);
+  so.fov_deg = 90;
+  so.forward_overlap = 0.95;
+  so.attitude_jitter_deg = 2.0;
+  so.tilt_deg = 3.0;
+  so.seed = 7;
+  const Survey survey = WriteSurvey(so, dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  std::vector<FrameReport> reports;
+  const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, Options(),
+                                        [&](const FrameReport& r, int) { reports.push_back(r); });
+  EXPECT_EQ(survey.frames.size(), 48u);
+  for (const auto& r : reports) EXPECT_EQ(r.status, "stitched") << "frame " << r.index << ": " << r.reason;
+  EXPECT_EQ(sum.stitched, 48);
+  EXPECT_EQ(sum.rejected, 0);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  for (const auto& p : reopened.patches())
+    EXPECT_LT(PatchRms(reopened.ReadSidecar(p.id), survey), 1.0) << "patch " << p.id;
+}
+
 // Lanes apart (no side overlap, no turn frames) under strong lights, the next lane's first two
 // frames very dark: SIFT finds too few features in them (or too few matches between them) to
 // start the lane; Lucas-Kanade on contrast-normalised frames follows one into the other, and the
