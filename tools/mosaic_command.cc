@@ -28,6 +28,7 @@ struct MosaicSwitches {
   TiffSwitches tiff = FromWriteOptions(MosaickerOptions::PatchWriteOptions());
   bool no_bilateral = false, no_temporal = false, no_clahe = false, no_sift_upsample = false, no_fundamental = false,
        no_kalman = false, no_ecc = false, no_cross_check = false, no_recover = false, no_patch_fit = false, no_adjust = false,
+       fixed_focal = false,
        no_flat_field = false, no_exposure = false, no_water_colour = false;
   bool quiet = false;
   bool fov_given = false;
@@ -90,6 +91,7 @@ static int RunMosaic(MosaicSwitches s) {
   o.recover = !s.no_recover;
   o.patch_fit = !s.no_patch_fit;
   o.adjust_patches = !s.no_adjust;
+  o.estimate_focal = !s.fixed_focal;
   o.flat_field = !s.no_flat_field;
   o.exposure = !s.no_exposure;
   o.water_colour = !s.no_water_colour;
@@ -325,6 +327,9 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
   cmd->add_flag("--no-adjust", s->no_adjust,
                 "keep the online placements: no adjustment of each patch's frames as cameras over the seafloor plane "
                 "when it closes");
+  cmd->add_flag("--fixed-focal", s->fixed_focal,
+                "adjust each patch with the focal length of --fov as given, instead of estimating it with the poses "
+                "(a calibration file's is always held)");
   cmd->add_option("--patch-frames-mb", o.patch_frames_mb,
                   "memory for a patch's keyframes (images and features) until it is written (a patch closes when "
                   "full); the engine holds at most three patches' worth")

@@ -123,6 +123,13 @@ struct MosaickerOptions {
   // (4 bytes a pixel of the budget), one band of the patch being written and a few frames in
   // flight; ~140 MB of libraries on top. See the README for the figures.
   bool adjust_patches = true;
+  // Without a calibration file the focal length is only assumed (fov_deg). The adjustment then
+  // estimates it with the poses, within a factor of 3 of the assumed one: where the camera's roll
+  // and pitch change between frames it is observable, and a wrong one bends the patch (90 degrees
+  // across taken for 70, 3 degrees of jitter: 27 px per patch against 0.24; bench/RESULTS.md,
+  // session 21); where they do not, it stays about where it starts, which then does no harm. A
+  // calibration file's focal length is held.
+  bool estimate_focal = true;
   double patch_frames_mb = 128;
   // 4. ECC
   bool ecc = true;

@@ -5,6 +5,7 @@
 
 #include <opencv2/calib3d.hpp>
 
+#include "geometry/plane_camera.h"
 #include "util/homography.h"
 
 namespace rolamos {
@@ -96,11 +97,15 @@ std::vector<cv::Matx33d> PlaceFirst(const FrameGraph& g, UnionFind* comp, const 
   }
   std::vector<cv::Matx33d> G(static_cast<size_t>(N));
   for (int i = 0; i < N; ++i) G[size_t(i)] = patch_to_plane[g.nodes[size_t(i)].patch] * g.nodes[size_t(i)].to_patch;
-  // Each part's reference: its root frame, level, its pixels the plane's.
+  // Each part's reference: the level camera over its root frame (its centre, heading and scale),
+  // its pixels the plane's. Not the root frame itself: the patches' placements are over the
+  // seafloor plane, and a root pitched by 6 degrees at 90 across would make its own image plane
+  // the map's, whose horizon lies 4 frame widths away (a jittered survey's map folded there).
   std::map<int, std::vector<int>> members;
   for (int i = 0; i < N; ++i) members[comp->Find(i)].push_back(i);
   for (auto& [root, list] : members) {
-    const cv::Matx33d to_ref = G[size_t(root)].inv();
+    const cv::Matx33d level = FrameToPlane(LevelPoseFromHomography(G[size_t(root)], g.K, g.frame), g.K);
+    const cv::Matx33d to_ref = level.inv();
     for (int i : list) {
       G[size_t(i)] = to_ref * G[size_t(i)];
       G[size_t(i)] *= 1.0 / G[size_t(i)](2, 2);

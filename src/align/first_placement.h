@@ -13,7 +13,8 @@
 namespace rolamos {
 
 // Every node's frame -> plane homography, each connected part's first node (its root) the
-// reference: level, its pixels the plane's. `comp` is filled with the parts the used edges make.
+// reference: the level camera over it (its centre, heading and scale) sees the plane pixel for
+// pixel. `comp` is filled with the parts the used edges make.
 // `usable[k]`: edge k may be used (empty: every edge).
 std::vector<cv::Matx33d> PlaceFirst(const FrameGraph& g, UnionFind* comp, const std::vector<char>& usable = {});
 

@@ -79,10 +79,12 @@ Features AsFeatures(const GraphNode& n) {
 void LoadNodes(const Store& store, FrameGraph& g) {
   for (const auto& e : store.patches()) g.sidecars[e.id] = store.ReadSidecar(e.id);
   if (g.sidecars.empty()) Fail(store.dir(), "has no patches to align");
+  // The patches' focal lengths, each estimated with its poses (or the one camera's): their median.
+  std::vector<double> focals;
   for (const auto& [id, s] : g.sidecars) {
     if (s.frame_size) g.frame = cv::Size((*s.frame_size)[0], (*s.frame_size)[1]);
     if (s.extra.contains("adjustment") && s.extra["adjustment"].contains("focal_px"))
-      g.focal = s.extra["adjustment"]["focal_px"].get<double>();
+      focals.push_back(s.extra["adjustment"]["focal_px"].get<double>());
     std::map<int, const StoredFeatures*> stored;
     std::vector<StoredFeatures> features;
     if (s.frame_features) {
@@ -108,6 +110,10 @@ void LoadNodes(const Store& store, FrameGraph& g) {
       g.node_of[{id, n.index}] = g.size();
       g.nodes.push_back(std::move(n));
     }
+  }
+  if (!focals.empty()) {
+    std::nth_element(focals.begin(), focals.begin() + long(focals.size() / 2), focals.end());
+    g.focal = focals[focals.size() / 2];
   }
   if (g.nodes.empty()) Fail(store.dir(), "has no frames to align");
   if (g.frame.area() == 0) Fail(store.dir(), "its sidecars give no frame size (written by an older rolamos?)");

@@ -237,6 +237,7 @@ struct Mosaicker::Impl {
         ecc_options(ToEccOptions(o)),
         writer(s, o.tiff) {
     adjust_options.enabled = o.adjust_patches;
+    adjust_options.solver.refine_focal = o.estimate_focal && (o.calibration.empty() || o.calibration == "auto");
     ColourOptions co;
     co.lighting = o.flat_field;
     co.exposure = o.exposure;

@@ -274,7 +274,8 @@ void PatchWriter::Write(PatchJob& job) {
                                    {"links", static_cast<int>(job.links.size() + loop_links.size())},
                                    {"links_dropped", adjusted.stats.links_dropped},
                                    {"ties", adjusted.ties},
-                                   {"focal_px", adjusted.focal}};
+                                   {"focal_px", adjusted.focal},
+                                   {"focal_estimated", job.adjust.solver.refine_focal}};
   } else if (job.adjust.enabled) {
     sidecar.extra["adjustment"] = {{"skipped", adjusted.note}};
   }

@@ -254,7 +254,15 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
     }
     problem.SetParameterUpperBound(centres[i].data(), 2, -1e-3);  // above the plane
   }
-  if (!o.refine_focal) problem.SetParameterBlockConstant(focal);
+  if (!o.refine_focal) {
+    problem.SetParameterBlockConstant(focal);
+  } else {
+    // Where the cameras' attitudes hardly change, the focal length is barely observable: it
+    // must not wander off to a degenerate camera.
+    const double start = *focal;
+    problem.SetParameterLowerBound(focal, 0, start / 3);
+    problem.SetParameterUpperBound(focal, 0, start * 3);
+  }
   ceres::Solver::Options so;
   so.linear_solver_type = ceres::SPARSE_NORMAL_CHOLESKY;
   so.max_num_iterations = o.max_iterations;

@@ -50,7 +50,8 @@ struct PlaneAdjustmentOptions {
   std::string loss = "huber";  // huber | cauchy: how residuals beyond loss_px are discounted
   double loss_px = 1.0;
   int max_iterations = 50;
-  bool refine_focal = false;   // the focal length as one more unknown, shared by all frames
+  // The focal length as one more unknown, shared by all frames, within a factor of 3 of the one given.
+  bool refine_focal = false;
   double max_tilt_deg = 25.0;  // roll and pitch are held within this
   int threads = 1;
   // A link whose matches stay further apart than this after a solve (RMS, frame pixels) is taken

@@ -1,5 +1,8 @@
 #include "geometry/plane_adjustment.h"
 
+#include <algorithm>
+#include <cmath>
+
 #include <gtest/gtest.h>
 
 #include "geometry/plane_camera.h"
@@ -114,6 +117,68 @@ TEST(PlaneAdjustment, PairWeightsCountAsThatManyPairs) {
   // The scatter of the pairs they stand for counts too: 1 px on each of the 10.
   l.scatter_px = 1.0;
   EXPECT_NEAR(PlaneTransferRms(poses, kFocal, kFrame, {l}), std::sqrt((9 * 4.0 + 10) / 10), 1e-3);
+}
+
+// Ten frames in a row, 120 px apart, rolled and pitched by a few degrees each, linked to the next
+// two; the solve starts from level cameras where the frames are, with a focal length taken for
+// 70 degrees across when the camera's is 90 (LinkBetween's).
+struct Jittered {
+  std::vector<PlanePose> truth, start;
+  std::vector<PlaneLink> links;
+  explicit Jittered(double jitter_deg) {
+    const PlanePose reference = ReferencePose(CameraMatrix(kFocal, kFrame));
+    const double turns[10][2] = {{0, 0}, {3, -2}, {-4, 1}, {2, 4}, {-1, -4}, {4, 2}, {-3, -3}, {1, 3}, {-4, 0}, {3, -1}};
+    for (int i = 0; i < 10; ++i) {
+      PlanePose p = reference;
+      p.centre[0] += 120.0 * i;
+      if (i > 0) {
+        p.pitch = turns[i][0] * jitter_deg / 4 * CV_PI / 180;
+        p.roll = turns[i][1] * jitter_deg / 4 * CV_PI / 180;
+      }
+      truth.push_back(p);
+      PlanePose level = p;
+      level.pitch = level.roll = 0;
+      start.push_back(i == 0 ? p : level);
+    }
+    for (int i = 0; i < 10; ++i)
+      for (int j = i + 1; j <= std::min(9, i + 2); ++j) links.push_back(LinkBetween(j, i, truth[size_t(j)], truth[size_t(i)]));
+  }
+};
+
+TEST(PlaneAdjustment, TheFocalLengthIsEstimatedWhereTheAttitudeChanges) {
+  const double assumed = 0.5 * kFrame.width / std::tan(35.0 * CV_PI / 180);  // 286 px, for 400
+  Jittered s(4.0);
+  PlaneAdjustmentOptions o;
+  o.max_iterations = 200;
+  std::vector<PlanePose> held = s.start;
+  double fixed = assumed;
+  const PlaneAdjustment with_assumed = AdjustPlanePoses(&held, &fixed, kFrame, s.links, 0, {}, {}, o);
+  ASSERT_TRUE(with_assumed.ok) << with_assumed.message;
+  EXPECT_EQ(fixed, assumed);
+  o.refine_focal = true;
+  std::vector<PlanePose> poses = s.start;
+  double focal = assumed;
+  const PlaneAdjustment estimated = AdjustPlanePoses(&poses, &focal, kFrame, s.links, 0, {}, {}, o);
+  ASSERT_TRUE(estimated.ok) << estimated.message;
+  EXPECT_NEAR(focal, kFocal, 0.01 * kFocal);
+  EXPECT_LT(estimated.final_rms_px, 0.05);
+  // Held at the wrong one, the links cannot all be met.
+  EXPECT_GT(with_assumed.final_rms_px, 10 * estimated.final_rms_px);
+}
+
+TEST(PlaneAdjustment, AFocalLengthTheLinksDoNotShowStaysWithinItsBounds) {
+  // Level cameras in a row: any focal length fits the links as well; it stays within a factor of
+  // 3 of where it starts.
+  Jittered s(0.0);
+  PlaneAdjustmentOptions o;
+  o.refine_focal = true;
+  std::vector<PlanePose> poses = s.start;
+  double focal = 250;
+  const PlaneAdjustment r = AdjustPlanePoses(&poses, &focal, kFrame, s.links, 0, {}, {}, o);
+  ASSERT_TRUE(r.ok) << r.message;
+  EXPECT_GE(focal, 250.0 / 3);
+  EXPECT_LE(focal, 250.0 * 3);
+  EXPECT_LT(r.final_rms_px, 0.05);
 }
 
 }  // namespace
