@@ -259,7 +259,8 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
                   "OpenCV calibration file (YAML/XML/JSON), or \"auto\" to estimate radial "
                   "distortion from the first frames");
   cmd->add_option_function<double>("--fov", [s](double v) { s->options.fov_deg = v; s->fov_given = true; },
-                  "without --calibration: the camera's horizontal field of view in water, degrees (default 70)");
+                  "without --calibration: the camera's horizontal field of view in water, degrees (default 70); "
+                  "each patch's adjustment estimates the focal length from it unless --fixed-focal");
   cmd->add_flag("--no-bilateral", s->no_bilateral, "skip the bilateral filter");
   cmd->add_flag("--no-temporal", s->no_temporal, "skip the temporal filter");
   cmd->add_flag("--no-clahe", s->no_clahe, "no contrast normalisation of the detection image");
