@@ -39,6 +39,17 @@ KINDS = {
                     ["--frames", "984", "--lanes", "24", "--no-turns", "--gsd", "0.9", "--repeat", "rotate"] + CAMERA),
     "repeat-10000": ("lawnmower, 80 lanes joined without turns, 10,000 frames, a quarter repeated turned 180 deg",
                      ["--frames", "10000", "--lanes", "80", "--no-turns", "--repeat", "rotate"] + CAMERA),
+    # Session 21: a wide lens the engine is not told of (90 degrees; it assumes 70) on a vehicle that
+    # rolls and pitches by 3 degrees anew at every frame: the patches must find the focal length,
+    # and align must not take a pitched first frame's image plane for the seafloor's.
+    "jitter-wide-120": ("lawnmower 800 x 600, 90 deg (not told), roll and pitch jittered by 3 deg a frame, 120 frames",
+                        ["PHOTO2", "--width", "800", "--height", "600", "--fov", "90", "--frames", "120", "--lanes", "4",
+                         "--overlap", "0.7", "--side-overlap", "0.3", "--gsd", "0.8", "--attitude-jitter", "3",
+                         "--tilt", "2", "--seed", "21"]),
+    "jitter-wide-1292": ("lawnmower 1292 x 964, 80 deg (not told), roll and pitch jittered by 3 deg a frame, 100 frames",
+                         ["PHOTO2", "--width", "1292", "--height", "964", "--fov", "80", "--frames", "100", "--lanes", "3",
+                          "--overlap", "0.75", "--side-overlap", "0.3", "--gsd", "0.7", "--attitude-jitter", "3",
+                          "--tilt", "2", "--seed", "22"]),
 }
 
 

@@ -100,24 +100,39 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
   std::vector<PlanePose> poses(indices.size());
   for (size_t i = 0; i < indices.size(); ++i)
     poses[i] = i == 0 ? ReferencePose(K) : LevelPoseFromHomography(online[i], K, frame);
-  std::vector<PlaneLink> plane_links;
+  // The links at most max_pairs_per_link pairs each; for the focal length, at most kFocalPairs.
+  std::vector<PlaneLink> plane_links, focal_links;
   for (const auto& l : links) {
     auto a = slot.find(l.a), b = slot.find(l.b);
     if (a == slot.end() || b == slot.end() || l.in_a.size() < 8) continue;
-    const FrameLink thin = Thin(l, o.max_pairs_per_link, frame);
-    PlaneLink p;
-    p.a = a->second;
-    p.b = b->second;
-    p.in_a = thin.in_a;
-    p.in_b = thin.in_b;
-    plane_links.push_back(std::move(p));
+    for (auto* into : {&plane_links, &focal_links}) {
+      if (into == &focal_links && !o.solver.refine_focal) continue;
+      const FrameLink thin = Thin(l, into == &plane_links ? o.max_pairs_per_link : PatchAdjustmentOptions::kFocalPairs, frame);
+      PlaneLink p;
+      p.a = a->second;
+      p.b = b->second;
+      p.in_a = thin.in_a;
+      p.in_b = thin.in_b;
+      into->push_back(std::move(p));
+    }
   }
   // Every frame must be tied to the others, or its pose is free: a frame or group no link joins
   // to the rest (the closing frame after a rejected one, a frame placed against the patch image)
   // is held to the frame before it by its online placement.
   out.ties = TieUnlinked(online, frame, &plane_links);
   double f = focal;
-  out.stats = AdjustPlanePoses(&poses, &f, frame, plane_links, 0, {}, {}, o.solver);
+  if (o.solver.refine_focal) {
+    // The focal length, with the poses, from the thinned links: where the attitudes hardly change
+    // it is barely observable and the solve creeps along it, at a sixth of the residuals. The
+    // poses found start the solve over every pair, which holds the focal length.
+    TieUnlinked(online, frame, &focal_links);
+    std::vector<PlanePose> trial = poses;
+    if (AdjustPlanePoses(&trial, &f, frame, focal_links, 0, {}, {}, o.solver).ok) poses = trial;
+    else f = focal;
+  }
+  PlaneAdjustmentOptions held = o.solver;
+  held.refine_focal = false;
+  out.stats = AdjustPlanePoses(&poses, &f, frame, plane_links, 0, {}, {}, held);
   if (!out.stats.ok) {
     out.note = "adjustment failed: " + out.stats.message;
     return out;

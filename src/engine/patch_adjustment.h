@@ -22,7 +22,10 @@ FrameLink Thin(FrameLink link, int max_pairs, cv::Size frame);
 
 struct PatchAdjustmentOptions {
   bool enabled = true;
+  // With solver.refine_focal, the focal length is found first with the poses over links thinned
+  // to kFocalPairs pairs, then the poses over every pair at that focal length.
   PlaneAdjustmentOptions solver;
+  static constexpr int kFocalPairs = 64;
   int max_pairs_per_link = 400;  // every pair counts: thinner links cost accuracy
   double max_rms_px = 2.5;  // an adjustment that leaves a larger transfer error is not used
 
