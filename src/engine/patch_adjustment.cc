@@ -123,11 +123,13 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
   double f = focal;
   if (o.solver.refine_focal) {
     // The focal length, with the poses, from the thinned links: where the attitudes hardly change
-    // it is barely observable and the solve creeps along it, at a sixth of the residuals. The
+    // it is barely observable and the solve creeps along it, at a twelfth of the residuals. The
     // poses found start the solve over every pair, which holds the focal length.
     TieUnlinked(online, frame, &focal_links);
+    PlaneAdjustmentOptions search = o.solver;
+    search.rounds = 1;  // links found false are the full solve's to judge
     std::vector<PlanePose> trial = poses;
-    if (AdjustPlanePoses(&trial, &f, frame, focal_links, 0, {}, {}, o.solver).ok) poses = trial;
+    if (AdjustPlanePoses(&trial, &f, frame, focal_links, 0, {}, {}, search).ok) poses = trial;
     else f = focal;
   }
   PlaneAdjustmentOptions held = o.solver;

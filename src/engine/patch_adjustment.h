@@ -25,7 +25,7 @@ struct PatchAdjustmentOptions {
   // With solver.refine_focal, the focal length is found first with the poses over links thinned
   // to kFocalPairs pairs, then the poses over every pair at that focal length.
   PlaneAdjustmentOptions solver;
-  static constexpr int kFocalPairs = 64;
+  static constexpr int kFocalPairs = 32;
   int max_pairs_per_link = 400;  // every pair counts: thinner links cost accuracy
   double max_rms_px = 2.5;  // an adjustment that leaves a larger transfer error is not used
 
