@@ -105,16 +105,17 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
   for (const auto& l : links) {
     auto a = slot.find(l.a), b = slot.find(l.b);
     if (a == slot.end() || b == slot.end() || l.in_a.size() < 8) continue;
-    for (auto* into : {&plane_links, &focal_links}) {
-      if (into == &focal_links && !o.solver.refine_focal) continue;
-      const FrameLink thin = Thin(l, into == &plane_links ? o.max_pairs_per_link : PatchAdjustmentOptions::kFocalPairs, frame);
+    auto thinned = [&](int max_pairs) {
+      const FrameLink thin = Thin(l, max_pairs, frame);
       PlaneLink p;
       p.a = a->second;
       p.b = b->second;
       p.in_a = thin.in_a;
       p.in_b = thin.in_b;
-      into->push_back(std::move(p));
-    }
+      return p;
+    };
+    plane_links.push_back(thinned(o.max_pairs_per_link));
+    if (o.solver.refine_focal) focal_links.push_back(thinned(PatchAdjustmentOptions::kFocalPairs));
   }
   // Every frame must be tied to the others, or its pose is free: a frame or group no link joins
   // to the rest (the closing frame after a rejected one, a frame placed against the patch image)
