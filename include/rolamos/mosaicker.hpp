@@ -143,7 +143,9 @@ struct MosaickerOptions {
   bool flat_field = true;
   bool exposure = true;
   bool water_colour = true;
-  // 6. Memory management
+  // 6. Memory management. A patch's budget is at least twice a frame's pixels (unless
+  // patch_memory_mb bounds it): under that (5 Mpx for 3840 x 2160 frames, 8.3 Mpx each) every
+  // keyframe would close a patch, leaving the patch adjustment nothing to adjust.
   double patch_megapixels = 5.0;
   double patch_memory_mb = 0;     // if > 0, also bounds the patch canvas (16 bytes a pixel)
   int max_lost_frames = 3;        // consecutive failures that close a patch
@@ -165,7 +167,9 @@ struct MosaickerOptions {
   }
 
   bool IsValid(std::string* error) const;
-  long long PixelBudget() const;
+  // The patch budget in pixels, for frames of `frame` (empty: patch_megapixels and
+  // patch_memory_mb alone).
+  long long PixelBudget(cv::Size frame = cv::Size()) const;
 };
 
 struct FrameReport {

@@ -109,8 +109,9 @@ bool MosaickerOptions::IsValid(std::string* error) const {
   return tiff.IsValid(rgba, error);
 }
 
-long long MosaickerOptions::PixelBudget() const {
+long long MosaickerOptions::PixelBudget(cv::Size frame) const {
   long long budget = static_cast<long long>(patch_megapixels * 1e6);
+  budget = std::max(budget, 2LL * frame.width * frame.height);
   if (patch_memory_mb > 0)  // the canvas holds 16 bytes a pixel (3 float sums and a weight)
     budget = std::min(budget, static_cast<long long>(patch_memory_mb * 1024 * 1024 / 16));
   return budget;
@@ -731,7 +732,7 @@ cv::Matx33d Mosaicker::Impl::FitToKeyframes(const PreparedFrame& p, const Candid
 
 void Mosaicker::Impl::StartPatch(const std::shared_ptr<PreparedFrame>& p, FrameReport& r,
                                  const std::optional<PatchLink>& join) {
-  canvas = std::make_unique<PatchCanvas>(options.PixelBudget(), kWorkingScale);
+  canvas = std::make_unique<PatchCanvas>(options.PixelBudget(frame_size), kWorkingScale);
   patch_id = next_patch_id++;
   frames.clear();
   keys.clear();
@@ -760,7 +761,7 @@ void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Clo
   job.next_id = next_patch_id;
   job.closed_by = why;
   job.frame_size = frame_size;
-  job.pixel_budget = options.PixelBudget();
+  job.pixel_budget = options.PixelBudget(frame_size);
   job.focal = K(0, 0);
   job.frames = std::move(frames);
   job.rejected = std::move(rejected);

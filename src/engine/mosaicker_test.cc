@@ -146,6 +146,34 @@ TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {
   EXPECT_EQ(reopened.global().n_images, 30);
 }
 
+// A budget under a frame's pixels (5 Mpx against a 3840 x 2160 camera's 8.3) closed a patch at
+// every keyframe: patches of one frame, nothing for the adjustment. A patch holds at least two
+// frames' worth; the budget it was built under is what the sidecar says.
+TEST(Mosaicker, APatchBudgetUnderAFramesPixelsStillHoldsSeveralFrames) {
+  test::ScratchDir dir;
+  Survey survey = WriteSurvey(test::SmallSurvey(16), dir / "survey");
+  const long long frame = static_cast<long long>(survey.frame_size.area());
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaickerOptions o = FastOptions();
+  o.patch_megapixels = 0.1;  // 480 x 360 frames: 0.17 Mpx each
+  ASSERT_LT(o.patch_megapixels * 1e6, frame);
+  EXPECT_EQ(o.PixelBudget(survey.frame_size), 2 * frame);
+  EXPECT_EQ(o.PixelBudget(), 100000);
+  MosaicSummary sum = MosaicInput(dir / "survey/frames", store, o);
+  EXPECT_EQ(sum.stitched, 16);
+  EXPECT_LT(sum.patches, sum.keyframes / 2 + 1);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  for (const auto& p : reopened.patches()) {
+    const PatchSidecar s = reopened.ReadSidecar(p.id);
+    ASSERT_TRUE(s.pixel_budget.has_value());
+    EXPECT_EQ(*s.pixel_budget, 2 * frame) << "patch " << p.id;
+    EXPECT_LE(static_cast<long long>(s.size[0]) * s.size[1], 2 * frame) << "patch " << p.id;
+  }
+  // An explicit memory bound still holds: 16 bytes a pixel of 1 MiB is 65,536 pixels.
+  o.patch_memory_mb = 1;
+  EXPECT_EQ(o.PixelBudget(survey.frame_size), 65536);
+}
+
 // MosaicInput prepares several frames at once on worker threads; pushing the same frames one by
 // one on this thread must give the same patches, frame for frame.
 TEST(Mosaicker, ParallelPreparationGivesWhatPushingInOrderGives) {
