@@ -144,6 +144,12 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
     out.note = "transfer error " + std::to_string(out.stats.final_rms_px) + " px after adjustment";
     return out;
   }
+  // The first camera's altitude made one plane pixel one frame pixel at the focal length it started
+  // with; at the one found, the patch would be drawn at focal / f of the frames' resolution (skerki6,
+  // 411 -> 781 px: at 0.53, three quarters of its pixels lost). The whole scene is scaled (poses'
+  // centres and the plane alike: every frame sees the same), so the first frame is at its own
+  // resolution again.
+  for (auto& p : poses) p.centre *= f / focal;
   out.poses = poses;
   out.focal = f;
   const cv::Matx33d Kf = CameraMatrix(f, frame);

@@ -2,6 +2,7 @@
 
 #include <gtest/gtest.h>
 
+#include "geometry/plane_camera.h"
 #include "util/homography.h"
 
 namespace rolamos {
@@ -97,6 +98,58 @@ TEST(PatchAdjustment, LinkedPatchesNeedNoTies) {
   const PatchAdjustment adjusted = AdjustPatch(indices, online, links, focal, kFrame, PatchAdjustmentOptions());
   ASSERT_TRUE(adjusted.used) << adjusted.note;
   EXPECT_EQ(adjusted.ties, 0);
+}
+
+// A camera of 50 degrees across taken for 70 (focal 457 px for 686), rolling and pitching up to 4
+// degrees: the adjustment finds the focal length, and the patch stays at the frames' resolution.
+// The first camera's altitude was set for the assumed focal length: at the one found the patch
+// was drawn at 457 / 686 of it, under half its pixels (skerki6: 0.53 of the frames).
+TEST(PatchAdjustment, AFocalLengthFoundKeepsThePatchAtTheFramesResolution) {
+  const double truth_focal = 0.5 * kFrame.width / std::tan(25.0 * CV_PI / 180);  // 686 px: 50 deg
+  const cv::Matx33d K = CameraMatrix(truth_focal, kFrame);
+  const double turns[8][2] = {{0, 0}, {3, -2}, {-4, 1}, {2, 4}, {-1, -4}, {4, 2}, {-3, -3}, {1, 3}};
+  std::vector<PlanePose> truth;
+  std::vector<int> indices;
+  std::vector<cv::Matx33d> online;
+  for (int i = 0; i < 8; ++i) {
+    PlanePose p = ReferencePose(K);
+    p.centre[0] += 120.0 * i;
+    p.pitch = turns[i][0] * CV_PI / 180;
+    p.roll = turns[i][1] * CV_PI / 180;
+    truth.push_back(p);
+    indices.push_back(i);
+    online.push_back(FrameToPlane(truth[0], K).inv() * FrameToPlane(p, K));
+  }
+  std::vector<FrameLink> links;
+  for (int i = 0; i < 8; ++i)
+    for (int j = i + 1; j <= std::min(7, i + 2); ++j) {
+      FrameLink l;
+      l.a = j;
+      l.b = i;
+      const cv::Matx33d j_to_i = PlaneToFrame(truth[size_t(i)], K) * FrameToPlane(truth[size_t(j)], K);
+      for (int y = 20; y < kFrame.height; y += 40)
+        for (int x = 20; x < kFrame.width; x += 40) {
+          const cv::Point2d q = ApplyHomography(j_to_i, cv::Point2d(x, y));
+          if (q.x < 0 || q.y < 0 || q.x >= kFrame.width || q.y >= kFrame.height) continue;
+          l.in_a.emplace_back(float(x), float(y));
+          l.in_b.emplace_back(q);
+        }
+      links.push_back(l);
+    }
+  const double assumed = 0.5 * kFrame.width / std::tan(35.0 * CV_PI / 180);  // 457 px: 70 deg
+  PatchAdjustmentOptions o;
+  o.solver.refine_focal = true;
+  const PatchAdjustment adjusted = AdjustPatch(indices, online, links, assumed, kFrame, o);
+  ASSERT_TRUE(adjusted.used) << adjusted.note;
+  EXPECT_NEAR(adjusted.focal, truth_focal, 0.02 * truth_focal);
+  // The first frame's scale at its centre: patch pixels a frame pixel, 1 as the frame is level.
+  const cv::Point2d c(kFrame.width / 2.0, kFrame.height / 2.0);
+  const cv::Matx33d& first = adjusted.frame_to_patch[0];
+  const double scale = cv::norm(ApplyHomography(first, c + cv::Point2d(10, 0)) - ApplyHomography(first, c - cv::Point2d(10, 0))) / 20;
+  EXPECT_NEAR(scale, 1.0, 0.02);
+  // And the patch is the truth up to that similarity.
+  for (int i = 1; i < 8; ++i)
+    EXPECT_LT(CornerError(first.inv() * adjusted.frame_to_patch[size_t(i)], online[size_t(i)]), 0.5) << "frame " << i;
 }
 
 }  // namespace
