@@ -1,5 +1,6 @@
 #include "engine/egomotion.h"
 
+#include <algorithm>
 #include <cmath>
 
 #include <opencv2/calib3d.hpp>
@@ -11,11 +12,16 @@ bool EgomotionOptions::IsValid(std::string* error) const {
     *error = "RANSAC thresholds must be positive";
     return false;
   }
-  if (min_inliers < 8) {
-    *error = "at least 8 inliers are needed for a homography";
+  if (min_inliers < 8 || min_few_inliers < 8 || min_few_inliers > min_inliers) {
+    *error = "at least 8 inliers are needed for a homography (" + std::to_string(min_few_inliers) + " and " +
+             std::to_string(min_inliers) + " asked), and no more for few matches than for many";
     return false;
   }
   return true;
+}
+
+int EgomotionOptions::RequiredInliers(int matches) const {
+  return std::clamp(static_cast<int>(std::ceil(0.75 * matches)), min_few_inliers, min_inliers);
 }
 
 double BilateralEpipolarError(const cv::Matx33d& F, const cv::Point2f& p1, const cv::Point2f& p2) {
@@ -65,7 +71,8 @@ EgomotionResult EstimateEgomotion(const std::vector<cv::Point2f>& from,
                                   const EgomotionOptions& o) {
   EgomotionResult r;
   r.matches = static_cast<int>(from.size());
-  if (r.matches < o.min_inliers) {
+  const int required = o.RequiredInliers(r.matches);
+  if (r.matches < required) {
     r.failure = "too_few_matches";
     return r;
   }
@@ -93,14 +100,14 @@ EgomotionResult EstimateEgomotion(const std::vector<cv::Point2f>& from,
     }
     // A failed F (degenerate set) falls back to the homography's own RANSAC.
     r.epipolar_inliers = static_cast<int>(a.size());
-    if (r.epipolar_inliers < o.min_inliers) {
+    if (r.epipolar_inliers < required) {
       a = from;
       b = to;
       index = all;
       r.bilateral_error_sum = 0;
     }
   }
-  if (static_cast<int>(a.size()) < o.min_inliers) {
+  if (static_cast<int>(a.size()) < required) {
     r.failure = "too_few_epipolar_inliers";
     return r;
   }
@@ -118,7 +125,7 @@ EgomotionResult EstimateEgomotion(const std::vector<cv::Point2f>& from,
     r.inlier_index.push_back(index[i]);
   }
   r.inliers = static_cast<int>(ia.size());
-  if (r.inliers < o.min_inliers) {
+  if (r.inliers < required) {
     r.failure = "too_few_inliers";
     return r;
   }

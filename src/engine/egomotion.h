@@ -19,9 +19,17 @@ struct EgomotionOptions {
   double epipolar_threshold_px = 1.5;    // RANSAC threshold for F, and half the bilateral cut
   double homography_threshold_px = 3.0;  // RANSAC threshold for H
   int min_inliers = 25;
+  // Fewer are enough where few features match at all (low-contrast ground under uneven light, a
+  // small overlap) when nearly all of them agree, three in four, down to this many (skerki6's last
+  // frame: 17 of 21 matches, placed where it belongs; 25 rejected it). Such a registration is weak
+  // (SupportOptions): the Kalman gate must agree with it. Where more match, fewer agreeing still
+  // is not enough (small-degraded: 24 of 39 on a frame full of marine snow).
+  int min_few_inliers = 15;
   bool use_fundamental = true;  // the paper's outlier stage (off: H by RANSAC alone)
 
   bool IsValid(std::string* error) const;
+  // Inliers needed among `matches` matched pairs.
+  int RequiredInliers(int matches) const;
 };
 
 struct PlaneMotion {

@@ -82,6 +82,41 @@ TEST(Egomotion, TooFewMatchesIsAReasonNotACrash) {
   EXPECT_EQ(r.failure, "too_few_matches");
 }
 
+// Few matches that nearly all agree are a true registration (low-contrast ground, a small
+// overlap: skerki6's last frame, 17 of 21); as many matches at random are not, nor two thirds of a
+// small set agreeing.
+TEST(Egomotion, FewMatchesThatNearlyAllAgreeAreEnoughAndRandomOnesAreNot) {
+  const cv::Matx33d H(0.98, -0.05, 35, 0.05, 0.98, -12, 1e-5, 2e-5, 1);
+  const EgomotionOptions o;
+  EXPECT_EQ(o.RequiredInliers(15), 15);
+  EXPECT_EQ(o.RequiredInliers(21), 16);
+  EXPECT_EQ(o.RequiredInliers(40), o.min_inliers);
+  EXPECT_EQ(o.RequiredInliers(300), o.min_inliers);
+  std::vector<cv::Point2f> a, b;
+  PlanePairs(H, 17, 4, &a, &b);
+  EgomotionResult r = EstimateEgomotion(a, b, kK, o);
+  ASSERT_TRUE(r.ok) << r.failure;
+  EXPECT_GE(r.inliers, 16);
+  for (cv::Point2d p : {cv::Point2d(0, 0), cv::Point2d(639, 479)}) {
+    cv::Vec3d u = r.H * cv::Vec3d(p.x, p.y, 1), v = H * cv::Vec3d(p.x, p.y, 1);
+    EXPECT_LT(std::hypot(u[0] / u[2] - v[0] / v[2], u[1] / u[2] - v[1] / v[2]), 1.5);
+  }
+  a.clear();
+  b.clear();
+  PlanePairs(H, 0, 21, &a, &b);
+  EXPECT_FALSE(EstimateEgomotion(a, b, kK, o).ok);
+  a.clear();
+  b.clear();
+  PlanePairs(H, 20, 10, &a, &b);  // 20 of 30 agree: 23 needed
+  EXPECT_FALSE(EstimateEgomotion(a, b, kK, o).ok);
+  a.clear();
+  b.clear();
+  PlanePairs(H, 12, 2, &a, &b);  // 14 matches: too few, however well they agree
+  EgomotionResult few = EstimateEgomotion(a, b, kK, o);
+  EXPECT_FALSE(few.ok);
+  EXPECT_EQ(few.failure, "too_few_matches");
+}
+
 TEST(Features, MatchAShiftedViewOfTheSeafloor) {
   cv::Mat ground = RenderSeafloor(0, 0, 800, 600);
   cv::Mat gray;
