@@ -7,6 +7,7 @@
 
 #include "engine/features.h"
 #include "engine/motion_gate.h"
+#include "engine/stage_options.h"
 #include "synth/seafloor_texture.h"
 
 namespace rolamos {
@@ -115,6 +116,17 @@ TEST(Egomotion, FewMatchesThatNearlyAllAgreeAreEnoughAndRandomOnesAreNot) {
   EgomotionResult few = EstimateEgomotion(a, b, kK, o);
   EXPECT_FALSE(few.ok);
   EXPECT_EQ(few.failure, "too_few_matches");
+}
+
+// A user's --min-inliers under the few-matches floor is what is asked of any set, and valid.
+TEST(Egomotion, AMinimumUnderTheFewMatchesFloorHoldsForEverySet) {
+  MosaickerOptions m;
+  m.min_inliers = 12;
+  const EgomotionOptions o = ToEgomotionOptions(m);
+  std::string error;
+  EXPECT_TRUE(o.IsValid(&error)) << error;
+  EXPECT_EQ(o.RequiredInliers(14), 12);
+  EXPECT_EQ(o.RequiredInliers(300), 12);
 }
 
 TEST(Features, MatchAShiftedViewOfTheSeafloor) {

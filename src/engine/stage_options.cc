@@ -38,6 +38,7 @@ EgomotionOptions ToEgomotionOptions(const MosaickerOptions& o) {
   e.epipolar_threshold_px = o.epipolar_threshold;
   e.homography_threshold_px = o.homography_threshold;
   e.min_inliers = o.min_inliers;
+  e.min_few_inliers = std::min(e.min_few_inliers, o.min_inliers);  // --min-inliers 12 asks 12 of any
   e.use_fundamental = o.fundamental;
   return e;
 }
