@@ -13,12 +13,12 @@ const cv::Size kFrame(640, 480);
 // A level camera moving along a lane: frame i is shifted `step` pixels right of frame 0.
 cv::Matx33d Truth(int i, double step = 150) { return cv::Matx33d(1, 0, step * i, 0, 1, 3.0 * i, 0, 0, 1); }
 
-// Exact correspondences between frames a and b where they overlap (a grid in frame a).
-FrameLink LinkOf(int a, int b) {
+// Exact correspondences between frames a and b where they overlap (a grid in frame a), through
+// the homography from a's pixels to b's.
+FrameLink LinkThrough(int a, int b, const cv::Matx33d& a_to_b) {
   FrameLink l;
   l.a = a;
   l.b = b;
-  const cv::Matx33d a_to_b = Truth(b).inv() * Truth(a);
   for (int y = 20; y < kFrame.height; y += 40)
     for (int x = 20; x < kFrame.width; x += 40) {
       const cv::Point2d q = ApplyHomography(a_to_b, cv::Point2d(x, y));
@@ -28,6 +28,8 @@ FrameLink LinkOf(int a, int b) {
     }
   return l;
 }
+
+FrameLink LinkOf(int a, int b) { return LinkThrough(a, b, Truth(b).inv() * Truth(a)); }
 
 double CornerError(const cv::Matx33d& a, const cv::Matx33d& b) {
   double worst = 0;
@@ -122,20 +124,8 @@ TEST(PatchAdjustment, AFocalLengthFoundKeepsThePatchAtTheFramesResolution) {
   }
   std::vector<FrameLink> links;
   for (int i = 0; i < 8; ++i)
-    for (int j = i + 1; j <= std::min(7, i + 2); ++j) {
-      FrameLink l;
-      l.a = j;
-      l.b = i;
-      const cv::Matx33d j_to_i = PlaneToFrame(truth[size_t(i)], K) * FrameToPlane(truth[size_t(j)], K);
-      for (int y = 20; y < kFrame.height; y += 40)
-        for (int x = 20; x < kFrame.width; x += 40) {
-          const cv::Point2d q = ApplyHomography(j_to_i, cv::Point2d(x, y));
-          if (q.x < 0 || q.y < 0 || q.x >= kFrame.width || q.y >= kFrame.height) continue;
-          l.in_a.emplace_back(float(x), float(y));
-          l.in_b.emplace_back(q);
-        }
-      links.push_back(l);
-    }
+    for (int j = i + 1; j <= std::min(7, i + 2); ++j)
+      links.push_back(LinkThrough(j, i, PlaneToFrame(truth[size_t(i)], K) * FrameToPlane(truth[size_t(j)], K)));
   const double assumed = 0.5 * kFrame.width / std::tan(35.0 * CV_PI / 180);  // 457 px: 70 deg
   PatchAdjustmentOptions o;
   o.solver.refine_focal = true;
