@@ -360,9 +360,9 @@ struct Mosaicker::Impl {
   // `corners` of `from` followed into `to`, from a coarse correlation: `to` pixels -> `from`'s.
   EgomotionResult FollowInto(const PreparedFrame& from, const PreparedFrame& to,
                              const std::vector<cv::Point2f>& corners) const;
-  // The patch closes (`why`); the frames waiting for a second chance, and their rejections, go
-  // on with whatever comes next, which they may yet join.
-  void CloseKeepingWaiting(const std::string& why);
+  // The patch closes (`why`, with its closing frame if any); the frames waiting for a second
+  // chance, and their rejections, go on with whatever comes next, which they may yet join.
+  void CloseKeepingWaiting(const std::string& why, const std::optional<ClosingFrame>& closing = std::nullopt);
   void SecondChance(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, Laps& lap);
   FrameReport Place(const std::shared_ptr<PreparedFrame>& p, Candidate best, FrameReport r, Laps& lap);
   FrameRecord RecordOf(const FrameReport& r, const cv::Matx33d& to_patch) const;
@@ -993,7 +993,7 @@ FrameReport Mosaicker::Impl::Lost(const std::shared_ptr<PreparedFrame>& p, Frame
   return rep;
 }
 
-void Mosaicker::Impl::CloseKeepingWaiting(const std::string& why) {
+void Mosaicker::Impl::CloseKeepingWaiting(const std::string& why, const std::optional<ClosingFrame>& closing) {
   auto waiting = std::move(pending);
   for (auto& w : waiting) w.thin_overlap.reset();  // placements in the patch that closes
   std::vector<RejectedFrame> carried;
@@ -1004,7 +1004,7 @@ void Mosaicker::Impl::CloseKeepingWaiting(const std::string& why) {
         rejected.erase(it);
         break;
       }
-  ClosePatch(why);
+  ClosePatch(why, closing);
   pending = std::move(waiting);
   rejected = std::move(carried);
 }
@@ -1089,8 +1089,13 @@ void Mosaicker::Impl::OpenJoinedPatch(const std::shared_ptr<PreparedFrame>& p, F
   PatchLink join;
   join.previous_patch = patch_id;
   link_to_first = to_patch;  // the closing frame is the next patch's first
-  ClosePatch(why, closing);
+  // Frames waiting for a second chance wait on in the next patch and are tried against its first
+  // frame at once: a lane's first frame, rejected, overlaps the second most, and when the budget
+  // closed the patch at that second frame the first was lost (lawnmowers joined without turns).
+  CloseKeepingWaiting(why, closing);
   StartPatch(p, r, join);
+  Laps lap{this, {}};
+  SecondChance(p, cv::Matx33d::eye(), lap);
 }
 
 // Frames rejected earlier in this patch, tried again against the frame just placed (RegisterPair):
