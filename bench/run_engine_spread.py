@@ -16,7 +16,7 @@ JPEG frames instead of the MPEG-4 file: the difference is what the video codec c
 --peer N runs OpenCV's cv::Stitcher (SCANS) and `rolamos mosaic` on the first N frames of every
 kind, in the same run: frames each keeps, seconds, frames/s, peak RSS.
 
-  bench/run_engine_spread.py [--kinds a,b] [--runs 1] [--peer N] [--cli OLD,build/rolamos --names before,after]
+  bench/run_engine_spread.py [--kinds a,b] [--runs 1] [--peer N] [--seeds 21,22] [--cli OLD,build/rolamos --names before,after]
 
 Figures go to OUT/spread.md, OUT/results.json (this run's), and OUT/results/NAME/KIND.json (one
 file per binary and kind, kept across runs on other kinds).
@@ -147,6 +147,15 @@ def synth_args(args):
     return out
 
 
+def with_seed(args, seed):
+    """The kind's synth arguments drawn with another --seed."""
+    out = list(args)
+    if "--seed" in out:
+        i = out.index("--seed")
+        del out[i:i + 2]
+    return out + ["--seed", str(seed)]
+
+
 def closures(store):
     """How the patches closed, from their sidecars."""
     counts = {}
@@ -191,6 +200,9 @@ def main():
                     "turn within each kind (a before/after), the last one is the build under test")
     ap.add_argument("--names", default="", help="names for the binaries of --cli, comma-separated")
     ap.add_argument("--peer", type=int, default=0, help="cv::Stitcher SCANS beside rolamos on the first N frames")
+    ap.add_argument("--seeds", default="", help="each kind drawn again with these --seed values too (comma-separated, "
+                    "rows KIND-sN): one survey's figure is one draw, and the chain-bound kinds move by tenths of a "
+                    "pixel from draw to draw")
     ap.add_argument("extra", nargs="*", help="flags for rolamos mosaic")
     a = ap.parse_args()
     if not PHOTOS:
@@ -206,15 +218,21 @@ def main():
     results = {}
     peer_lines = ["| kind | frames | tool | frames kept | seconds | frames/s | peak RSS MB | result |",
                   "|---|---|---|---|---|---|---|---|"]
-    for kind in a.kinds.split(","):
-        desc, args = KINDS[kind]
-        survey = os.path.join(a.out, SAME_SURVEY.get(kind, kind))
+    seeds = [int(x) for x in a.seeds.split(",") if x.strip()]
+    variants = [(k, None) for k in a.kinds.split(",")]
+    variants = [(k, s) for k, _ in variants for s in [None] + seeds]
+    for base, seed in variants:
+        desc, args = KINDS[base]
+        kind = base if seed is None else f"{base}-s{seed}"
+        if seed is not None:
+            args, desc = with_seed(args, seed), f"{desc}, seed {seed}"
+        survey = os.path.join(a.out, SAME_SURVEY.get(base, base) + ("" if seed is None else f"-s{seed}"))
         stamp = os.path.join(survey, "args.json")
         if not os.path.exists(stamp) or json.load(open(stamp)) != args:
             subprocess.run(["rm", "-rf", survey])
             timed([a.cli, "synth"] + synth_args(args) + ["-o", survey, "-q"], check=True)
             json.dump(args, open(stamp, "w"))
-        video = "--video" in args and kind not in SAME_SURVEY
+        video = "--video" in args and base not in SAME_SURVEY
         source = os.path.join(survey, "video.mp4") if video else os.path.join(survey, "frames")
         # Every binary in turn within each round: the machine's speed drifts over minutes, so a
         # before/after is only fair interleaved.
