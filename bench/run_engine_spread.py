@@ -219,8 +219,7 @@ def main():
     peer_lines = ["| kind | frames | tool | frames kept | seconds | frames/s | peak RSS MB | result |",
                   "|---|---|---|---|---|---|---|---|"]
     seeds = [int(x) for x in a.seeds.split(",") if x.strip()]
-    variants = [(k, None) for k in a.kinds.split(",")]
-    variants = [(k, s) for k, _ in variants for s in [None] + seeds]
+    variants = [(k, s) for k in a.kinds.split(",") for s in [None] + seeds]
     for base, seed in variants:
         desc, args = KINDS[base]
         kind = base if seed is None else f"{base}-s{seed}"

@@ -9,6 +9,8 @@
 #include <map>
 #include <set>
 #include <sstream>
+#include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <opencv2/calib3d.hpp>
@@ -48,6 +50,20 @@ SurveyOptions JitteredSurvey(int frames, int lanes) {
   o.forward_overlap = 0.7;
   o.side_overlap = 0.4;
   return o;
+}
+
+// Frame `i` of the survey written in `survey` (a folder beside the list), as a frame list names it.
+std::string FrameName(const std::string& survey, int i) {
+  char name[64];
+  std::snprintf(name, sizeof name, "/frames/frame_%05d.jpg", i);
+  return survey + name;
+}
+
+// A frame list for MosaicInput: the frames in the order given (out of order, repeated, from
+// several surveys), one a line.
+void WriteFrameList(const fs::path& file, const std::vector<std::string>& frames) {
+  std::ofstream list(file);
+  for (const auto& f : frames) list << f << "\n";
 }
 
 // Per-patch RMS of every frame's 5 x 5 grid against ground truth after one best-fit homography
@@ -393,14 +409,9 @@ TEST(MosaickerRobustness, AStopADarkFrameAndAHalvedFrameRateLoseNothing) {
   for (int k = 0; k < 9; ++k) order.push_back(10);  // stopped
   for (int i = 11; i < 24; ++i) order.push_back(i);
   for (int i = 24; i < 48; i += 2) order.push_back(i);  // half the frame rate
-  {
-    std::ofstream list(dir / "frames.txt");
-    char name[64];
-    for (int i : order) {
-      std::snprintf(name, sizeof name, "survey/frames/frame_%05d.jpg", i);
-      list << name << "\n";
-    }
-  }
+  std::vector<std::string> names;
+  for (int i : order) names.push_back(FrameName("survey", i));
+  WriteFrameList(dir / "frames.txt", names);
   Store store = Store::Create(dir / "s.rolamos");
   std::vector<FrameReport> reports;
   const MosaicSummary sum =
@@ -429,15 +440,10 @@ TEST(MosaickerRobustness, AFrameWaitingForASecondChanceIsNotLostWhereThePatchClo
   cv::theRNG().state = 0xffffffff;  // OpenCV's RANSAC draws as on a new thread, whatever ran before
   test::ScratchDir dir;
   const Survey survey = WriteSurvey(JitteredSurvey(16, 1), dir / "survey");
-  std::vector<int> order{0, 1, 2, 3, 4, 5, 6, 7, 10, 8, 9, 11, 12, 13, 14, 15};
-  {
-    std::ofstream list(dir / "frames.txt");
-    char name[64];
-    for (int i : order) {
-      std::snprintf(name, sizeof name, "survey/frames/frame_%05d.jpg", i);
-      list << name << "\n";
-    }
-  }
+  const std::vector<int> order{0, 1, 2, 3, 4, 5, 6, 7, 10, 8, 9, 11, 12, 13, 14, 15};
+  std::vector<std::string> names;
+  for (int i : order) names.push_back(FrameName("survey", i));
+  WriteFrameList(dir / "frames.txt", names);
   MosaickerOptions o = Options();
   o.checkpoint_frames = 8;  // frames 0-7 fill the patch: it closes at frame 8, frame 10 waiting
   Store store = Store::Create(dir / "s.rolamos");
@@ -474,15 +480,10 @@ TEST(MosaickerRobustness, AFrameSizeChangeMidStreamStartsAPatchAndLosesNoFrame) 
   big.focal_px = 560;
   big.seed = 7;
   WriteSurvey(big, dir / "big");
-  {
-    std::ofstream list(dir / "frames.txt");
-    char name[64];
-    for (const char* which : {"small", "big"})
-      for (int i = 0; i < 12; ++i) {
-        std::snprintf(name, sizeof name, "%s/frames/frame_%05d.jpg", which, i);
-        list << name << "\n";
-      }
-  }
+  std::vector<std::string> names;
+  for (const char* which : {"small", "big"})
+    for (int i = 0; i < 12; ++i) names.push_back(FrameName(which, i));
+  WriteFrameList(dir / "frames.txt", names);
   Store store = Store::Create(dir / "s.rolamos");
   const MosaicSummary sum = MosaicInput(dir / "frames.txt", store, Options());
   EXPECT_EQ(sum.stitched, 24);
