@@ -2,7 +2,9 @@
 """Global accuracy of a store against a synthetic survey's ground truth: every stitched frame's
 3 x 3 grid placed in the global frame (patch_to_global x frame_to_patch, or the aligned
 frame_to_global when `rolamos align` wrote one), compared with its ground-truth place after one
-best-fit homography for the whole map. Prints JSON: frames, RMS and p95 in pixels.
+best-fit homography for the whole map. A map that `align` left in parts (the sidecars'
+`component`) has no common gauge: each part gets its own best fit, and `components` says how
+many there were. Prints JSON: frames, components, RMS and p95 in pixels.
 
   bench/eval_global.py SURVEY_DIR STORE [--online]
 """
@@ -16,7 +18,7 @@ gt = {os.path.basename(f["file"]): np.array(f["frame_to_world"]).reshape(3, 3) f
 # A video's frames are named video.mp4#N: N is the survey's frame index.
 gt.update({"#" + str(f["index"]): np.array(f["frame_to_world"]).reshape(3, 3) for f in truth})
 manifest = json.load(open(os.path.join(store, "store.json")))
-ours, theirs = [], []
+ours, theirs, part = [], [], []
 w = h = None
 for p in manifest["patches"]:
     s = json.load(open(os.path.join(store, p["sidecar"])))
@@ -30,20 +32,29 @@ for p in manifest["patches"]:
         for x in (0, (w - 1) / 2, w - 1):
             for y in (0, (h - 1) / 2, h - 1):
                 a, b = H @ [x, y, 1], T @ [x, y, 1]
-                ours.append(a[:2] / a[2]); theirs.append(b[:2] / b[2])
-ours, theirs = np.array(ours), np.array(theirs)
-# One best-fit homography (DLT, normalised) from our global frame to the world.
+                ours.append(a[:2] / a[2]); theirs.append(b[:2] / b[2]); part.append(s.get("component", 0))
+ours, theirs, part = np.array(ours), np.array(theirs), np.array(part)
+
+
+# One best-fit homography (DLT, normalised) from our global frame to the world, per part.
 def norm(p):
     c = p.mean(0); s = np.sqrt(2) / np.sqrt(((p - c) ** 2).sum(1)).mean()
     return np.array([[s, 0, -s * c[0]], [0, s, -s * c[1]], [0, 0, 1]])
-Ta, Tb = norm(ours), norm(theirs)
-A = []
-for (x, y), (u, v) in zip((Ta @ np.c_[ours, np.ones(len(ours))].T).T[:, :2], (Tb @ np.c_[theirs, np.ones(len(theirs))].T).T[:, :2]):
-    A.append([-x, -y, -1, 0, 0, 0, u * x, u * y, u]); A.append([0, 0, 0, -x, -y, -1, v * x, v * y, v])
-Hn = np.linalg.svd(np.array(A), full_matrices=False)[2][-1].reshape(3, 3)
-H = np.linalg.inv(Tb) @ Hn @ Ta
-m = (H @ np.c_[ours, np.ones(len(ours))].T).T
-m = m[:, :2] / m[:, 2:]
-err = np.sqrt(((m - theirs) ** 2).sum(1))
-print(json.dumps({"frames": len(ours) // 9, "rms_px": float(np.sqrt((err ** 2).mean())), "p95_px": float(np.percentile(err, 95)),
-                  "max_px": float(err.max())}))
+
+
+def residuals(ours, theirs):
+    Ta, Tb = norm(ours), norm(theirs)
+    A = []
+    for (x, y), (u, v) in zip((Ta @ np.c_[ours, np.ones(len(ours))].T).T[:, :2],
+                              (Tb @ np.c_[theirs, np.ones(len(theirs))].T).T[:, :2]):
+        A.append([-x, -y, -1, 0, 0, 0, u * x, u * y, u]); A.append([0, 0, 0, -x, -y, -1, v * x, v * y, v])
+    Hn = np.linalg.svd(np.array(A), full_matrices=False)[2][-1].reshape(3, 3)
+    H = np.linalg.inv(Tb) @ Hn @ Ta
+    m = (H @ np.c_[ours, np.ones(len(ours))].T).T
+    m = m[:, :2] / m[:, 2:]
+    return np.sqrt(((m - theirs) ** 2).sum(1))
+
+
+err = np.concatenate([residuals(ours[part == c], theirs[part == c]) for c in np.unique(part)])
+print(json.dumps({"frames": len(ours) // 9, "components": int(len(np.unique(part))), "rms_px": float(np.sqrt((err ** 2).mean())),
+                  "p95_px": float(np.percentile(err, 95)), "max_px": float(err.max())}))

@@ -331,7 +331,16 @@ struct Mosaicker::Impl {
   cv::Matx33d FitToKeyframes(const PreparedFrame& p, const Candidate& c, std::vector<FrameLink>* fitted, int* frames);
 
   void StartPatch(const std::shared_ptr<PreparedFrame>& p, FrameReport& r, const std::optional<PatchLink>& join);
+  // The patch closes (`why`, with its closing frame if any). The frames waiting for a second
+  // chance, and their rejections, go on with whatever comes next, which they may yet join; only
+  // the end of the run and a new frame size give them up (DropWaiting first), their rejections
+  // then listed in the patch that closes.
   void ClosePatch(const std::string& why, const std::optional<ClosingFrame>& closing = std::nullopt);
+  void DropWaiting() { pending.clear(); }
+  // Frames rejected after the last patch closed (the run ended over open water, in black
+  // frames): no patch opened to list them, so the last one written does. None written: the
+  // summary alone counts them.
+  void ListLateRejections();
   // `current`: the frame the next ones are followed from (false: a frame placed late, behind it).
   void AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, const Candidate* c,
                    std::vector<FrameLink> found, FrameRecord rec, bool current = true, bool blend = true);
@@ -360,9 +369,6 @@ struct Mosaicker::Impl {
   // `corners` of `from` followed into `to`, from a coarse correlation: `to` pixels -> `from`'s.
   EgomotionResult FollowInto(const PreparedFrame& from, const PreparedFrame& to,
                              const std::vector<cv::Point2f>& corners) const;
-  // The patch closes (`why`, with its closing frame if any); the frames waiting for a second
-  // chance, and their rejections, go on with whatever comes next, which they may yet join.
-  void CloseKeepingWaiting(const std::string& why, const std::optional<ClosingFrame>& closing = std::nullopt);
   void SecondChance(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, Laps& lap);
   FrameReport Place(const std::shared_ptr<PreparedFrame>& p, Candidate best, FrameReport r, Laps& lap);
   FrameRecord RecordOf(const FrameReport& r, const cv::Matx33d& to_patch) const;
@@ -756,6 +762,16 @@ void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Clo
     return;
   }
   if (!closing) PromoteLast();
+  auto waiting = std::move(pending);
+  for (auto& w : waiting) w.thin_overlap.reset();  // placements in the patch that closes
+  std::vector<RejectedFrame> carried;
+  for (const auto& w : waiting)
+    for (auto it = rejected.begin(); it != rejected.end(); ++it)
+      if (it->index == w.report.index) {
+        carried.push_back(*it);
+        rejected.erase(it);
+        break;
+      }
   PatchJob job;
   job.id = patch_id;
   job.next_id = next_patch_id;
@@ -780,8 +796,17 @@ void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Clo
   rejected.clear();
   keys.clear();
   links.clear();
-  pending.clear();
+  pending = std::move(waiting);
+  rejected = std::move(carried);
   keyframe_bytes = 0;
+}
+
+void Mosaicker::Impl::ListLateRejections() {
+  if (rejected.empty() || summary.patches == 0) return;
+  PatchSidecar s = store.ReadSidecar(patch_id);
+  s.rejected.insert(s.rejected.end(), rejected.begin(), rejected.end());
+  store.UpdateSidecar(s);
+  rejected.clear();
 }
 
 std::vector<OlderKeyframe> Mosaicker::Impl::LinkCandidates(const cv::Matx33d& to_patch, bool current) const {
@@ -987,26 +1012,10 @@ FrameReport Mosaicker::Impl::Lost(const std::shared_ptr<PreparedFrame>& p, Frame
   }
   if (++lost >= options.max_lost_frames && canvas) {
     // The thread is lost: the waiting frames may start the next patch (BreakAt), not this one.
-    CloseKeepingWaiting("lost_tracking");
+    ClosePatch("lost_tracking");
     lost = 0;
   }
   return rep;
-}
-
-void Mosaicker::Impl::CloseKeepingWaiting(const std::string& why, const std::optional<ClosingFrame>& closing) {
-  auto waiting = std::move(pending);
-  for (auto& w : waiting) w.thin_overlap.reset();  // placements in the patch that closes
-  std::vector<RejectedFrame> carried;
-  for (const auto& w : waiting)
-    for (auto it = rejected.begin(); it != rejected.end(); ++it)
-      if (it->index == w.report.index) {
-        carried.push_back(*it);
-        rejected.erase(it);
-        break;
-      }
-  ClosePatch(why, closing);
-  pending = std::move(waiting);
-  rejected = std::move(carried);
 }
 
 // Tracking broke (the next lane does not overlap this one, a turn too sharp): when the frame
@@ -1025,7 +1034,7 @@ bool Mosaicker::Impl::BreakAt(const std::shared_ptr<PreparedFrame>& p) {
     Pending start = *it;
     pending.erase(std::next(it).base());
     FrameReport r = Unreject(start.report);
-    if (canvas) CloseKeepingWaiting("lost_tracking");
+    if (canvas) ClosePatch("lost_tracking");
     StartPatch(start.frame, r, std::nullopt);
     frames.back().registered_by = "second_chance";
     Laps lap{this, {}};
@@ -1092,7 +1101,7 @@ void Mosaicker::Impl::OpenJoinedPatch(const std::shared_ptr<PreparedFrame>& p, F
   // Frames waiting for a second chance wait on in the next patch and are tried against its first
   // frame at once: a lane's first frame, rejected, overlaps the second most, and when the budget
   // closed the patch at that second frame the first was lost (lawnmowers joined without turns).
-  CloseKeepingWaiting(why, closing);
+  ClosePatch(why, closing);
   StartPatch(p, r, join);
   Laps lap{this, {}};
   SecondChance(p, cv::Matx33d::eye(), lap);
@@ -1212,6 +1221,7 @@ std::optional<FrameReport> Mosaicker::Impl::FollowSizeChange(const std::shared_p
     return resized_report;
   }
   FrameReport first = Unreject(resized_report);
+  DropWaiting();  // frames of the old size join none of the new
   ClosePatch("size_changed");
   InitCamera(p->size);
   if (FeaturesOf(*resized)->strong >= options.min_inliers) StartPatch(resized, first, std::nullopt);
@@ -1231,7 +1241,11 @@ FrameReport Mosaicker::Impl::OpenPatch(const std::shared_ptr<PreparedFrame>& p, 
     gate->Predict(StepsSinceLast(*p, r.index));
     Candidate again = Track(p, Start::kCorrelated);
     if (Usable(again)) return Place(p, std::move(again), r, lap);
+    // The frames still waiting may overlap this one, the next patch's first, more.
     ClosePatch("lost_tracking");
+    StartPatch(p, r, std::nullopt);
+    SecondChance(p, cv::Matx33d::eye(), lap);
+    return r;
   }
   StartPatch(p, r, std::nullopt);
   return r;
@@ -1435,9 +1449,11 @@ double MosaicSummary::RestCpuSeconds() const {
 
 MosaicSummary Mosaicker::Finish() {
   Impl& m = *impl_;
+  m.DropWaiting();
   m.ClosePatch("end");
   m.keyframe_pool.Wait();
   m.writer.Wait();
+  m.ListLateRejections();
   if ((m.options.flat_field || m.options.water_colour) && m.colour->frames() > 0)
     WriteFileAtomic(m.store.dir() + "/lighting.json", m.colour->ToJson());
   m.summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - m.start).count();
