@@ -180,7 +180,7 @@ const OptionTable<MosaickerOptions>& MosaickerTable() {
         .Number("track_pixels", &O::track_pixels).Text("track_halve", &O::track_halve)
         .Number("video_track_pixels", &O::video_track_pixels).Integer("track_points", &O::track_points)
         .Number("track_turn_deg", &O::track_turn_deg)
-        .Number("keyframe_overlap", &O::keyframe_overlap).Number("keyframe_min_overlap", &O::keyframe_min_overlap)
+        .Number("keyframe_overlap", &O::keyframe_overlap).Number("keyframe_min_overlap", &O::keyframe_min_overlap).Flag("follow_back", &O::follow_back)
         .Number("describe_overlap", &O::describe_overlap).Number("blend_overlap", &O::blend_overlap).Text("features", &O::features)
         .Integer("max_features", &O::max_features).Integer("followed_max_features", &O::followed_max_features).Number("detect_scale", &O::detect_scale)
         .Number("detect_pixels", &O::detect_pixels).Flag("sift_upsample", &O::sift_upsample)

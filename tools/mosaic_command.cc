@@ -27,7 +27,7 @@ struct MosaicSwitches {
   // engine's own default codec (JPEG with the alpha as a mask).
   TiffSwitches tiff = FromWriteOptions(MosaickerOptions::PatchWriteOptions());
   bool no_bilateral = false, no_temporal = false, no_clahe = false, no_sift_upsample = false, no_fundamental = false,
-       no_kalman = false, no_ecc = false, no_cross_check = false, no_recover = false, no_patch_fit = false, no_adjust = false,
+       no_kalman = false, no_ecc = false, no_cross_check = false, no_recover = false, no_patch_fit = false, no_adjust = false, no_follow_back = false,
        fixed_focal = false,
        no_flat_field = false, no_exposure = false, no_water_colour = false;
   bool quiet = false;
@@ -90,6 +90,7 @@ static int RunMosaic(MosaicSwitches s) {
   if (o.mask == "none") o.mask.clear();
   o.recover = !s.no_recover;
   o.patch_fit = !s.no_patch_fit;
+  o.follow_back = !s.no_follow_back;
   o.adjust_patches = !s.no_adjust;
   o.estimate_focal = !s.fixed_focal;
   o.flat_field = !s.no_flat_field;
@@ -335,6 +336,9 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
                   "memory for a patch's keyframes (images and features) until it is written (a patch closes when "
                   "full); the engine holds at most three patches' worth")
       ->capture_default_str();
+  cmd->add_flag("--no-follow-back", s->no_follow_back,
+                "place a frame followed between two keyframes from the one before alone, not also from the next "
+                "(its points followed back into it)");
   cmd->add_flag("--no-patch-fit", s->no_patch_fit,
                 "place each frame from its previous frame alone, not fitted against every patch frame it overlaps");
   cmd->add_flag("--no-ecc", s->no_ecc, "no ECC refinement");

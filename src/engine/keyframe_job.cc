@@ -1,5 +1,7 @@
 #include "engine/keyframe_job.h"
 
+#include <algorithm>
+
 #include "util/cpu_time.h"
 
 namespace rolamos {
@@ -37,6 +39,31 @@ KeyframeProducts RunKeyframeJob(const KeyframeJob& job, const KeyframeTools& too
     }
   }
   out.link_seconds = 1e-9 * cpu.Lap();
+  if (!job.followed.empty()) out.between = FollowBack(job, tools);
+  out.follow_seconds = 1e-9 * cpu.Lap();
+  return out;
+}
+
+std::vector<FollowedBetween> FollowBack(const KeyframeJob& job, const KeyframeTools& tools) {
+  std::vector<FollowedBetween> out;
+  if (!job.track || !tools.tracker || job.points.empty()) return out;
+  std::shared_ptr<const LucasKanadeTemplates> windows;  // the keyframe's, made once for all
+  for (const FollowedFrame& f : job.followed) {
+    if (!f.track || f.track->size != job.track->size) continue;
+    // Where following put both: this keyframe's pixels -> the frame's.
+    const TrackFlow flow =
+        tools.tracker->Follow(*job.track, *f.track, job.points, f.to_patch.inv() * job.to_patch, &windows);
+    std::vector<cv::Point2f> in_frame, in_key;
+    for (size_t i = 0; i < job.points.size(); ++i)
+      if (flow.ok[i]) {
+        in_frame.push_back(flow.to[i]);
+        in_key.push_back(job.points[i]);
+      }
+    const EgomotionResult e = EstimateEgomotion(in_frame, in_key, tools.K, tools.ego);
+    if (!e.ok || !AssessSupport(e, job.track->size, tools.support).strong) continue;
+    out.push_back({f.index, f.before, job.index, f.to_before, e.H,
+                   double(f.inliers) / std::max(1, f.inliers + e.inliers)});
+  }
   return out;
 }
 

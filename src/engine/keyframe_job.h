@@ -2,7 +2,8 @@
 // it are followed: the paper's spatio-temporal filter (the keyframe averaged with the frame before
 // it where the two agree, when that frame was not blended itself, then the bilateral filter), its
 // SIFT features (stored for the global map, used for recovery), and its links with the older
-// keyframes of the patch under it (an earlier lane: loop closures for the adjustment).
+// keyframes of the patch under it (an earlier lane: loop closures for the adjustment), and the
+// frames followed since the keyframe before, registered against this one too.
 #pragma once
 
 #include <functional>
@@ -15,15 +16,38 @@
 #include "engine/features.h"
 #include "engine/prepared_frame.h"
 #include "engine/preprocess.h"
+#include "engine/egomotion.h"
 #include "engine/registration.h"
+#include "engine/tracker.h"
 
 namespace rolamos {
+
+// A frame followed from the keyframe before this one (not a keyframe itself): its points are
+// this keyframe's, followed back into it.
+struct FollowedFrame {
+  int index = 0;
+  int before = 0;  // the keyframe it was followed from
+  std::shared_ptr<const TrackFrame> track;
+  cv::Matx33d to_patch;  // where following put it
+  cv::Matx33d to_before;  // its pixels -> the keyframe's
+  int inliers = 0;        // of that registration
+};
+
+// A frame followed between two keyframes and registered against both: it is placed where the two
+// put it, each weighted by its inliers (a followed frame's error goes with its support).
+struct FollowedBetween {
+  int index = 0;
+  int before = 0, after = 0;        // the keyframes
+  cv::Matx33d to_before, to_after;  // its pixels -> theirs
+  double weight_before = 0.5;
+};
 
 struct KeyframeProducts {
   cv::Mat image;  // filtered, BGR 8-bit: what the patch blends (empty: not blended)
   std::shared_ptr<const Features> features;
   std::vector<FrameLink> loop_links;  // a = this keyframe
-  double filter_seconds = 0, link_seconds = 0;  // what the filter and the loop links took
+  std::vector<FollowedBetween> between;  // the frames followed before it, registered against it
+  double filter_seconds = 0, link_seconds = 0, follow_seconds = 0;  // what each part took
 };
 using KeyframeFuture = std::shared_future<KeyframeProducts>;
 
@@ -46,6 +70,11 @@ struct KeyframeJob {
   // Blended into the patch image: filtered, its image kept. Otherwise it links and places only
   // (no image in the products), and its frame stays as it is: the next keyframe may average it in.
   bool blend = true;
+  // Its pyramid and the points it hands on, followed back into `followed` (a copy of the
+  // pyramid's pointer: the engine drops the frame's own while the job may run).
+  std::shared_ptr<const TrackFrame> track;
+  std::vector<cv::Point2f> points;
+  std::vector<FollowedFrame> followed;
 };
 
 struct KeyframeTools {
@@ -54,7 +83,16 @@ struct KeyframeTools {
   // The frame's SIFT features (computed once per frame, whoever asks first).
   std::function<std::shared_ptr<const Features>(PreparedFrame&)> features;
   PatchFitOptions fit;
+  const FrameTracker* tracker = nullptr;  // for `followed`
+  cv::Matx33d K = cv::Matx33d::eye();
+  EgomotionOptions ego;
+  SupportOptions support;
 };
+
+// The keyframe's points followed back into each of the frames followed before it, and each
+// registered by the egomotion stage (F-RANSAC, bilateral check, homography); a frame whose
+// registration is not strong is left out.
+std::vector<FollowedBetween> FollowBack(const KeyframeJob& job, const KeyframeTools& tools);
 
 // Releases a blended frame's unfiltered image when done: the engine must not read it afterwards.
 KeyframeProducts RunKeyframeJob(const KeyframeJob& job, const KeyframeTools& tools);

@@ -175,6 +175,9 @@ struct Mosaicker::Impl {
     bool blended = false;
   };
 
+  // The frames followed from the current keyframe (MosaickerOptions::follow_back): the next
+  // keyframe's job registers them against it too.
+  std::vector<FollowedFrame> followed_since_key;
   // The patch in progress.
   std::unique_ptr<PatchCanvas> canvas;
   int patch_id = 0;
@@ -796,6 +799,7 @@ void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Clo
   rejected.clear();
   keys.clear();
   links.clear();
+  followed_since_key.clear();
   pending = std::move(waiting);
   rejected = std::move(carried);
   keyframe_bytes = 0;
@@ -914,6 +918,16 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   }
   job.to_patch = to_patch;
   if (adjust_options.enabled && described) job.older = LinkCandidates(to_patch, current);
+  if (current) {
+    // The frames followed since the keyframe before (not this one, when it was one of them).
+    for (auto& f : followed_since_key)
+      if (f.index != key.index) job.followed.push_back(std::move(f));
+    followed_since_key.clear();
+    if (!job.followed.empty()) {
+      job.track = p->track;
+      job.points = key.points;
+    }
+  }
   KeyframeTools tools;
   tools.pre = &pre;
   tools.bilateral = options.bilateral;
@@ -921,10 +935,15 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   if (described) tools.features = [this](PreparedFrame& f) { return FeaturesOf(f); };
   else tools.features = [](PreparedFrame&) { return std::shared_ptr<const Features>(); };
   tools.fit = fit_options;
+  tools.tracker = &tracker;
+  tools.K = K;
+  tools.ego = ego_options;
+  tools.support = support_options;
   auto task = std::make_shared<std::packaged_task<KeyframeProducts()>>([this, job, tools] {
     KeyframeProducts out = RunKeyframeJob(job, tools);
     stage_ns[kFilter] += static_cast<long long>(1e9 * out.filter_seconds);
     stage_ns[kLoopLinks] += static_cast<long long>(1e9 * out.link_seconds);
+    stage_ns[kTracking] += static_cast<long long>(1e9 * out.follow_seconds);
     return out;
   });
   key.products = task->get_future().share();
@@ -953,6 +972,9 @@ void Mosaicker::Impl::AddFollowed(const std::shared_ptr<PreparedFrame>& p, const
                                   std::vector<FrameLink> found) {
   rec.keyframe = false;
   rec.placed_from = keys.back().index;
+  if (options.follow_back && p->track)
+    followed_since_key.push_back({rec.index, keys.back().index, p->track, to_patch,
+                                  keys.back().to_patch.inv() * to_patch, rec.inliers});
   frames.push_back(std::move(rec));
   last = Placed{frames.back().index, to_patch, p, false, std::move(found)};
   ++summary.stitched;

@@ -4,9 +4,9 @@
 // much darker than the others, a camera whose frame size changes mid-stream.
 #include <algorithm>
 #include <cmath>
-#include <cstdint>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <map>
 #include <set>
 #include <sstream>
@@ -425,6 +425,57 @@ TEST(MosaickerRobustness, FramesRejectedAfterTheLastPatchClosedAreListedInIt) {
   }
   EXPECT_EQ(placed, 12);
   EXPECT_EQ(listed, (std::set<int>{12, 13, 14, 15, 16, 17}));
+}
+
+// Frames followed between two keyframes (video) are placed where the keyframe before and the one
+// after put them (MosaickerOptions::follow_back): the keyframes stay where they were, the
+// followed frames move, and they are no further from the truth than from the one before alone.
+TEST(MosaickerRobustness, FramesFollowedBetweenKeyframesArePlacedFromBoth) {
+  test::ScratchDir dir;
+  SurveyOptions so = JitteredSurvey(60, 1);
+  so.forward_overlap = 0.95;
+  const Survey survey = WriteSurvey(so, dir / "survey");
+  std::map<std::string, cv::Matx33d> truth;
+  for (const auto& f : survey.frames) truth[fs::path(f.file).filename().string()] = ToMatx(f.frame_to_world);
+  struct Run {
+    std::map<int, FrameRecord> frames;
+    double rms = 0;
+  };
+  auto run = [&](bool follow_back, const std::string& name) {
+    MosaickerOptions o = Options();
+    o.follow_back = follow_back;
+    Store store = Store::Create(dir / name);
+    MosaicInput(dir / "survey/frames", store, o, nullptr);
+    Run r;
+    Store reopened = Store::Open(dir / name);
+    for (const auto& p : reopened.patches()) {
+      const PatchSidecar s = reopened.ReadSidecar(p.id);
+      r.rms = std::max(r.rms, PatchRms(s, survey));
+      for (const auto& f : s.frames) r.frames[f.index] = f;
+    }
+    return r;
+  };
+  const Run both = run(true, "both.rolamos"), before = run(false, "before.rolamos");
+  ASSERT_EQ(both.frames.size(), 60u);
+  ASSERT_EQ(before.frames.size(), 60u);
+  int followed = 0, moved = 0;
+  for (const auto& [index, f] : both.frames) {
+    const FrameRecord& g = before.frames.at(index);
+    ASSERT_EQ(f.is_keyframe(), g.is_keyframe()) << "frame " << index;
+    const double shift = MaxCornerShift(ToMatx(f.frame_to_patch), ToMatx(g.frame_to_patch), survey.frame_size);
+    if (f.is_keyframe()) {
+      EXPECT_LT(shift, 1e-9) << "keyframe " << index;
+    } else {
+      ++followed;
+      moved += shift > 1e-3;
+    }
+  }
+  EXPECT_GE(followed, 20);
+  EXPECT_GE(moved, followed / 2);
+  EXPECT_LT(both.rms, 0.5);
+  EXPECT_LE(both.rms, before.rms + 0.02);
+  std::cout << "followed " << followed << ", moved " << moved << "; worst patch RMS " << before.rms << " -> "
+            << both.rms << " px\n";
 }
 
 // A library user maps surveys one after another in one process (a Python session): each run

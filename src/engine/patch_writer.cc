@@ -20,10 +20,27 @@ namespace {
 // What the store keeps for the global map: pairs a link.
 constexpr int kStoredPairsPerLink = 48;
 
+// Frames followed between two keyframes of the patch, placed where both put them, from the
+// keyframes' placements in `keyframe_at`.
+void PlaceBetween(PatchJob& job, const std::vector<FollowedBetween>& between, const std::map<int, cv::Matx33d>& keyframe_at) {
+  std::map<int, const FollowedBetween*> of;
+  for (const auto& b : between)
+    if (keyframe_at.count(b.before) && keyframe_at.count(b.after)) of[b.index] = &b;
+  for (auto& f : job.frames) {
+    auto it = of.find(f.index);
+    if (f.is_keyframe() || it == of.end()) continue;
+    const FollowedBetween& b = *it->second;
+    f.frame_to_patch = ToArray9(BlendHomographies(keyframe_at.at(b.before) * b.to_before, keyframe_at.at(b.after) * b.to_after,
+                                                  b.weight_before, job.frame_size));
+  }
+}
+
 // The patch's frames placed once more: keyframes adjusted together (with the closing frame),
-// every other frame carried along from the keyframe it was followed from. Returns the adjustment;
-// `frames` and `closing_to_patch` are updated when it is used.
-PatchAdjustment PlaceFrames(PatchJob& job, const std::vector<FrameLink>& loop_links, cv::Matx33d* closing_to_patch) {
+// every other frame carried along from the keyframe it was followed from, or placed where the
+// keyframes on both sides put it. Returns the adjustment; `frames` and `closing_to_patch` are
+// updated.
+PatchAdjustment PlaceFrames(PatchJob& job, const std::vector<FrameLink>& loop_links,
+                            const std::vector<FollowedBetween>& between, cv::Matx33d* closing_to_patch) {
   std::vector<int> indices;
   std::vector<cv::Matx33d> online;
   std::map<int, cv::Matx33d> online_of;
@@ -42,9 +59,11 @@ PatchAdjustment PlaceFrames(PatchJob& job, const std::vector<FrameLink>& loop_li
   }
   if (job.closing) *closing_to_patch = job.closing->to_patch;
   PatchAdjustment adjusted;
-  if (!job.adjust.enabled) return adjusted;
-  adjusted = AdjustPatch(indices, online, all, job.focal, job.frame_size, job.adjust);
-  if (!adjusted.used) return adjusted;
+  if (job.adjust.enabled) adjusted = AdjustPatch(indices, online, all, job.focal, job.frame_size, job.adjust);
+  if (!adjusted.used) {
+    PlaceBetween(job, between, online_of);
+    return adjusted;
+  }
   std::map<int, cv::Matx33d> adjusted_of;
   for (size_t i = 0; i < indices.size(); ++i) adjusted_of[indices[i]] = adjusted.frame_to_patch[i];
   for (auto& f : job.frames) {
@@ -55,6 +74,7 @@ PatchAdjustment PlaceFrames(PatchJob& job, const std::vector<FrameLink>& loop_li
       f.frame_to_patch = ToArray9(adjusted_of[k] * online_of[k].inv() * online_of[f.index]);
     }
   }
+  PlaceBetween(job, between, adjusted_of);
   if (job.closing) *closing_to_patch = adjusted.frame_to_patch.back();
   // This patch's coordinates are now the plane's: the link to the previous patch goes through
   // the first frame's adjusted pose.
@@ -218,6 +238,7 @@ void PatchWriter::Write(PatchJob& job) {
   std::vector<cv::Mat> images;  // of the blended keyframes
   std::vector<std::shared_ptr<const Features>> features;
   std::vector<FrameLink> loop_links;
+  std::vector<FollowedBetween> between;
   std::vector<int> key_indices;
   std::set<int> blended;
   for (const auto& f : job.frames) {
@@ -231,6 +252,7 @@ void PatchWriter::Write(PatchJob& job) {
     }
     features.push_back(k.features);
     loop_links.insert(loop_links.end(), k.loop_links.begin(), k.loop_links.end());
+    between.insert(between.end(), k.between.begin(), k.between.end());
     key_indices.push_back(f.index);
   }
   product_of.clear();  // the writer's copies of the images are the only ones left
@@ -239,7 +261,7 @@ void PatchWriter::Write(PatchJob& job) {
 
   long long busy = cpu.Lap();
   cv::Matx33d closing_to_patch = cv::Matx33d::eye();
-  const PatchAdjustment adjusted = PlaceFrames(job, loop_links, &closing_to_patch);
+  const PatchAdjustment adjusted = PlaceFrames(job, loop_links, between, &closing_to_patch);
   const long long adjusting = cpu.Lap();
   adjust_ns_ += adjusting;
   busy += adjusting;

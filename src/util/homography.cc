@@ -2,7 +2,10 @@
 
 #include <algorithm>
 
+#include <vector>
+
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 namespace rolamos {
 
@@ -41,6 +44,17 @@ double MaxCornerShift(const cv::Matx33d& a, const cv::Matx33d& b, cv::Size size)
                               cv::Point2d(size.width - 1.0, size.height - 1.0)})
     worst = std::max(worst, cv::norm(ApplyHomography(a, p) - ApplyHomography(b, p)));
   return worst;
+}
+
+cv::Matx33d BlendHomographies(const cv::Matx33d& a, const cv::Matx33d& b, double weight_a, cv::Size size) {
+  const float w = static_cast<float>(size.width - 1), h = static_cast<float>(size.height - 1);
+  const std::vector<cv::Point2f> corners{{0, 0}, {w, 0}, {w, h}, {0, h}};
+  std::vector<cv::Point2f> between;
+  for (const auto& c : corners) {
+    const cv::Point2d p = weight_a * ApplyHomography(a, c) + (1 - weight_a) * ApplyHomography(b, c);
+    between.emplace_back(static_cast<float>(p.x), static_cast<float>(p.y));
+  }
+  return cv::Matx33d(cv::getPerspectiveTransform(corners, between));
 }
 
 }  // namespace rolamos

@@ -17,5 +17,8 @@ cv::Point2d ApplyHomography(const cv::Matx33d& H, cv::Point2d p);
 cv::Rect2d WarpedBounds(const cv::Matx33d& H, cv::Size size);
 // The largest distance between where `a` and `b` put the corners of an image of `size`.
 double MaxCornerShift(const cv::Matx33d& a, const cv::Matx33d& b, cv::Size size);
+// The homography that puts each corner of an image of `size` at `weight_a` of the way from where
+// `b` puts it to where `a` does: two placements of one image averaged.
+cv::Matx33d BlendHomographies(const cv::Matx33d& a, const cv::Matx33d& b, double weight_a, cv::Size size);
 
 }  // namespace rolamos
