@@ -22,7 +22,8 @@ constexpr int kStoredPairsPerLink = 48;
 
 // Frames followed between two keyframes of the patch, placed where both put them, from the
 // keyframes' placements in `keyframe_at`.
-void PlaceBetween(PatchJob& job, const std::vector<FollowedBetween>& between, const std::map<int, cv::Matx33d>& keyframe_at) {
+void PlaceBetween(PatchJob& job, const std::vector<FollowedBetween>& between,
+                  const std::map<int, cv::Matx33d>& keyframe_at) {
   std::map<int, const FollowedBetween*> of;
   for (const auto& b : between)
     if (keyframe_at.count(b.before) && keyframe_at.count(b.after)) of[b.index] = &b;
@@ -30,8 +31,9 @@ void PlaceBetween(PatchJob& job, const std::vector<FollowedBetween>& between, co
     auto it = of.find(f.index);
     if (f.is_keyframe() || it == of.end()) continue;
     const FollowedBetween& b = *it->second;
-    f.frame_to_patch = ToArray9(BlendHomographies(keyframe_at.at(b.before) * b.to_before, keyframe_at.at(b.after) * b.to_after,
-                                                  b.weight_before, job.frame_size));
+    const cv::Matx33d from_before = keyframe_at.at(b.before) * b.to_before;
+    const cv::Matx33d from_after = keyframe_at.at(b.after) * b.to_after;
+    f.frame_to_patch = ToArray9(BlendHomographies(from_before, from_after, b.weight_before, job.frame_size));
   }
 }
 
