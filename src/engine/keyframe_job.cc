@@ -54,11 +54,7 @@ std::vector<FollowedBetween> FollowBack(const KeyframeJob& job, const KeyframeTo
     const TrackFlow flow =
         tools.tracker->Follow(*job.track, *f.track, job.points, f.to_patch.inv() * job.to_patch, &windows);
     std::vector<cv::Point2f> in_frame, in_key;
-    for (size_t i = 0; i < job.points.size(); ++i)
-      if (flow.ok[i]) {
-        in_frame.push_back(flow.to[i]);
-        in_key.push_back(job.points[i]);
-      }
+    flow.Kept(job.points, &in_frame, &in_key);
     const EgomotionResult e = EstimateEgomotion(in_frame, in_key, tools.K, tools.ego);
     if (!e.ok || !AssessSupport(e, job.track->size, tools.support).strong) continue;
     out.push_back({f.index, f.before, job.index, f.to_before, e.H,

@@ -494,13 +494,10 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<Prepared
   }
   const TrackFlow flow = tracker.Follow(*key.frame->track, *p->track, key.points, guess, &key.windows);
   std::vector<cv::Point2f> from, to;
+  std::vector<size_t> kept;
+  flow.Kept(key.points, &from, &to, &kept);
   std::vector<long long> ids;
-  for (size_t i = 0; i < key.points.size(); ++i) {
-    if (!flow.ok[i]) continue;
-    from.push_back(flow.to[i]);
-    to.push_back(key.points[i]);
-    ids.push_back(key.ids[i]);
-  }
+  for (size_t i : kept) ids.push_back(key.ids[i]);
   lap(kTracking);
   Candidate c = Assess(EstimateEgomotion(from, to, K, ego_options), key.to_patch, "", key.index);
   for (int i : c.ego.inlier_index) {
@@ -1094,11 +1091,7 @@ EgomotionResult Mosaicker::Impl::FollowInto(const PreparedFrame& from, const Pre
   const cv::Matx33d guess = tracker.CoarseShift(*from.track, *to.track, cv::Matx33d::eye(), &response);
   const TrackFlow flow = tracker.Follow(*from.track, *to.track, corners, guess);
   std::vector<cv::Point2f> in_to, in_from;
-  for (size_t i = 0; i < corners.size(); ++i)
-    if (flow.ok[i]) {
-      in_to.push_back(flow.to[i]);
-      in_from.push_back(corners[i]);
-    }
+  flow.Kept(corners, &in_to, &in_from);
   return EstimateEgomotion(in_to, in_from, K, ego_options);
 }
 

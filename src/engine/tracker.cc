@@ -101,6 +101,16 @@ cv::Mat LocalContrast(const cv::Mat& gray, double sigma) {
 
 }  // namespace
 
+void TrackFlow::Kept(const std::vector<cv::Point2f>& points, std::vector<cv::Point2f>* landed,
+                     std::vector<cv::Point2f>* started, std::vector<size_t>* which) const {
+  for (size_t i = 0; i < points.size() && i < ok.size(); ++i) {
+    if (!ok[i]) continue;
+    landed->push_back(to[i]);
+    started->push_back(points[i]);
+    if (which) which->push_back(i);
+  }
+}
+
 FrameTracker::FrameTracker(const TrackerOptions& options) : options_(options) {
   std::string error;
   if (!options.IsValid(&error)) Fail("tracker", error);

@@ -94,6 +94,10 @@ struct TrackFlow {
   std::vector<cv::Point2f> to;
   std::vector<uchar> ok;  // followed both ways and back to where it started
   int followed = 0;
+  // The points followed (`ok`): where they landed, and where they started (`points` as given to
+  // Follow); `which` (optional), their indices in `points`.
+  void Kept(const std::vector<cv::Point2f>& points, std::vector<cv::Point2f>* landed,
+            std::vector<cv::Point2f>* started, std::vector<size_t>* which = nullptr) const;
 };
 
 class LucasKanadeTemplates;

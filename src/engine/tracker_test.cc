@@ -223,5 +223,19 @@ TEST(Tracker, CoarseShiftFindsALargeTranslation) {
   EXPECT_NEAR(found(1, 2), 95, 8);
 }
 
+// The points followed both ways, paired with where they started, in order.
+TEST(TrackFlow, KeptPairsThePointsFollowedWithWhereTheyStarted) {
+  TrackFlow flow;
+  flow.to = {{10, 11}, {20, 21}, {30, 31}};
+  flow.ok = {1, 0, 1};
+  const std::vector<cv::Point2f> points{{1, 2}, {3, 4}, {5, 6}};
+  std::vector<cv::Point2f> landed, started;
+  std::vector<size_t> which;
+  flow.Kept(points, &landed, &started, &which);
+  EXPECT_EQ(landed, (std::vector<cv::Point2f>{{10, 11}, {30, 31}}));
+  EXPECT_EQ(started, (std::vector<cv::Point2f>{{1, 2}, {5, 6}}));
+  EXPECT_EQ(which, (std::vector<size_t>{0, 2}));
+}
+
 }  // namespace
 }  // namespace rolamos
