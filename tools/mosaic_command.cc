@@ -27,8 +27,8 @@ struct MosaicSwitches {
   // engine's own default codec (JPEG with the alpha as a mask).
   TiffSwitches tiff = FromWriteOptions(MosaickerOptions::PatchWriteOptions());
   bool no_bilateral = false, no_temporal = false, no_clahe = false, no_sift_upsample = false, no_fundamental = false,
-       no_kalman = false, no_ecc = false, no_cross_check = false, no_recover = false, no_patch_fit = false, no_adjust = false, no_follow_back = false,
-       fixed_focal = false,
+       no_kalman = false, no_ecc = false, no_cross_check = false, no_recover = false, no_patch_fit = false, no_adjust = false,
+       no_follow_back = false, fixed_focal = false,
        no_flat_field = false, no_exposure = false, no_water_colour = false;
   bool quiet = false;
   bool fov_given = false;

@@ -51,13 +51,13 @@ std::vector<FollowedBetween> FollowBack(const KeyframeJob& job, const KeyframeTo
   for (const FollowedFrame& f : job.followed) {
     if (!f.track || f.track->size != job.track->size) continue;
     // Where following put both: this keyframe's pixels -> the frame's.
-    const TrackFlow flow =
-        tools.tracker->Follow(*job.track, *f.track, job.points, f.to_patch.inv() * job.to_patch, &windows);
+    const cv::Matx33d guess = (job.followed_from_to_patch * f.to_before).inv() * job.to_patch;
+    const TrackFlow flow = tools.tracker->Follow(*job.track, *f.track, job.points, guess, &windows);
     std::vector<cv::Point2f> in_frame, in_key;
     flow.Kept(job.points, &in_frame, &in_key);
     const EgomotionResult e = EstimateEgomotion(in_frame, in_key, tools.K, tools.ego);
     if (!e.ok || !AssessSupport(e, job.track->size, tools.support).strong) continue;
-    out.push_back({f.index, f.before, job.index, f.to_before, e.H,
+    out.push_back({f.index, job.followed_from, job.index, f.to_before, e.H,
                    double(f.inliers) / std::max(1, f.inliers + e.inliers)});
   }
   return out;

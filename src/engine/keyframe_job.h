@@ -22,14 +22,12 @@
 
 namespace rolamos {
 
-// A frame followed from the keyframe before this one (not a keyframe itself): its points are
-// this keyframe's, followed back into it.
+// A frame followed from the keyframe before this one (KeyframeJob::followed_from; not a keyframe
+// itself): this keyframe's points are followed back into it.
 struct FollowedFrame {
   int index = 0;
-  int before = 0;  // the keyframe it was followed from
   std::shared_ptr<const TrackFrame> track;
-  cv::Matx33d to_patch;  // where following put it
-  cv::Matx33d to_before;  // its pixels -> the keyframe's
+  cv::Matx33d to_before;  // its pixels -> the keyframe's it was followed from
   int inliers = 0;        // of that registration
 };
 
@@ -74,7 +72,11 @@ struct KeyframeJob {
   // pyramid's pointer: the engine drops the frame's own while the job may run).
   std::shared_ptr<const TrackFrame> track;
   std::vector<cv::Point2f> points;
+  // The frames followed from the keyframe before (index `followed_from`, placed at
+  // `followed_from_to_patch`).
   std::vector<FollowedFrame> followed;
+  int followed_from = 0;
+  cv::Matx33d followed_from_to_patch = cv::Matx33d::eye();
 };
 
 struct KeyframeTools {

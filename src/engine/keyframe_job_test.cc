@@ -37,6 +37,8 @@ KeyframeJob JobFor(const Scene& s, std::vector<FollowedFrame> followed) {
   job.track = s.tracker.Prepare(View(s.ground, s.after), cv::Mat());
   job.points = s.tracker.Corners(*job.track, {}, 300);
   job.followed = std::move(followed);
+  job.followed_from = 4;
+  job.followed_from_to_patch = s.before;
   return job;
 }
 
@@ -54,10 +56,8 @@ TEST(FollowBack, RegistersAFollowedFrameAgainstTheNextKeyframe) {
   const Scene s;
   FollowedFrame f;
   f.index = 7;
-  f.before = 4;
   f.track = s.tracker.Prepare(View(s.ground, s.frame), cv::Mat());
-  f.to_patch = s.frame;  // following placed it right (the guess only)
-  f.to_before = s.before.inv() * s.frame;
+  f.to_before = s.before.inv() * s.frame;  // following placed it right (the guess only)
   f.inliers = 100;
   const std::vector<FollowedBetween> between = FollowBack(JobFor(s, {f}), ToolsFor(s));
   ASSERT_EQ(between.size(), 1u);
@@ -77,7 +77,7 @@ TEST(FollowBack, LeavesOutFramesItCannotRegister) {
   FollowedFrame off;
   off.index = 7;
   off.track = s.tracker.Prepare(View(s.ground, s.frame), cv::Mat());
-  off.to_patch = cv::Matx33d(1, 0, 4, 0, 1, -3, 0, 0, 1) * s.frame;
+  off.to_before = s.before.inv() * cv::Matx33d(1, 0, 4, 0, 1, -3, 0, 0, 1) * s.frame;
   off.inliers = 100;
   FollowedFrame other_size = off;
   other_size.index = 8;

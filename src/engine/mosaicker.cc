@@ -921,8 +921,11 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
       if (f.index != key.index) job.followed.push_back(std::move(f));
     followed_since_key.clear();
     if (!job.followed.empty()) {
+      // Followed from the keyframe before this one, the last in `keys` until this one goes in.
       job.track = p->track;
       job.points = key.points;
+      job.followed_from = keys.back().index;
+      job.followed_from_to_patch = keys.back().to_patch;
     }
   }
   KeyframeTools tools;
@@ -974,8 +977,7 @@ void Mosaicker::Impl::AddFollowed(const std::shared_ptr<PreparedFrame>& p, const
   rec.keyframe = false;
   rec.placed_from = keys.back().index;
   if (options.follow_back && p->track)
-    followed_since_key.push_back({rec.index, keys.back().index, p->track, to_patch,
-                                  keys.back().to_patch.inv() * to_patch, rec.inliers});
+    followed_since_key.push_back({rec.index, p->track, keys.back().to_patch.inv() * to_patch, rec.inliers});
   frames.push_back(std::move(rec));
   last = Placed{frames.back().index, to_patch, p, false, std::move(found)};
   ++summary.stitched;
