@@ -29,7 +29,7 @@ def fit_homography(src, dst):
     for (x, y), (u, v) in zip(a, b):
         rows.append([-x, -y, -1, 0, 0, 0, u * x, u * y, u])
         rows.append([0, 0, 0, -x, -y, -1, v * x, v * y, v])
-    _, _, vt = np.linalg.svd(np.array(rows))
+    _, _, vt = np.linalg.svd(np.array(rows), full_matrices=False)  # U of a large survey would not fit
     H = np.linalg.inv(Td) @ vt[-1].reshape(3, 3) @ Ts
     h = (H / H[2, 2]).ravel()[:8]
     for _ in range(10):

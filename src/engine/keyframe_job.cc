@@ -6,6 +6,25 @@
 
 namespace rolamos {
 
+void FollowedSample::Add(FollowedFrame f) {
+  if (++seen_ % stride_ != 0) return;
+  kept_.push_back(std::move(f));
+  if (kept_.size() <= capacity_) return;
+  // Those kept were the stride-th, 2 stride-th, ... frames: keep the 2 stride-th, 4 stride-th, ...
+  size_t out = 0;
+  for (size_t i = 1; i < kept_.size(); i += 2) kept_[out++] = std::move(kept_[i]);
+  kept_.resize(out);
+  stride_ *= 2;
+}
+
+std::vector<FollowedFrame> FollowedSample::Take() {
+  std::vector<FollowedFrame> out = std::move(kept_);
+  kept_.clear();
+  seen_ = 0;
+  stride_ = 1;
+  return out;
+}
+
 KeyframeProducts RunKeyframeJob(const KeyframeJob& job, const KeyframeTools& tools) {
   KeyframeProducts out;
   CpuLaps cpu;

@@ -6,6 +6,7 @@
 // frames followed since the keyframe before, registered against this one too.
 #pragma once
 
+#include <algorithm>
 #include <functional>
 #include <future>
 #include <memory>
@@ -29,6 +30,29 @@ struct FollowedFrame {
   std::shared_ptr<const TrackFrame> track;
   cv::Matx33d to_before;  // its pixels -> the keyframe's it was followed from
   int inliers = 0;        // of that registration
+};
+
+// The frames followed since the last keyframe, for the next keyframe to follow its points back
+// into. Each holds its pyramid until then, and a vehicle that holds still or creeps makes no
+// keyframe for as long as it does: at most `capacity` are kept, spread evenly over the frames
+// followed (when full, every other one goes, and from then on only every other one is taken).
+// The frames not kept are placed from the keyframe before them alone.
+class FollowedSample {
+ public:
+  static constexpr size_t kDefaultCapacity = 16;
+  explicit FollowedSample(size_t capacity = kDefaultCapacity) : capacity_(std::max<size_t>(capacity, 2)) {}
+  void Add(FollowedFrame f);
+  // The frames kept, leaving the sample empty for the next keyframe.
+  std::vector<FollowedFrame> Take();
+  void Clear() { Take(); }
+  bool empty() const { return kept_.empty(); }
+  size_t size() const { return kept_.size(); }
+
+ private:
+  size_t capacity_;
+  long long seen_ = 0;    // frames offered since the last Take
+  long long stride_ = 1;  // every stride-th of them is kept
+  std::vector<FollowedFrame> kept_;
 };
 
 // A frame followed between two keyframes and registered against both: it is placed where the two

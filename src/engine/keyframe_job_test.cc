@@ -102,5 +102,29 @@ TEST(BlendHomographies, PutsEachCornerBetweenTheTwoPlacements) {
   }
 }
 
+// A vehicle holding still: hundreds of frames followed from one keyframe, each with a pyramid.
+TEST(FollowedSample, KeepsAtMostItsCapacitySpreadOverTheFramesFollowed) {
+  FollowedSample sample(8);
+  auto pyramid = std::make_shared<const TrackFrame>();
+  for (int i = 1; i <= 1000; ++i) {
+    sample.Add({i, pyramid, cv::Matx33d::eye(), 100});
+    ASSERT_LE(sample.size(), 8u) << "after frame " << i;
+  }
+  const std::vector<FollowedFrame> kept = sample.Take();
+  ASSERT_GE(kept.size(), 4u);
+  // Evenly spread, in order, reaching the last stretch of the run.
+  const int step = kept[1].index - kept[0].index;
+  for (size_t i = 1; i < kept.size(); ++i) EXPECT_EQ(kept[i].index - kept[i - 1].index, step);
+  EXPECT_GT(kept.back().index, 1000 - step);
+  EXPECT_EQ(pyramid.use_count(), 1 + static_cast<long>(kept.size()));  // the others let go of theirs
+  // Taken: the next keyframe's frames start over, every one kept up to the capacity.
+  EXPECT_TRUE(sample.empty());
+  for (int i = 1; i <= 5; ++i) sample.Add({2000 + i, pyramid, cv::Matx33d::eye(), 100});
+  const std::vector<FollowedFrame> next = sample.Take();
+  ASSERT_EQ(next.size(), 5u);
+  EXPECT_EQ(next.front().index, 2001);
+  EXPECT_EQ(next.back().index, 2005);
+}
+
 }  // namespace
 }  // namespace rolamos

@@ -176,8 +176,8 @@ struct Mosaicker::Impl {
   };
 
   // The frames followed from the current keyframe (MosaickerOptions::follow_back): the next
-  // keyframe's job registers them against it too.
-  std::vector<FollowedFrame> followed_since_key;
+  // keyframe's job registers them against it too (a bounded sample of them).
+  FollowedSample followed_since_key;
   // The patch in progress.
   std::unique_ptr<PatchCanvas> canvas;
   int patch_id = 0;
@@ -796,7 +796,7 @@ void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Clo
   rejected.clear();
   keys.clear();
   links.clear();
-  followed_since_key.clear();
+  followed_since_key.Clear();
   pending = std::move(waiting);
   rejected = std::move(carried);
   keyframe_bytes = 0;
@@ -917,9 +917,8 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   if (adjust_options.enabled && described) job.older = LinkCandidates(to_patch, current);
   if (current) {
     // The frames followed since the keyframe before (not this one, when it was one of them).
-    for (auto& f : followed_since_key)
+    for (auto& f : followed_since_key.Take())
       if (f.index != key.index) job.followed.push_back(std::move(f));
-    followed_since_key.clear();
     if (!job.followed.empty()) {
       // Followed from the keyframe before this one, the last in `keys` until this one goes in.
       job.track = p->track;
@@ -977,7 +976,7 @@ void Mosaicker::Impl::AddFollowed(const std::shared_ptr<PreparedFrame>& p, const
   rec.keyframe = false;
   rec.placed_from = keys.back().index;
   if (options.follow_back && p->track)
-    followed_since_key.push_back({rec.index, p->track, keys.back().to_patch.inv() * to_patch, rec.inliers});
+    followed_since_key.Add({rec.index, p->track, keys.back().to_patch.inv() * to_patch, rec.inliers});
   frames.push_back(std::move(rec));
   last = Placed{frames.back().index, to_patch, p, false, std::move(found)};
   ++summary.stitched;
