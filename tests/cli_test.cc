@@ -1,6 +1,8 @@
 // The rolamos binary as a user runs it: each subcommand's happy path and its bad-input errors
 // (clear message naming the file, non-zero exit, nothing half-written).
 #include <algorithm>
+#include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 
@@ -164,6 +166,39 @@ namespace {
 // The small survey of the workflow tests: 40 frames of 480 x 360 in two lanes.
 test::CommandResult TwoLaneSurvey(const std::string& dir) {
   return test::RunCli("synth -q -o " + dir + " --frames 40 --width 480 --height 360 --focal 420 --lanes 2");
+}
+
+// Ctrl-C on a long `rolamos mosaic LIST` (a vehicle that held still over one frame for 3,000
+// frames): the run ends as at the end of its input, says so, and the store holds every frame read.
+TEST(Cli, MosaicStoppedByCtrlCWritesTheOpenPatch) {
+  test::ScratchDir dir;
+  auto r = TwoLaneSurvey(dir / "survey");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  {
+    std::ofstream list(dir / "frames.txt");
+    char name[64];
+    for (int i = 0; i < 40; ++i) {
+      std::snprintf(name, sizeof name, "frame_%05d.jpg", i);
+      for (int k = 0; k < (i == 10 ? 3000 : 1); ++k) list << (dir / "survey/frames/") << name << "\n";
+    }
+  }
+  const std::string store = dir / "s.rolamos";
+  r = test::RunShell("timeout --preserve-status -s INT 2 " + std::string(ROLAMOS_CLI) + " mosaic -q " + (dir / "frames.txt") + " -o " +
+                     store + " --compression zstd 2>&1");
+  EXPECT_EQ(r.exit_code, 0) << r.output;
+  const size_t at = r.output.find("stopped by a signal after ");
+  ASSERT_NE(at, std::string::npos) << r.output;
+  const int read = std::stoi(r.output.substr(at + std::strlen("stopped by a signal after ")));
+  EXPECT_NE(r.output.find(std::to_string(read) + " frames of 3039: the open patch written"), std::string::npos)
+      << r.output;
+  EXPECT_GT(read, 10);
+  EXPECT_LT(read, 3039);
+  r = test::RunCli("info --json " + store);
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  int placed = 0;
+  const auto info = nlohmann::json::parse(r.output);
+  for (const auto& p : info["patches"]) placed += p.value("n_images", 0);
+  EXPECT_EQ(placed, read) << r.output;  // every frame read is in a patch (none is rejected here)
 }
 
 // mosaic, align, compose as a user runs them; then an align killed (kill -9) at random moments

@@ -40,8 +40,8 @@ struct MosaicSwitches {
   double focal_px = 0;
 };
 
-// SIGINT/SIGTERM end a live run cleanly (the open patch is written); a second one says that the
-// patch is still being written (an impatient Ctrl-C must not lose it); a third abandons it.
+// SIGINT/SIGTERM end a run cleanly (the open patch is written); a second one says that the patch
+// is still being written (an impatient Ctrl-C must not lose it); a third abandons it.
 static std::atomic<bool> g_stop{false};
 static std::atomic<int> g_signals{0};
 static void OnStopSignal(int sig) {
@@ -122,11 +122,14 @@ static int RunMosaic(MosaicSwitches s) {
     Fail("mosaic", "navigation georeferences the live view, which needs --serve (compose --navigation "
                    "georeferences the map)");
   std::unique_ptr<TileServer> server;
+  // A stop (Ctrl-C, SIGTERM) ends a run over a folder, list or video as the end of its input
+  // would: the frames read are mapped and the open patch written.
+  struct sigaction sa {};
+  sa.sa_handler = OnStopSignal;
+  sigaction(SIGINT, &sa, nullptr);
+  sigaction(SIGTERM, &sa, nullptr);
+  int input_frames = -1;
   if (s.live) {
-    struct sigaction sa {};
-    sa.sa_handler = OnStopSignal;
-    sigaction(SIGINT, &sa, nullptr);
-    sigaction(SIGTERM, &sa, nullptr);
     s.live_options.stop = &g_stop;
     const std::string status_dir = store.dir() + "/live";
     std::filesystem::create_directories(status_dir);
@@ -162,7 +165,10 @@ static int RunMosaic(MosaicSwitches s) {
                      },
                      on_frame);
   } else {
-    sum = MosaicInput(s.input, store, o, on_frame);
+    sum = MosaicInput(s.input, store, o, [&](const FrameReport& r, int total) {
+      input_frames = total;
+      on_frame(r, total);
+    }, &g_stop);
   }
   progress.Done();
   if (server) server->Stop();
@@ -181,6 +187,9 @@ static int RunMosaic(MosaicSwitches s) {
     std::printf("live: %d frames skipped to keep up, coverage lost after %d of them, %d mapped while shedding load%s\n",
                 sum.frames_skipped, sum.coverage_lost, sum.frames_shedding,
                 g_stop ? "; stopped by a signal, the open patch written" : "");
+  else if (sum.stopped)
+    std::printf("stopped by a signal after %d frames%s: the open patch written, the frames after them not mapped\n",
+                sum.frames, input_frames > 0 ? (" of " + std::to_string(input_frames)).c_str() : "");
   std::string stages;
   for (const auto& [name, sec] : sum.stage_seconds) {
     char b[64];

@@ -223,6 +223,9 @@ struct MosaicSummary {
   int coverage_lost = 0;         // live: of those skips, the ones after which the thread broke
   int frames_shedding = 0;       // live: frames mapped while load was shed (LiveOptions::shed_describe_overlap)
   std::string preview_problem;   // live: why the open patch's preview could not be written
+  // MosaicInput stopped (its `stop` set) before the input ended: the frames after `frames` were
+  // not mapped; the open patch was written as at the end of the input.
+  bool stopped = false;
 };
 
 // Live input (MosaicLive): a folder that grows, or a stream (camera device, rtsp://, udp://, a
@@ -348,7 +351,10 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
                          const std::function<void(const FrameReport&, int total)>& on_frame = nullptr);
 
 // Reads INPUT (folder, list, video) and mosaics it into the store; `on_frame` sees every frame.
+// When `stop` is set (e.g. by SIGINT) no further frame is read: the frames read are mapped, the
+// open patch is written as at the end of the input, and the summary says `stopped`.
 MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& options,
-                          const std::function<void(const FrameReport&, int total)>& on_frame = nullptr);
+                          const std::function<void(const FrameReport&, int total)>& on_frame = nullptr,
+                          const std::atomic<bool>* stop = nullptr);
 
 }  // namespace rolamos

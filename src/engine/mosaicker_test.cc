@@ -1,9 +1,11 @@
 #include "rolamos/mosaicker.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <thread>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
@@ -105,6 +107,44 @@ TEST(Mosaicker, TheStagesAccountForTheRunsCpu) {
   EXPECT_NEAR(sum.RestCpuSeconds(), sum.cpu_seconds - named, 1e-9);  // what the CLI prints as `rest`
   EXPECT_NE(std::find(sum.keyframe_stages.begin(), sum.keyframe_stages.end(), "tile encoding"),
             sum.keyframe_stages.end());
+}
+
+// Ctrl-C on `rolamos mosaic FOLDER`: the stop ends the run as the end of the input would. The
+// frames read by then are mapped and in the store's patches, the open patch written; none after.
+TEST(Mosaicker, AStopEndsTheRunWithTheFramesReadInTheStore) {
+  test::ScratchDir dir;
+  WriteSurvey(test::SmallSurvey(40), dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaickerOptions o = FastOptions();
+  o.mask.clear();  // the overlay search would read the first 24 frames before any is mapped
+  std::atomic<bool> stop{false};
+  int reported = 0, total = 0;
+  const MosaicSummary sum = MosaicInput(
+      dir / "survey/frames", store, o,
+      [&](const FrameReport&, int n) {
+        total = n;
+        if (++reported == 10) stop = true;
+      },
+      &stop);
+  EXPECT_TRUE(sum.stopped);
+  EXPECT_EQ(total, 40);
+  // The frames already read (one more than the cores are prepared ahead of the engine) are
+  // mapped, no more.
+  EXPECT_GE(sum.frames, 10);
+  EXPECT_LE(sum.frames, 10 + static_cast<int>(std::thread::hardware_concurrency()) + 1);
+  EXPECT_LT(sum.frames, 40);
+  EXPECT_EQ(sum.frames, reported);
+  EXPECT_EQ(sum.stitched + sum.rejected, sum.frames);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  int in_patches = 0;
+  for (const auto& p : reopened.patches()) in_patches += static_cast<int>(reopened.ReadSidecar(p.id).frames.size());
+  EXPECT_EQ(in_patches, sum.stitched);
+  // Not stopped: every frame, and the summary does not say stopped.
+  Store whole = Store::Create(dir / "whole.rolamos");
+  std::atomic<bool> never{false};
+  const MosaicSummary all = MosaicInput(dir / "survey/frames", whole, o, nullptr, &never);
+  EXPECT_FALSE(all.stopped);
+  EXPECT_EQ(all.frames, 40);
 }
 
 TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {

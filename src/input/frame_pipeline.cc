@@ -143,6 +143,10 @@ class HeldSource : public FrameSource {
       first_.pop_front();
       return true;
     }
+    if (stop && stop->load()) {  // the frames read already are mapped
+      stopped_ = true;
+      return false;
+    }
     if (!source_->Next(f)) return false;
     if (live_) arrival_ = live_->arrival();
     return true;
@@ -152,6 +156,9 @@ class HeldSource : public FrameSource {
   // Arrival of the frame Next returned last (live sources only).
   Clock::time_point arrival() const { return arrival_; }
   std::atomic<long>* in_flight = nullptr;  // live: frames taken and not yet mapped
+  // Set: no frame is read any more (MosaicInput's stop; a live source has its own).
+  const std::atomic<bool>* stop = nullptr;
+  bool stopped() const { return stopped_; }
 
  private:
   struct Held {
@@ -162,6 +169,7 @@ class HeldSource : public FrameSource {
   const LiveSource* live_;  // the same source when it is live (arrival times), else null
   std::deque<Held> first_;
   Clock::time_point arrival_{};
+  std::atomic<bool> stopped_{false};  // read by the engine's thread, set by a preparer's
 };
 
 // The same from the first frames of a folder, list or video, which `source` keeps for the
@@ -313,7 +321,8 @@ void AddDecodeStage(MosaicSummary* summary, double seconds) {
 }  // namespace
 
 MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& given,
-                          const std::function<void(const FrameReport&, int)>& on_frame) {
+                          const std::function<void(const FrameReport&, int)>& on_frame,
+                          const std::atomic<bool>* stop) {
   std::string note;
   MosaickerOptions options = given.calibration == "auto" ? AutoCalibrate(input, store, given, &note) : given;
   std::string mask_note;
@@ -322,8 +331,10 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
   if (options.mask == "auto") options = AutoMask(&source, store, options, &mask_note);
   options.track_halve = TrackHalving(options, source);
   Mosaicker mosaicker(store, options);
+  source.stop = stop;
   const double decode = RunPipeline(&source, mosaicker, on_frame, nullptr);
   MosaicSummary summary = mosaicker.Finish();
+  summary.stopped = source.stopped();
   AddDecodeStage(&summary, decode);
   summary.calibration_note = note;
   summary.mask_note = mask_note;
