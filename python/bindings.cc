@@ -76,6 +76,8 @@ struct sigaction g_python_sigint;
 void OnSigint(int) { g_interrupted = true; }
 }  // namespace
 
+const std::atomic<bool>* InterruptFlag() { return &g_interrupted; }
+
 InterruptScope::InterruptScope() {
   const py::module_ threading = py::module_::import("threading");
   if (!threading.attr("current_thread")().is(threading.attr("main_thread")())) return;

@@ -2,6 +2,7 @@
 // objects, keyword options by the CLI's names, and progress callbacks that honour Ctrl-C.
 #pragma once
 
+#include <atomic>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
@@ -49,6 +50,9 @@ class InterruptScope {
 struct Interrupted : std::exception {
   const char* what() const noexcept override { return "interrupted (Ctrl-C)"; }
 };
+// Set by Ctrl-C within an InterruptScope: for calls that end cleanly on a stop flag (mosaic writes
+// its open patch) before Interrupted is thrown.
+const std::atomic<bool>* InterruptFlag();
 
 // A library progress callback: honours Ctrl-C (InterruptScope) and calls the user's
 // `progress(fraction, message)` when given, taking the GIL (from any thread). Make it while

@@ -117,10 +117,16 @@ py::dict Mosaic(const py::object& input, const py::object& store, const py::obje
   {
     py::gil_scoped_release release;
     Store st = Store::LooksLikeStore(dir) ? Store::Open(dir) : Store::Create(dir, StoreOptions{});
-    s = MosaicInput(in, st, o, [&](const FrameReport& r, int total) {
-      report(total > 0 ? std::min(1.0, double(r.index + 1) / total) : 0.0);
-    });
+    // Ctrl-C ends the run as the end of the input would (the open patch written), then raises
+    // KeyboardInterrupt: what was mapped stays in the store.
+    s = MosaicInput(
+        in, st, o,
+        [&](const FrameReport& r, int total) {
+          if (!InterruptFlag()->load()) report(total > 0 ? std::min(1.0, double(r.index + 1) / total) : 0.0);
+        },
+        InterruptFlag());
   }
+  if (s.stopped) throw Interrupted();
   return SummaryDict(s);
 }
 

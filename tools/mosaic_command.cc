@@ -56,6 +56,15 @@ static void OnStopSignal(int sig) {
   }
 }
 
+// A stop (Ctrl-C, SIGTERM) ends a live run, or a run over a folder, list or video as the end of
+// its input would: the frames read are mapped and the open patch written.
+static void CatchStopSignals() {
+  struct sigaction sa {};
+  sa.sa_handler = OnStopSignal;
+  sigaction(SIGINT, &sa, nullptr);
+  sigaction(SIGTERM, &sa, nullptr);
+}
+
 static std::string StatusJson(const LiveStatus& st) {
   nlohmann::json j = {{"running", st.running},
                       {"frames_received", st.frames_received},
@@ -122,12 +131,7 @@ static int RunMosaic(MosaicSwitches s) {
     Fail("mosaic", "navigation georeferences the live view, which needs --serve (compose --navigation "
                    "georeferences the map)");
   std::unique_ptr<TileServer> server;
-  // A stop (Ctrl-C, SIGTERM) ends a run over a folder, list or video as the end of its input
-  // would: the frames read are mapped and the open patch written.
-  struct sigaction sa {};
-  sa.sa_handler = OnStopSignal;
-  sigaction(SIGINT, &sa, nullptr);
-  sigaction(SIGTERM, &sa, nullptr);
+  CatchStopSignals();
   int input_frames = -1;
   if (s.live) {
     s.live_options.stop = &g_stop;
