@@ -122,7 +122,10 @@ py::dict Mosaic(const py::object& input, const py::object& store, const py::obje
     s = MosaicInput(
         in, st, o,
         [&](const FrameReport& r, int total) {
-          if (!InterruptFlag()->load()) report(total > 0 ? std::min(1.0, double(r.index + 1) / total) : 0.0);
+          try {
+            report(total > 0 ? std::min(1.0, double(r.index + 1) / total) : 0.0);
+          } catch (const Interrupted&) {  // the stop flag ends the run instead
+          }
         },
         InterruptFlag());
   }
