@@ -116,6 +116,7 @@ py::dict Mosaic(const py::object& input, const py::object& store, const py::obje
   InterruptScope interrupt;
   {
     py::gil_scoped_release release;
+    CheckMosaicInput(in);  // before the store is made
     Store st = Store::LooksLikeStore(dir) ? Store::Open(dir) : Store::Create(dir, StoreOptions{});
     // Ctrl-C ends the run as the end of the input would (the open patch written), then raises
     // KeyboardInterrupt: what was mapped stays in the store.

@@ -137,6 +137,8 @@ TEST(Cli, BadInputGivesAClearErrorAndNonZeroExit) {
       {"export {dir}/d.rolamos -o {dir}/x.gif", "unknown extension"},
       {"demo -q --size 700 -o {dir}/d.rolamos", "already a store"},
       {"demo -q --size 0 -o {dir}/new.rolamos", "demo size 0"},
+      {"mosaic -q {dir}/no-such-frames -o {dir}/new.rolamos", "no-such-frames: no such folder, list or video"},
+      {"mosaic -q {dir}/cut.tif -o {dir}/new.rolamos", "cut.tif"},
   };
   for (const auto& c : cases) {
     std::string args = c.args;

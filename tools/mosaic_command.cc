@@ -110,8 +110,10 @@ static int RunMosaic(MosaicSwitches s) {
   o.tiff = ToWriteOptions(s.tiff);
   std::string error;
   if (!o.IsValid(&error)) Fail("mosaic", error);
-  // Before the store is made: bad live settings must not leave an empty store behind.
+  // Before the store is made: bad live settings or a mistyped input must not leave an empty
+  // store behind.
   if (s.live && !s.live_options.IsValid(&error)) Fail("mosaic --live", error);
+  if (!s.live) CheckMosaicInput(s.input);
   StoreOptions so;
   if (!o.calibration.empty()) so.camera = {{"calibration_file", o.calibration}};
   else if (s.fov_given) so.camera = {{"fov_deg", o.fov_deg}};

@@ -350,6 +350,10 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
                          const LiveOptions& live, const std::function<void(const LiveStatus&)>& on_status = nullptr,
                          const std::function<void(const FrameReport&, int total)>& on_frame = nullptr);
 
+// Throws Error naming `input` when it is no folder of frames, list of frames or video that opens:
+// checked before a store is made for it, so that a mistyped path leaves no empty store behind.
+void CheckMosaicInput(const std::string& input);
+
 // Reads INPUT (folder, list, video) and mosaics it into the store; `on_frame` sees every frame.
 // When `stop` is set (e.g. by SIGINT) no further frame is read: the frames read are mapped, the
 // open patch is written as at the end of the input, and the summary says `stopped`.

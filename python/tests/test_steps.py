@@ -103,6 +103,10 @@ def test_bad_input_raises_clear_errors_and_the_interpreter_lives(mapped, tmp_pat
         rolamos.Store(tmp_path / "missing.rolamos")
     with pytest.raises(rolamos.Error):
         rolamos.compose(tmp_path / "missing.rolamos")
+    # A mistyped input: named, and no empty store left behind.
+    with pytest.raises(rolamos.Error, match="no-such-frames: no such folder, list or video"):
+        rolamos.mosaic(tmp_path / "no-such-frames", tmp_path / "typo.rolamos")
+    assert not (tmp_path / "typo.rolamos").exists()
     # A corrupt sidecar: named when frames are read; the other patches still list.
     broken = tmp_path / "broken.rolamos"
     subprocess.run(["cp", "-r", mapped.path, str(broken)], check=True)

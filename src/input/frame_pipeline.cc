@@ -320,6 +320,8 @@ void AddDecodeStage(MosaicSummary* summary, double seconds) {
 
 }  // namespace
 
+void CheckMosaicInput(const std::string& input) { FrameSource::Open(input); }
+
 MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& given,
                           const std::function<void(const FrameReport&, int)>& on_frame,
                           const std::atomic<bool>* stop) {
