@@ -35,6 +35,7 @@
 #include "util/homography.h"
 #include "util/memory.h"
 #include "util/task_pool.h"
+#include "store/writer_lock.h"
 
 namespace rolamos {
 
@@ -118,6 +119,8 @@ long long MosaickerOptions::PixelBudget(cv::Size frame) const {
 }
 
 struct Mosaicker::Impl {
+  // Held from before anything is written until the last patch is (Finish): one engine a store.
+  std::unique_ptr<StoreWriterLock> writer_lock;
   MosaickerOptions options;
   Store store;
   Preprocessor pre;
@@ -228,7 +231,8 @@ struct Mosaicker::Impl {
   TaskPool keyframe_pool{2, 4};
 
   Impl(Store s, const MosaickerOptions& o)
-      : options(o),
+      : writer_lock(std::make_unique<StoreWriterLock>(s.dir(), "a rolamos mosaic engine")),
+        options(o),
         store(s),
         pre(ToPreprocessOptions(o)),
         extractor(ToFeatureOptions(o)),
@@ -1476,6 +1480,7 @@ MosaicSummary Mosaicker::Finish() {
   m.ListLateRejections();
   if ((m.options.flat_field || m.options.water_colour) && m.colour->frames() > 0)
     WriteFileAtomic(m.store.dir() + "/lighting.json", m.colour->ToJson());
+  m.writer_lock.reset();  // every patch written: another engine may go on with the store
   m.summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - m.start).count();
   m.summary.cpu_seconds = ProcessCpuSeconds() - m.cpu_start;
   m.summary.peak_rss_mb = PeakRssMb();

@@ -147,6 +147,25 @@ TEST(Mosaicker, AStopEndsTheRunWithTheFramesReadInTheStore) {
   EXPECT_EQ(all.frames, 40);
 }
 
+// Two engines into one store numbered their patches from what it held when each began, and
+// overwrote each other's: the second is refused while the first writes, and goes on after it.
+TEST(Mosaicker, OneEngineWritesAStoreAtATime) {
+  test::ScratchDir dir;
+  WriteSurvey(test::SmallSurvey(12), dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  Mosaicker first(store, FastOptions());
+  try {
+    Mosaicker second(Store::Open(dir / "s.rolamos"), FastOptions());
+    FAIL() << "a second engine was let into a store being written";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("is being written by a rolamos mosaic engine (pid "), std::string::npos)
+        << e.what();
+  }
+  first.Finish();
+  Mosaicker after(Store::Open(dir / "s.rolamos"), FastOptions());  // the first has let go
+  SUCCEED();
+}
+
 TEST(Mosaicker, PixelBudgetClosesPatchesAndLinksThem) {
   test::ScratchDir dir;
   Survey survey = WriteSurvey(test::SmallSurvey(30), dir / "survey");
