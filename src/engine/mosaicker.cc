@@ -30,12 +30,12 @@
 #include "engine/static_mask.h"
 #include "engine/tracker.h"
 #include "rolamos/error.hpp"
+#include "store/writer_lock.h"
 #include "util/cpu_time.h"
 #include "util/files.h"
 #include "util/homography.h"
 #include "util/memory.h"
 #include "util/task_pool.h"
-#include "store/writer_lock.h"
 
 namespace rolamos {
 
