@@ -156,6 +156,9 @@ class Store {
   // Opens an existing store; throws Error naming the file and the problem.
   static Store Open(const std::string& dir);
   static bool LooksLikeStore(const std::string& path);
+  // Reads the manifest again into this handle and its copies: what another process committed
+  // since it was opened (a writer that holds the store's writer lock starts from it).
+  void Reload();
 
   const std::string& dir() const { return dir_; }
   std::string ManifestPath() const;

@@ -18,6 +18,7 @@
 #include "align/graph_solve.h"
 #include "align/navigation_fit.h"
 #include "rolamos/error.hpp"
+#include "store/writer_lock.h"
 #include "util/homography.h"
 #include "util/memory.h"
 
@@ -218,6 +219,11 @@ void WriteAlignment(Store& store, FrameGraph& g, const GraphSolution& s, const s
 AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& progress) {
   std::string error;
   if (!o.IsValid(&error)) Fail("align", error);
+  // Align rewrites every sidecar and the manifest: a mosaic engine writing the store meanwhile
+  // would list its patches under the sidecars align removes. Refused while one writes; the store
+  // read again once the lock is held (an engine may have ended since it was opened).
+  const StoreWriterLock lock(store.dir(), "rolamos align");
+  store.Reload();
   const auto start = std::chrono::steady_clock::now();
   auto report = [&](double f) {
     if (progress) progress(std::min(1.0, f));

@@ -14,6 +14,7 @@
 #include <opencv2/videoio.hpp>
 
 #include "rolamos/error.hpp"
+#include "rolamos/global_align.hpp"
 #include "rolamos/survey.hpp"
 #include "rolamos/tiled_image.hpp"
 #include "test_support.h"
@@ -160,6 +161,13 @@ TEST(Mosaicker, OneEngineWritesAStoreAtATime) {
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("is being written by a rolamos mosaic engine (pid "), std::string::npos)
         << e.what();
+  }
+  // Nor may align rewrite the sidecars and the manifest under it.
+  try {
+    AlignStore(Store::Open(dir / "s.rolamos"), AlignOptions{});
+    FAIL() << "align was let into a store being written";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("is being written by a rolamos mosaic engine"), std::string::npos) << e.what();
   }
   first.Finish();
   Mosaicker after(Store::Open(dir / "s.rolamos"), FastOptions());  // the first has let go

@@ -70,6 +70,16 @@ Store Store::Create(const std::string& dir, const StoreOptions& options) {
   return s;
 }
 
+void Store::Reload() {
+  const Store fresh = Open(dir_);
+  std::lock_guard<std::mutex> lock(state_->mutex);
+  state_->camera = fresh.state_->camera;
+  state_->crs = fresh.state_->crs;
+  state_->patches = fresh.state_->patches;
+  state_->global = fresh.state_->global;
+  state_->extra = fresh.state_->extra;
+}
+
 Store Store::Open(const std::string& dir) {
   std::error_code ec;
   if (!fs::exists(dir, ec)) Fail(dir, "no such store");

@@ -27,7 +27,7 @@ StoreWriterLock::StoreWriterLock(const std::string& store_dir, const std::string
     if (error == EWOULDBLOCK) {
       std::string by = n > 0 ? std::string(holder, static_cast<size_t>(n)) : "another process";
       while (!by.empty() && (by.back() == '\n' || by.back() == ' ')) by.pop_back();
-      Fail(store_dir, "is being written by " + by + "; wait for it to end, or map into another store");
+      Fail(store_dir, "is being written by " + by + "; try again when it has ended");
     }
     Fail(path, std::string("cannot be locked: ") + std::strerror(error));
   }
