@@ -20,6 +20,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "rolamos/error.hpp"
+#include "store/writer_lock.h"
 #include "rolamos/tiled_image.hpp"
 #include "compose/patch_blender.h"
 #include "util/exposure_gains.h"
@@ -430,6 +431,15 @@ void RecordPlacements(Store& store, const std::vector<PlacedPatch>& placed, cons
 ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const ProgressFn& progress) {
   std::string error;
   if (!options.IsValid(&error)) Fail("compose", error);
+  // Compose records the placements in the sidecars and the manifest: a mosaic engine writing the
+  // store meanwhile would lose them, or compose the engine's newer patches from the manifest. So
+  // it is refused while one writes, and reads the store again once it holds the lock. A shard
+  // writes only its share of the partial mosaic: shards run side by side, the finish locks.
+  std::optional<StoreWriterLock> lock;
+  if (options.shards == 0 || options.finish) {
+    lock.emplace(store.dir(), "rolamos compose");
+    store.Reload();
+  }
   TileCacheOptions co;
   co.max_memory_mb = options.cache_mb;
   auto cache = std::make_shared<TileCache>(co);

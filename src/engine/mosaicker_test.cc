@@ -13,6 +13,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 
+#include "rolamos/compose.hpp"
 #include "rolamos/error.hpp"
 #include "rolamos/global_align.hpp"
 #include "rolamos/survey.hpp"
@@ -149,7 +150,8 @@ TEST(Mosaicker, AStopEndsTheRunWithTheFramesReadInTheStore) {
 }
 
 // Two engines into one store numbered their patches from what it held when each began, and
-// overwrote each other's: the second is refused while the first writes, and goes on after it.
+// overwrote each other's; align and compose rewrote the manifest under an engine. While an engine
+// writes, a second one, align and compose are refused; after it, the next engine goes on.
 TEST(Mosaicker, OneEngineWritesAStoreAtATime) {
   test::ScratchDir dir;
   WriteSurvey(test::SmallSurvey(12), dir / "survey");
@@ -166,6 +168,13 @@ TEST(Mosaicker, OneEngineWritesAStoreAtATime) {
   try {
     AlignStore(Store::Open(dir / "s.rolamos"), AlignOptions{});
     FAIL() << "align was let into a store being written";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("is being written by a rolamos mosaic engine"), std::string::npos) << e.what();
+  }
+  // Nor compose record its placements in it.
+  try {
+    ComposeMosaic(Store::Open(dir / "s.rolamos"), ComposeOptions{});
+    FAIL() << "compose was let into a store being written";
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("is being written by a rolamos mosaic engine"), std::string::npos) << e.what();
   }
