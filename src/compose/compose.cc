@@ -20,12 +20,12 @@
 #include <opencv2/imgproc.hpp>
 
 #include "rolamos/error.hpp"
-#include "store/writer_lock.h"
 #include "rolamos/tiled_image.hpp"
 #include "compose/patch_blender.h"
 #include "util/exposure_gains.h"
 #include "compose/quadtree_pyramid.h"
 #include "compose/tile_journal.h"
+#include "store/writer_lock.h"
 #include "util/files.h"
 #include "util/homography.h"
 

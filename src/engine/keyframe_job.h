@@ -45,7 +45,6 @@ class FollowedSample {
   // The frames kept, leaving the sample empty for the next keyframe.
   std::vector<FollowedFrame> Take();
   void Clear() { Take(); }
-  bool empty() const { return kept_.empty(); }
   size_t size() const { return kept_.size(); }
 
  private:

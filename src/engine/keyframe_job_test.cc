@@ -118,7 +118,7 @@ TEST(FollowedSample, KeepsAtMostItsCapacitySpreadOverTheFramesFollowed) {
   EXPECT_GT(kept.back().index, 1000 - step);
   EXPECT_EQ(pyramid.use_count(), 1 + static_cast<long>(kept.size()));  // the others let go of theirs
   // Taken: the next keyframe's frames start over, every one kept up to the capacity.
-  EXPECT_TRUE(sample.empty());
+  EXPECT_EQ(sample.size(), 0u);
   for (int i = 1; i <= 5; ++i) sample.Add({2000 + i, pyramid, cv::Matx33d::eye(), 100});
   const std::vector<FollowedFrame> next = sample.Take();
   ASSERT_EQ(next.size(), 5u);
