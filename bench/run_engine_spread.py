@@ -112,6 +112,13 @@ KINDS = {
                          ["PHOTO5", "--width", "800", "--height", "600", "--frames", "300", "--fov", "60", "--path", "random",
                           "--max-turn", "8", "--overlap", "0.93", "--gsd", "0.9", "--attitude-jitter", "0.5", "--tilt", "1",
                           "--seed", "15", "--video", "video.mp4"]),
+    # Session 26: an ROV pilot's inspection (transit, hold station, yaw in place at up to 4 deg a
+    # frame, sideways creep): stops, turns without translation and slow motion in one video.
+    "video-800-inspect": ("video 800 x 600 at 30 frames/s, inspection: transit, hold, yaw in place, sideways creep, "
+                          "MPEG-4, 300 frames",
+                          ["PHOTO4", "--width", "800", "--height", "600", "--frames", "300", "--fov", "60", "--path", "inspect",
+                           "--max-turn", "4", "--overlap", "0.95", "--gsd", "0.9", "--attitude-jitter", "0.3", "--tilt", "1",
+                           "--video", "video.mp4"]),
     # Session 23: the lights' cone on 800 x 600 video (the spread had it at 1292 x 964 only); the
     # hidden surveys have vignetting and light cones at both frame sizes.
     "video-800-lights": ("video 800 x 600 at 30 frames/s, 65 deg, the lights' cone, strong vignetting, "

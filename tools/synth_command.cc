@@ -32,7 +32,7 @@ void AddSynthCommand(CLI::App& app, Runner* run) {
   cmd->add_option("texture", o.texture, "image to fly over, or several separated by commas (bands from top to bottom); default: a procedural seafloor");
   cmd->add_option("-o,--output", s->output, "survey directory to write")->required();
   cmd->add_option("--frames", o.frames, "number of frames")->capture_default_str();
-  cmd->add_option("--path", o.path, "lawnmower, spiral or random")->capture_default_str();
+  cmd->add_option("--path", o.path, "lawnmower, spiral, random, or inspect (an ROV pilot: transit, hold station, yaw in place, creep sideways)")->capture_default_str();
   cmd->add_option("--width", o.frame_width, "frame width")->capture_default_str();
   cmd->add_option("--height", o.frame_height, "frame height")->capture_default_str();
   cmd->add_option("--focal", o.focal_px, "focal length in pixels")->capture_default_str();
@@ -47,7 +47,7 @@ void AddSynthCommand(CLI::App& app, Runner* run) {
   cmd->add_flag("!--no-turns", o.lane_turns, "lawnmower lanes join without turn frames (the next lane starts turned 180 degrees)");
   cmd->add_option("--lanes", o.lanes, "lawnmower: number of lanes (0 = as many as the texture holds)")
       ->capture_default_str();
-  cmd->add_option("--max-turn", o.max_turn_deg, "random walk: sharpest turn per frame, degrees")
+  cmd->add_option("--max-turn", o.max_turn_deg, "random walk and inspect: sharpest turn per frame, degrees")
       ->capture_default_str();
   cmd->add_flag("--overlay", o.overlay, "burn a timestamp and two laser dots into every frame, as TV surveys do");
   cmd->add_option("--repeat", o.repeat,

@@ -34,8 +34,8 @@ bool SurveyOptions::IsValid(std::string* error) const {
   if (!(attitude_jitter_deg >= 0 && attitude_jitter_deg <= 10))
     return bad("attitude jitter " + std::to_string(attitude_jitter_deg) + " degrees is outside 0..10");
   if (!(gsd > 0.05 && gsd < 20)) return bad("gsd " + std::to_string(gsd) + " is outside 0.05..20");
-  if (path != "lawnmower" && path != "spiral" && path != "random")
-    return bad("path \"" + path + "\" is not lawnmower, spiral or random");
+  if (path != "lawnmower" && path != "spiral" && path != "random" && path != "inspect")
+    return bad("path \"" + path + "\" is not lawnmower, spiral, random or inspect");
   if (frames < 2 || frames > 1000000) return bad("frame count must be 2..1000000");
   if (!(forward_overlap >= 0 && forward_overlap < 0.98)) return bad("forward overlap must be in [0, 0.98)");
   if (!(side_overlap >= 0 && side_overlap < 0.95)) return bad("side overlap must be in [0, 0.95)");

@@ -28,7 +28,7 @@ SurveyOptions Clean(const std::string& path) {
 // The ground truth is right when frame i, warped by world->frame_j * frame_i->world, lands on
 // frame j pixel for pixel where they overlap.
 TEST(Synth, GroundTruthHomographiesRelateFrames) {
-  for (const std::string path : {"lawnmower", "spiral", "random"}) {
+  for (const std::string path : {"lawnmower", "spiral", "random", "inspect"}) {
     test::ScratchDir dir;
     Survey s = WriteSurvey(Clean(path), dir.path());
     ASSERT_EQ(s.frames.size(), 24u);
