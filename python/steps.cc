@@ -18,6 +18,7 @@
 #include "rolamos/store_merge.hpp"
 #include "rolamos/survey.hpp"
 #include "rolamos/tiled_image.hpp"
+#include "store/writer_lock.h"
 
 namespace rolamos::py_bind {
 
@@ -173,13 +174,16 @@ py::dict Compose(const py::object& store, const py::object& navigation, double f
   InterruptScope interrupt;
   {
     py::gil_scoped_release release;
-    r = ComposeMosaic(Store::Open(dir), o, report);
+    Store st = Store::Open(dir);
+    // Composing and georeferencing both change the store: held once across them, as the CLI does.
+    const auto lock = o.shards > 0 && !o.finish ? nullptr : LockStoreForChange(st, "rolamos compose");
+    r = ComposeMosaic(st, o, report);
     if (!nav.empty()) {
       NavigationCamera camera;
       camera.focal_px = focal;
-      geo = GeoreferenceMosaic(Store::Open(dir), ReadNavigationCsv(nav, FrameCamera(Store::Open(dir), camera), crs));
+      geo = GeoreferenceMosaic(st, ReadNavigationCsv(nav, FrameCamera(st, camera), crs));
     } else if (altitude > 0) {
-      GeoreferenceLocal(Store::Open(dir), altitude / focal);
+      GeoreferenceLocal(st, altitude / focal);
     }
   }
   py::dict d;

@@ -10,7 +10,10 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "rolamos/store.hpp"
 #include "rolamos/tiled_image.hpp"
+#include "store/writer_lock.h"
+#include "util/files.h"
 #include "test_support.h"
 
 namespace rolamos {
@@ -108,6 +111,34 @@ TEST(Cli, CogExportValidates) {
   r = test::RunShell("/usr/bin/python3 -m osgeo_utils.samples.validate_cloud_optimized_geotiff " +
                      (dir / "c.tif"));
   EXPECT_EQ(r.exit_code, 0) << r.output;
+}
+
+TEST(Cli, StepsThatChangeAStoreWaitForItsWriter) {
+  // While an engine writes the store (here this test process holds its lock, as a running
+  // `mosaic` does), compose (links, placements, georeference) and a COG exported into the store
+  // (recorded in its manifest) are refused before any work, naming the writer; the store keeps
+  // what it held.
+  ScratchDir dir;
+  const std::string store = dir / "d.rolamos";
+  ASSERT_EQ(RunCli("demo -q --size 1200 -o " + store).exit_code, 0);
+  const std::string manifest = ReadSmallFile(store + "/store.json");
+  {
+    const StoreWriterLock engine(Store::Open(store), "a rolamos mosaic engine");
+    auto r = RunCli("compose -q " + store + "");
+    EXPECT_EQ(r.exit_code, 1) << r.output;
+    EXPECT_NE(r.output.find("is being written by a rolamos mosaic engine (pid "), std::string::npos) << r.output;
+    r = RunCli("export -q " + store + " --cog -o " + store + "/exports/map.tif");
+    EXPECT_EQ(r.exit_code, 1) << r.output;
+    EXPECT_NE(r.output.find("is being written by a rolamos mosaic engine (pid "), std::string::npos) << r.output;
+    EXPECT_FALSE(fs::exists(store + "/exports/map.tif"));
+    EXPECT_EQ(ReadSmallFile(store + "/store.json"), manifest);
+  }
+  // Once it has ended, both go in, and the export is recorded.
+  auto r = RunCli("compose -q " + store + "");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  r = RunCli("export -q " + store + " --cog -o " + store + "/exports/map.tif");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_EQ(Store::Open(store).exports().size(), 1u);
 }
 
 struct BadCase {

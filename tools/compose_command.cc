@@ -6,6 +6,7 @@
 #include "rolamos/error.hpp"
 #include "rolamos/georeference.hpp"
 #include "rolamos/link_patches.hpp"
+#include "store/writer_lock.h"
 #include "util/memory.h"
 #include "util/progress.h"
 
@@ -76,18 +77,22 @@ static int RunCompose(const ComposeSwitches& s) {
   o.exposure = !s.no_exposure;
   std::string error;
   if (!o.IsValid(&error)) throw rolamos::Error("compose: " + error + " (--shard/--finish/--restart)");
+  Store store = Store::Open(s.store);
+  // Linking, composing and georeferencing each change the store: held once across them, so that
+  // no engine or align comes in between. A shard writes only its share of the partial mosaic.
+  const auto lock = sharded && !o.finish ? nullptr : LockStoreForChange(store, "rolamos compose");
   // Shards must all see one store: linking (which rewrites sidecars) is left to a plain compose or
   // to align before the split.
   if (s.relink && !sharded) {
     // Patches that lost the thread are placed by recognising where their first frames were seen.
     Progress linking("link", s.quiet);
-    const LinkSummary l = LinkPatches(Store::Open(s.store), s.link, [&](double f) { linking.Update(f); });
+    const LinkSummary l = LinkPatches(store, s.link, [&](double f) { linking.Update(f); });
     linking.Done();
     for (const auto& [id, to] : l.linked) std::printf("patch %d linked to patch %d by place recognition\n", id, to);
     for (const auto& [id, why] : l.unlinked) std::printf("patch %d not linked: %s\n", id, why.c_str());
   }
   Progress progress("compose", s.quiet);
-  ComposeResult r = ComposeMosaic(Store::Open(s.store), o, [&](double f) { progress.Update(f); });
+  ComposeResult r = ComposeMosaic(store, o, [&](double f) { progress.Update(f); });
   progress.Done();
   if (!r.discarded.empty()) std::printf("not resumed: %s\n", r.discarded.c_str());
   if (r.chunks_resumed > 0 && !o.finish)
@@ -101,7 +106,6 @@ static int RunCompose(const ComposeSwitches& s) {
     return 0;
   }
   if (!s.navigation.empty()) {
-    const Store store = Store::Open(s.store);
     const NavigationCamera camera = FrameCamera(store, s.camera);
     GeoreferenceResult g = GeoreferenceMosaic(store, ReadNavigationCsv(s.navigation, camera, s.crs));
     std::printf("georeferenced from %d frames (%s): pixel %.4g m, residual median %.3f m, max %.3f m\n",
@@ -109,7 +113,7 @@ static int RunCompose(const ComposeSwitches& s) {
                 g.median_residual_m, g.max_residual_m);
   }
   if (s.navigation.empty() && s.altitude_m > 0) {
-    const Georef g = GeoreferenceLocal(Store::Open(s.store), s.altitude_m / s.camera.focal_px);
+    const Georef g = GeoreferenceLocal(store, s.altitude_m / s.camera.focal_px);
     std::printf("local engineering frame (no navigation): %.4g m a pixel, origin at the first frame's centre\n",
                 g.geotransform[1]);
   }

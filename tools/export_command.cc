@@ -1,5 +1,6 @@
 #include <cstdio>
 #include <filesystem>
+#include <optional>
 
 #include "command.h"
 #include "rolamos/error.hpp"
@@ -7,6 +8,7 @@
 #include "rolamos/stac_export.hpp"
 #include "rolamos/region_export.hpp"
 #include "rolamos/store.hpp"
+#include "store/writer_lock.h"
 #include "util/memory.h"
 #include "util/progress.h"
 
@@ -73,14 +75,23 @@ static int RunExport(const ExportSwitches& s) {
     c.compression = ToWriteOptions(s.tiff).compression;
     c.quality = s.tiff.quality;
     c.tile_size = s.tiff.tile == 256 ? 512 : s.tiff.tile;
+    const std::string rel = Store::LooksLikeStore(s.input) ? InsideStore(s.input, s.output) : "";
+    std::optional<Store> store;
+    // Recorded in the manifest: refused before the work while an engine, align or compose
+    // writes the store (the lock is not held across the export, which would shut them out).
+    if (!rel.empty()) {
+      LockStoreForChange(store.emplace(Store::Open(s.input)), "rolamos export");
+      fs::create_directories(fs::path(s.output).parent_path());  // e.g. STORE/exports, made on first use
+    }
     ExportCog(source_path, s.output, c, on_progress);
     progress.Done();
-    if (Store::LooksLikeStore(s.input)) {
-      const std::string rel = InsideStore(s.input, s.output);
-      if (!rel.empty()) {
-        Store::Open(s.input).RecordExport({rel, "cog"});
-        std::printf("recorded in the store: rolamos serve hands it out at /files/%s\n", rel.c_str());
+    if (!rel.empty()) {
+      try {
+        store->RecordExport({rel, "cog"});
+      } catch (const Error& e) {
+        Fail(s.output, std::string("was written, but is not recorded in the store: ") + e.what());
       }
+      std::printf("recorded in the store: rolamos serve hands it out at /files/%s\n", rel.c_str());
     }
     std::printf("%s -> %s: Cloud Optimized GeoTIFF, %s, %.1f s\n", source_path.c_str(),
                 s.output.c_str(), CompressionName(c.compression).c_str(),

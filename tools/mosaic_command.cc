@@ -15,6 +15,7 @@
 #include "rolamos/mosaicker.hpp"
 #include "rolamos/store.hpp"
 #include "rolamos/tile_server.hpp"
+#include "store/writer_lock.h"
 #include "util/files.h"
 #include "util/progress.h"
 
@@ -118,6 +119,9 @@ static int RunMosaic(MosaicSwitches s) {
   if (!o.calibration.empty()) so.camera = {{"calibration_file", o.calibration}};
   else if (s.fov_given) so.camera = {{"fov_deg", o.fov_deg}};
   Store store = Store::LooksLikeStore(s.output) ? Store::Open(s.output) : Store::Create(s.output, so);
+  // Before anything is written into it (a live run's status): a store another engine writes is
+  // refused here, its files untouched.
+  const auto lock = LockStoreForChange(store, "a rolamos mosaic engine");
   Progress progress("mosaic", s.quiet);
   auto on_frame = [&](const FrameReport& r, int total) {
     char detail[200];

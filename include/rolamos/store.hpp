@@ -149,6 +149,8 @@ struct PatchEntry {
 
 // A handle: copies share one manifest state (the engine's background writer and the caller see
 // the same patches), and every method is safe to call from several threads.
+class StoreWriterLock;
+
 class Store {
  public:
   // Creates a new store; refuses a path that exists and is not an empty directory.
@@ -202,9 +204,16 @@ class Store {
     std::vector<PatchEntry> patches;
     GlobalRecord global;
     nlohmann::json extra = nlohmann::json::object();
+    int writer_locks = 0;  // StoreWriterLocks held through this handle (src/store/writer_lock.h)
   };
+  friend class StoreWriterLock;
   Store() = default;
   void WriteManifestLocked() const;
+  // Before a change to the manifest or a sidecar: where the store's writer lock is not held
+  // through this handle, takes it for the change and reads the manifest again, so that
+  // the change is made to what the store holds now (not to what this handle read when it opened)
+  // and is refused, naming the writer, while an engine, align or compose writes the store.
+  std::unique_ptr<StoreWriterLock> LockForChange();
 
   std::string dir_;
   std::shared_ptr<State> state_ = std::make_shared<State>();

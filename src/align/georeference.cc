@@ -13,6 +13,7 @@
 #include <opencv2/calib3d.hpp>
 
 #include "rolamos/error.hpp"
+#include "store/writer_lock.h"
 #include "util/files.h"
 #include "util/homography.h"
 
@@ -232,6 +233,8 @@ NavigationCamera FrameCamera(const Store& store, NavigationCamera camera) {
 }
 
 GeoreferenceResult GeoreferenceMosaic(Store store, const std::map<std::string, FrameNavigation>& nav) {
+  // The global record is rewritten from the sidecars read here: none may change meanwhile.
+  const auto lock = LockStoreForChange(store, "rolamos georeference");
   if (!store.HasMosaic()) Fail(store.dir(), "has no mosaic.tif yet (run compose first)");
   // Correspondences: points around each frame's centre, in mosaic pixels and in map units.
   std::vector<cv::Point2d> mosaic_pts, map_pts;
@@ -275,6 +278,7 @@ GeoreferenceResult GeoreferenceMosaic(Store store, const std::map<std::string, F
 }
 
 Georef GeoreferenceLocal(Store store, double metres_per_frame_pixel) {
+  const auto lock = LockStoreForChange(store, "rolamos georeference");
   if (!store.HasMosaic()) Fail(store.dir(), "has no mosaic.tif yet (run compose first)");
   if (!(metres_per_frame_pixel > 0) || !std::isfinite(metres_per_frame_pixel))
     Fail(store.dir(), "the local frame needs a positive pixel size (altitude / focal length)");

@@ -222,8 +222,7 @@ AlignSummary AlignStore(Store store, const AlignOptions& o, const ProgressFn& pr
   // Align rewrites every sidecar and the manifest: a mosaic engine writing the store meanwhile
   // would list its patches under the sidecars align removes. Refused while one writes; the store
   // read again once the lock is held (an engine may have ended since it was opened).
-  const StoreWriterLock lock(store.dir(), "rolamos align");
-  store.Reload();
+  const auto lock = LockStoreForChange(store, "rolamos align");
   const auto start = std::chrono::steady_clock::now();
   auto report = [&](double f) {
     if (progress) progress(std::min(1.0, f));

@@ -7,8 +7,9 @@
 
 
 #include "align/stored_frames.h"
-#include "store/frame_data.h"
 #include "rolamos/error.hpp"
+#include "store/frame_data.h"
+#include "store/writer_lock.h"
 #include "util/homography.h"
 
 namespace rolamos {
@@ -34,6 +35,8 @@ struct Found {
 LinkSummary LinkPatches(Store store, const LinkOptions& options, const ProgressFn& progress) {
   std::string error;
   if (!options.IsValid(&error)) Fail("link options", error);
+  // Linking rewrites sidecars it read: refused while an engine, align or compose writes the store.
+  const auto lock = LockStoreForChange(store, "rolamos link");
   const auto start = std::chrono::steady_clock::now();
   LinkSummary summary;
   std::vector<PatchSidecar> patches;

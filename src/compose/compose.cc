@@ -435,11 +435,8 @@ ComposeResult ComposeMosaic(Store store, const ComposeOptions& options, const Pr
   // store meanwhile would lose them, or compose the engine's newer patches from the manifest. So
   // it is refused while one writes, and reads the store again once it holds the lock. A shard
   // writes only its share of the partial mosaic: shards run side by side, the finish locks.
-  std::optional<StoreWriterLock> lock;
-  if (options.shards == 0 || options.finish) {
-    lock.emplace(store.dir(), "rolamos compose");
-    store.Reload();
-  }
+  std::unique_ptr<StoreWriterLock> lock;
+  if (options.shards == 0 || options.finish) lock = LockStoreForChange(store, "rolamos compose");
   TileCacheOptions co;
   co.max_memory_mb = options.cache_mb;
   auto cache = std::make_shared<TileCache>(co);

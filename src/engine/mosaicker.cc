@@ -231,7 +231,7 @@ struct Mosaicker::Impl {
   TaskPool keyframe_pool{2, 4};
 
   Impl(Store s, const MosaickerOptions& o)
-      : writer_lock(std::make_unique<StoreWriterLock>(s.dir(), "a rolamos mosaic engine")),
+      : writer_lock(LockStoreForChange(s, "a rolamos mosaic engine")),
         options(o),
         store(s),
         pre(ToPreprocessOptions(o)),

@@ -149,6 +149,20 @@ TEST(Mosaicker, AStopEndsTheRunWithTheFramesReadInTheStore) {
   EXPECT_EQ(all.frames, 40);
 }
 
+TEST(Mosaicker, AStopDuringTheOverlaySearchReadsNoMoreFrames) {
+  // The overlay search reads the first 24 frames before any is mapped (72 past unreadable ones):
+  // a stop there ends the run as well, with nothing read after it.
+  test::ScratchDir dir;
+  WriteSurvey(test::SmallSurvey(40), dir / "survey");
+  MosaickerOptions o = FastOptions();
+  o.mask = "auto";
+  std::atomic<bool> stop{true};
+  const MosaicSummary sum = MosaicInput(dir / "survey/frames", Store::Create(dir / "s.rolamos"), o, nullptr, &stop);
+  EXPECT_TRUE(sum.stopped);
+  EXPECT_EQ(sum.frames, 0);
+  EXPECT_TRUE(Store::Open(dir / "s.rolamos").patches().empty());
+}
+
 // Two engines into one store numbered their patches from what it held when each began, and
 // overwrote each other's; align and compose rewrote the manifest under an engine. While an engine
 // writes, a second one, align and compose are refused; after it, the next engine goes on.

@@ -23,6 +23,7 @@
 #include "engine/self_calibration.h"
 #include "engine/preprocess.h"
 #include "engine/static_mask.h"
+#include "store/writer_lock.h"
 #include "util/cpu_time.h"
 #include "util/files.h"
 
@@ -123,6 +124,10 @@ class HeldSource : public FrameSource {
   std::vector<const InputFrame*> HoldMany(int n) {
     std::vector<const InputFrame*> held;
     for (int want = n; want > 0;) {
+      if (stop && stop->load()) {  // the overlay search stops reading too
+        stopped_ = true;
+        break;
+      }
       std::vector<InputFrame> taken;
       const int got = source_->Take(live_ ? 1 : want, &taken);
       if (got == 0) break;
@@ -325,15 +330,17 @@ void CheckMosaicInput(const std::string& input) { FrameSource::Open(input); }
 MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& given,
                           const std::function<void(const FrameReport&, int)>& on_frame,
                           const std::atomic<bool>* stop) {
+  // Held before the calibration and the mask are written into the store, not from the engine on.
+  const auto lock = LockStoreForChange(store, "a rolamos mosaic engine");
   std::string note;
   MosaickerOptions options = given.calibration == "auto" ? AutoCalibrate(input, store, given, &note) : given;
   std::string mask_note;
   const auto opened = FrameSource::Open(input);
   HeldSource source(opened.get());
+  source.stop = stop;  // the overlay search reads up to 72 frames: a stop ends it too
   if (options.mask == "auto") options = AutoMask(&source, store, options, &mask_note);
   options.track_halve = TrackHalving(options, source);
   Mosaicker mosaicker(store, options);
-  source.stop = stop;
   const double decode = RunPipeline(&source, mosaicker, on_frame, nullptr);
   MosaicSummary summary = mosaicker.Finish();
   summary.stopped = source.stopped();
@@ -427,6 +434,7 @@ class PreviewOffers {
 MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerOptions& given,
                          const LiveOptions& live, const std::function<void(const LiveStatus&)>& on_status,
                          const std::function<void(const FrameReport&, int)>& on_frame) {
+  const auto lock = LockStoreForChange(store, "a rolamos mosaic engine");  // before the mask is written
   const std::string dir = store.dir();
   std::string calibration_note, mask_note;
   MosaickerOptions options = LiveCalibration(given, dir, &calibration_note);

@@ -7,6 +7,7 @@
 
 #include "rolamos/error.hpp"
 #include "rolamos/version.hpp"
+#include "store/writer_lock.h"
 #include "util/files.h"
 
 namespace fs = std::filesystem;
@@ -145,6 +146,10 @@ void Store::WriteManifestLocked() const {
   WriteFileAtomic(ManifestPath(), j.dump(2) + "\n");
 }
 
+std::unique_ptr<StoreWriterLock> Store::LockForChange() {
+  return LockStoreForChange(*this, "rolamos (a change to the manifest)");
+}
+
 int Store::NextPatchId() const {
   std::lock_guard<std::mutex> lock(state_->mutex);
   int next = 1;
@@ -153,6 +158,7 @@ int Store::NextPatchId() const {
 }
 
 void Store::CommitPatch(const PatchSidecar& sidecar) {
+  const auto writer = LockForChange();
   std::lock_guard<std::mutex> lock(state_->mutex);
   const std::string image = PatchImagePath(sidecar.id);
   if (!fs::exists(image)) Fail(image, "patch image must be written before its sidecar is committed");
@@ -166,6 +172,7 @@ void Store::CommitPatch(const PatchSidecar& sidecar) {
 }
 
 void Store::UpdateSidecar(const PatchSidecar& sidecar) {
+  const auto writer = LockForChange();
   std::lock_guard<std::mutex> lock(state_->mutex);
   for (const auto& p : state_->patches) {
     if (p.id == sidecar.id) {
@@ -177,6 +184,7 @@ void Store::UpdateSidecar(const PatchSidecar& sidecar) {
 }
 
 void Store::ReplaceSidecars(const std::vector<PatchSidecar>& sidecars, const GlobalRecord& global) {
+  const auto writer = LockForChange();
   std::lock_guard<std::mutex> lock(state_->mutex);
   // The next generation of sidecar names: patches/NNNNNN.vG.json.
   int generation = 0;
@@ -241,6 +249,7 @@ GlobalRecord Store::global() const {
 }
 
 void Store::SetGlobal(const GlobalRecord& global) {
+  const auto writer = LockForChange();
   std::lock_guard<std::mutex> lock(state_->mutex);
   state_->global = global;
   WriteManifestLocked();
@@ -277,6 +286,7 @@ std::vector<ExportEntry> Store::exports() const {
 void Store::RecordExport(const ExportEntry& entry) {
   CheckRelative(entry.path, ManifestPath() + ": exports");
   if (!fs::exists(fs::path(dir_) / entry.path)) Fail((fs::path(dir_) / entry.path).string(), "is not there to record");
+  const auto writer = LockForChange();
   std::lock_guard<std::mutex> lock(state_->mutex);
   json list = state_->extra.value("exports", json::array());
   if (!list.is_array()) list = json::array();

@@ -3,6 +3,10 @@
 #include <filesystem>
 #include <fstream>
 
+#include <fcntl.h>
+#include <sys/file.h>
+#include <unistd.h>
+
 #include <gtest/gtest.h>
 
 #include "rolamos/error.hpp"
@@ -182,6 +186,42 @@ TEST(Store, CopiesShareOneManifest) {
   Store reopened = Store::Open(dir / "s.rolamos");
   EXPECT_EQ(reopened.patches().size(), 1u);
   EXPECT_DOUBLE_EQ(reopened.global().scale, 0.25);
+}
+
+TEST(Store, AChangeIsMadeToWhatTheStoreHoldsNow) {
+  // Two handles, as two processes hold them: `export` recording a COG must not write the
+  // manifest from what it read before the other committed a patch (the patch would be lost).
+  ScratchDir dir;
+  Store early = Store::Create(dir / "s.rolamos");
+  Store other = Store::Open(dir / "s.rolamos");
+  AddPatch(other, 1);
+  std::ofstream(dir / "s.rolamos/exports.tif") << "a file";
+  early.RecordExport({"exports.tif", "cog"});
+  const Store reopened = Store::Open(dir / "s.rolamos");
+  EXPECT_EQ(reopened.patches().size(), 1u);
+  EXPECT_EQ(reopened.exports().size(), 1u);
+}
+
+TEST(Store, AChangeIsRefusedWhileAnotherProcessWritesTheStore) {
+  ScratchDir dir;
+  Store store = Store::Create(dir / "s.rolamos");
+  AddPatch(store, 1);
+  // Another process's engine, as the kernel sees it: a flock on the writer lock from another
+  // open file, with its note.
+  const std::string lock_path = dir / "s.rolamos/.writer.lock";
+  std::ofstream(lock_path) << "a rolamos mosaic engine (pid 4242)\n";
+  const int fd = ::open(lock_path.c_str(), O_RDWR | O_CLOEXEC);
+  ASSERT_GE(fd, 0);
+  ASSERT_EQ(::flock(fd, LOCK_EX | LOCK_NB), 0);
+  GlobalRecord g = store.global();
+  g.scale = 0.5;
+  EXPECT_NE(ErrorOf([&] { store.SetGlobal(g); }).find("is being written by a rolamos mosaic engine (pid 4242)"),
+            std::string::npos);
+  EXPECT_NE(ErrorOf([&] { store.UpdateSidecar(SampleSidecar(1)); }).find("is being written by"), std::string::npos);
+  ::close(fd);
+  EXPECT_NE(Store::Open(dir / "s.rolamos").global().scale, 0.5);  // nothing written
+  store.SetGlobal(g);  // and once it has ended, the change goes in
+  EXPECT_EQ(Store::Open(dir / "s.rolamos").global().scale, 0.5);
 }
 
 TEST(Store, KilledWriterLeavesAStoreThatOpens) {
