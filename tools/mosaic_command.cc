@@ -3,6 +3,8 @@
 #include <csignal>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
+#include <memory>
 #include <thread>
 
 #include <signal.h>
@@ -88,8 +90,9 @@ static std::string StatusJson(const LiveStatus& st) {
   return j.dump() + "\n";
 }
 
-static int RunMosaic(MosaicSwitches s) {
-  MosaickerOptions& o = s.options;
+// The switches' --no-* and codec settings into the engine's options.
+static MosaickerOptions EngineOptions(const MosaicSwitches& s) {
+  MosaickerOptions o = s.options;
   if (s.live && o.checkpoint_frames == 0) o.checkpoint_frames = 150;
   o.bilateral = !s.no_bilateral;
   o.temporal = !s.no_temporal;
@@ -109,11 +112,108 @@ static int RunMosaic(MosaicSwitches s) {
   o.ecc = !s.no_ecc;
   o.cross_check = !s.no_cross_check;
   o.tiff = ToWriteOptions(s.tiff);
+  return o;
+}
+
+// A live run: its status in STORE/live, the viewer in this process with --serve.
+static MosaicSummary RunLive(MosaicSwitches& s, Store& store, const MosaickerOptions& o,
+                             const std::function<void(const FrameReport&, int)>& on_frame) {
+  s.live_options.stop = &g_stop;
+  const std::string status_dir = store.dir() + "/live";
+  std::filesystem::create_directories(status_dir);
+  std::unique_ptr<TileServer> server;
+  if (s.serve_port >= 0) {
+    // The page may open before the first frame: it sees a run that has started.
+    LiveStatus starting;
+    starting.running = true;
+    WriteFileAtomic(status_dir + "/status.json", StatusJson(starting));
+    TileServerOptions so;
+    so.port = s.serve_port;
+    so.bind = s.serve_bind;
+    so.live = true;
+    so.navigation = s.navigation;
+    so.navigation_crs = s.navigation_crs;
+    so.focal_px = s.focal_px;
+    server = std::make_unique<TileServer>(store, so);
+    const int port = server->Start();
+    std::printf("viewer on http://%s:%d/ while the run lasts (rolamos serve %s serves it after)\n",
+                s.serve_bind.c_str(), port, store.dir().c_str());
+    std::fflush(stdout);
+  }
+  std::atomic<bool> status_failed{false};
+  MosaicSummary sum = MosaicLive(s.input, store, o, s.live_options,
+                                 [&](const LiveStatus& st) {
+                                   // The status is for watching the run: failing to write it (a
+                                   // full disk) must not stop the map; said once.
+                                   try {
+                                     WriteFileAtomic(status_dir + "/status.json", StatusJson(st), /*durable=*/false);
+                                   } catch (const Error& e) {
+                                     if (!status_failed.exchange(true))
+                                       std::fprintf(stderr, "rolamos: warning: %s (the run goes on without a status)\n",
+                                                    e.what());
+                                   }
+                                 },
+                                 on_frame);
+  if (server) server->Stop();
+  return sum;
+}
+
+// The one-line summary, then what each stage cost per frame and per keyframe.
+static void PrintSummary(const MosaicSwitches& s, const MosaicSummary& sum, int input_frames) {
+  if (!sum.preview_problem.empty())
+    std::printf("the open patch's preview could not be written (the patches are): %s\n", sum.preview_problem.c_str());
+  if (!sum.calibration_note.empty()) std::printf("%s\n", sum.calibration_note.c_str());
+  if (!sum.mask_note.empty()) std::printf("%s\n", sum.mask_note.c_str());
+  const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+  std::printf("%s: %d frames, %d stitched (%d keyframes, %d blended, %d described, %d on a second chance), %d rejected, "
+              "%d patches, %.1f s (%.1f frames/s), CPU %.0f %% of %u cores, peak memory %.0f MiB\n",
+              s.output.c_str(), sum.frames, sum.stitched, sum.keyframes, sum.blended, sum.described, sum.recovered,
+              sum.rejected, sum.patches, sum.seconds, sum.frames / std::max(sum.seconds, 1e-9),
+              100.0 * sum.cpu_seconds / std::max(sum.seconds, 1e-9) / cores, cores, sum.peak_rss_mb);
+  if (s.live)
+    std::printf("live: %d frames skipped to keep up, coverage lost after %d of them, %d mapped while shedding load%s\n",
+                sum.frames_skipped, sum.coverage_lost, sum.frames_shedding,
+                g_stop ? "; stopped by a signal, the open patch written" : "");
+  else if (sum.stopped)
+    std::printf("stopped by a signal after %d frames%s: the open patch written, the frames after them not mapped\n",
+                sum.frames, input_frames > 0 ? (" of " + std::to_string(input_frames)).c_str() : "");
+  std::string stages, per_key;
+  for (const auto& [name, sec] : sum.stage_seconds) {
+    char b[64];
+    std::snprintf(b, sizeof b, "%s%s %.0f ms", stages.empty() ? "" : ", ", name.c_str(),
+                  1000.0 * sec / std::max(1, sum.frames));
+    stages += b;
+    if (std::find(sum.keyframe_stages.begin(), sum.keyframe_stages.end(), name) == sum.keyframe_stages.end()) continue;
+    std::snprintf(b, sizeof b, "%s%s %.0f ms", per_key.empty() ? "" : ", ", name.c_str(),
+                  1000.0 * sec / std::max(1, sum.keyframes));
+    per_key += b;
+  }
+  if (sum.RestCpuSeconds() > 0 && !stages.empty()) {
+    char b[64];
+    std::snprintf(b, sizeof b, ", rest %.0f ms", 1000.0 * sum.RestCpuSeconds() / std::max(1, sum.frames));
+    stages += b;
+  }
+  std::string followed;
+  if (sum.track_scale > 0)
+    followed = sum.track_scale >= 1 ? "; followed at full size"
+                                    : "; followed at 1/" + std::to_string(std::lround(1 / sum.track_scale)) + " size";
+  std::printf("per frame (CPU, all threads%s): %s\n", followed.c_str(), stages.c_str());
+  if (!per_key.empty()) std::printf("per keyframe: %s\n", per_key.c_str());
+  std::printf("Look at it: build/rolamos info %s; build/rolamos export %s --patch 1 --scale 0.25 "
+              "-o patch1.jpg\n", s.output.c_str(), s.output.c_str());
+}
+
+static int RunMosaic(MosaicSwitches s) {
+  const MosaickerOptions o = EngineOptions(s);
   std::string error;
   if (!o.IsValid(&error)) Fail("mosaic", error);
-  // Before the store is made: bad live settings or a mistyped input must not leave an empty
-  // store behind.
+  // Before the store is made: bad settings or a mistyped input must not leave an empty store.
   if (s.live && !s.live_options.IsValid(&error)) Fail("mosaic --live", error);
+  if (s.serve_port >= 0 && !s.live)
+    Fail("mosaic", "serving while mapping needs a live run (rolamos serve STORE serves a store once written)");
+  if (!s.navigation.empty() && s.serve_port < 0)
+    Fail("mosaic", "navigation georeferences the live view, which needs --serve (compose --navigation "
+                   "georeferences the map)");
   if (!s.live) CheckMosaicInput(s.input);
   StoreOptions so;
   if (!o.calibration.empty()) so.camera = {{"calibration_file", o.calibration}};
@@ -130,104 +230,16 @@ static int RunMosaic(MosaicSwitches s) {
                   r.patch_id, r.inliers, r.matches);
     progress.Update(total > 0 ? double(r.index + 1) / total : 0.0, detail);
   };
-  MosaicSummary sum;
-  if (s.serve_port >= 0 && !s.live)
-    Fail("mosaic", "serving while mapping needs a live run (rolamos serve STORE serves a store once written)");
-  if (!s.navigation.empty() && s.serve_port < 0)
-    Fail("mosaic", "navigation georeferences the live view, which needs --serve (compose --navigation "
-                   "georeferences the map)");
-  std::unique_ptr<TileServer> server;
   CatchStopSignals();
   int input_frames = -1;
-  if (s.live) {
-    s.live_options.stop = &g_stop;
-    const std::string status_dir = store.dir() + "/live";
-    std::filesystem::create_directories(status_dir);
-    if (s.serve_port >= 0) {
-      // The page may open before the first frame: it sees a run that has started.
-      LiveStatus starting;
-      starting.running = true;
-      WriteFileAtomic(status_dir + "/status.json", StatusJson(starting));
-      TileServerOptions so;
-      so.port = s.serve_port;
-      so.bind = s.serve_bind;
-      so.live = true;
-      so.navigation = s.navigation;
-      so.navigation_crs = s.navigation_crs;
-      so.focal_px = s.focal_px;
-      server = std::make_unique<TileServer>(store, so);
-      const int port = server->Start();
-      std::printf("viewer on http://%s:%d/ while the run lasts (rolamos serve %s serves it after)\n",
-                  s.serve_bind.c_str(), port, store.dir().c_str());
-      std::fflush(stdout);
-    }
-    std::atomic<bool> status_failed{false};
-    sum = MosaicLive(s.input, store, o, s.live_options,
-                     [&](const LiveStatus& st) {
-                       // The status is for watching the run: failing to write it (a full disk) must
-                       // not stop the map; said once.
-                       try {
-                         WriteFileAtomic(status_dir + "/status.json", StatusJson(st), /*durable=*/false);
-                       } catch (const Error& e) {
-                         if (!status_failed.exchange(true))
-                           std::fprintf(stderr, "rolamos: warning: %s (the run goes on without a status)\n", e.what());
-                       }
-                     },
-                     on_frame);
-  } else {
-    sum = MosaicInput(s.input, store, o, [&](const FrameReport& r, int total) {
-      input_frames = total;
-      on_frame(r, total);
-    }, &g_stop);
-  }
+  const MosaicSummary sum =
+      s.live ? RunLive(s, store, o, on_frame)
+             : MosaicInput(s.input, store, o, [&](const FrameReport& r, int total) {
+                 input_frames = total;
+                 on_frame(r, total);
+               }, &g_stop);
   progress.Done();
-  if (server) server->Stop();
-  if (!sum.preview_problem.empty())
-    std::printf("the open patch's preview could not be written (the patches are): %s\n", sum.preview_problem.c_str());
-  if (!sum.calibration_note.empty()) std::printf("%s\n", sum.calibration_note.c_str());
-  if (!sum.mask_note.empty()) std::printf("%s\n", sum.mask_note.c_str());
-  std::printf("%s: %d frames, %d stitched (%d keyframes, %d blended, %d described, %d on a second chance), %d rejected, "
-              "%d patches, %.1f s (%.1f frames/s), CPU %.0f %% of %u cores, peak memory %.0f MiB\n",
-              s.output.c_str(), sum.frames, sum.stitched, sum.keyframes, sum.blended, sum.described, sum.recovered, sum.rejected,
-              sum.patches,
-              sum.seconds, sum.frames / std::max(sum.seconds, 1e-9),
-              100.0 * sum.cpu_seconds / std::max(sum.seconds, 1e-9) / std::max(1u, std::thread::hardware_concurrency()),
-              std::max(1u, std::thread::hardware_concurrency()), sum.peak_rss_mb);
-  if (s.live)
-    std::printf("live: %d frames skipped to keep up, coverage lost after %d of them, %d mapped while shedding load%s\n",
-                sum.frames_skipped, sum.coverage_lost, sum.frames_shedding,
-                g_stop ? "; stopped by a signal, the open patch written" : "");
-  else if (sum.stopped)
-    std::printf("stopped by a signal after %d frames%s: the open patch written, the frames after them not mapped\n",
-                sum.frames, input_frames > 0 ? (" of " + std::to_string(input_frames)).c_str() : "");
-  std::string stages;
-  for (const auto& [name, sec] : sum.stage_seconds) {
-    char b[64];
-    std::snprintf(b, sizeof b, "%s%s %.0f ms", stages.empty() ? "" : ", ", name.c_str(),
-                  1000.0 * sec / std::max(1, sum.frames));
-    stages += b;
-  }
-  if (sum.RestCpuSeconds() > 0 && !stages.empty()) {
-    char b[64];
-    std::snprintf(b, sizeof b, ", rest %.0f ms", 1000.0 * sum.RestCpuSeconds() / std::max(1, sum.frames));
-    stages += b;
-  }
-  std::string followed;
-  if (sum.track_scale > 0)
-    followed = sum.track_scale >= 1 ? "; followed at full size"
-                                    : "; followed at 1/" + std::to_string(std::lround(1 / sum.track_scale)) + " size";
-  std::printf("per frame (CPU, all threads%s): %s\n", followed.c_str(), stages.c_str());
-  std::string per_key;
-  for (const auto& [name, sec] : sum.stage_seconds) {
-    if (std::find(sum.keyframe_stages.begin(), sum.keyframe_stages.end(), name) == sum.keyframe_stages.end()) continue;
-    char b[64];
-    std::snprintf(b, sizeof b, "%s%s %.0f ms", per_key.empty() ? "" : ", ", name.c_str(),
-                  1000.0 * sec / std::max(1, sum.keyframes));
-    per_key += b;
-  }
-  if (!per_key.empty()) std::printf("per keyframe: %s\n", per_key.c_str());
-  std::printf("Look at it: build/rolamos info %s; build/rolamos export %s --patch 1 --scale 0.25 "
-              "-o patch1.jpg\n", s.output.c_str(), s.output.c_str());
+  PrintSummary(s, sum, input_frames);
   return sum.stitched > 0 ? 0 : 1;
 }
 
