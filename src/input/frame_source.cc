@@ -43,7 +43,26 @@ bool LooksTruncated(const std::string& path) {
   return tail.find("IEND") == std::string::npos;
 }
 
-cv::Mat ReadFrameImage(const std::string& path, std::string* error) {
+cv::Mat ToEightBit(const cv::Mat& image, std::atomic<int>* bits) {
+  if (image.depth() == CV_8U || image.empty()) return image;
+  cv::Mat out;
+  if (image.depth() == CV_32F || image.depth() == CV_64F) {
+    image.convertTo(out, CV_8U, 255.0);
+    return out;
+  }
+  double most = 0;
+  cv::minMaxLoc(image.reshape(1), nullptr, &most);
+  int need = 8;
+  while (need < 16 && most >= double(1 << need)) need += 2;
+  int seen = bits->load();
+  while (need > seen && !bits->compare_exchange_weak(seen, need)) {
+  }
+  const int use = std::max(need, seen);
+  image.convertTo(out, CV_8U, 255.0 / double((1 << use) - 1));
+  return out;
+}
+
+cv::Mat ReadFrameImage(const std::string& path, std::atomic<int>* bits, std::string* error) {
   std::error_code ec;
   if (!fs::exists(path, ec)) {
     *error = "missing";
@@ -55,7 +74,7 @@ cv::Mat ReadFrameImage(const std::string& path, std::string* error) {
   }
   cv::Mat m;
   try {
-    m = cv::imread(path, cv::IMREAD_COLOR);
+    m = ToEightBit(cv::imread(path, cv::IMREAD_COLOR | cv::IMREAD_ANYDEPTH), bits);
   } catch (const cv::Exception& e) {
     *error = std::string("unreadable: ") + e.err;
     return {};
@@ -96,10 +115,11 @@ class FileListSource : public FrameSource {
     f->index = static_cast<int>(i);
     f->source = paths_[i];
     f->error.clear();
-    f->image = ReadFrameImage(paths_[i], &f->error);
+    f->image = ReadFrameImage(paths_[i], &bits_, &f->error);
   }
   std::vector<std::string> paths_;
   size_t next_ = 0;
+  mutable std::atomic<int> bits_{8};  // the depth the frames' values use (ToEightBit)
 };
 
 class VideoSource : public FrameSource {

@@ -3,6 +3,7 @@
 // and go on.
 #pragma once
 
+#include <atomic>
 #include <memory>
 #include <string>
 #include <vector>
@@ -42,7 +43,13 @@ class FrameSource {
 bool IsImageName(const std::string& name);
 // A JPEG or PNG whose end-of-image marker is missing (cut off, or still being written).
 bool LooksTruncated(const std::string& path);
-// BGR 8-bit, or empty with the reason in `error`.
-cv::Mat ReadFrameImage(const std::string& path, std::string* error);
+// Frames of more than 8 bits (16-bit PNG or TIFF from machine-vision cameras, which often hold
+// 10 or 12 bits of data in 16) to 8 bits by the depth their values use: the fewest of 8, 10, 12,
+// 14 or 16 bits that hold the largest value seen in the source so far (`bits`, only ever raised,
+// so that a camera's frames keep one scale), not by the container's 16 (OpenCV's way, which
+// leaves 12-bit data at 0..15: black). Float frames are taken as 0..1. 8-bit frames pass.
+cv::Mat ToEightBit(const cv::Mat& image, std::atomic<int>* bits);
+// BGR 8-bit (ToEightBit with the source's `bits`), or empty with the reason in `error`.
+cv::Mat ReadFrameImage(const std::string& path, std::atomic<int>* bits, std::string* error);
 
 }  // namespace rolamos

@@ -46,5 +46,42 @@ TEST(FrameSource, TakesSeveralFramesInOrderAndGoesOnAfterThem) {
   }
 }
 
+// Machine-vision cameras write 10 or 12 bits of data in 16-bit PNGs and TIFFs. Read as OpenCV
+// reads them (divided by 256), a 12-bit frame is black (0..15): every frame but a few rejected.
+TEST(FrameSource, SixteenBitFramesAreScaledByTheDepthTheirValuesUse) {
+  const test::ScratchDir dir;
+  // A 12-bit camera's frames, grey and colour, the second darker than the first, then a frame
+  // whose values need all 16 bits.
+  cv::Mat grey(24, 32, CV_16UC1, cv::Scalar(2000)), colour(24, 32, CV_16UC3, cv::Scalar(4095, 1000, 300));
+  grey.at<uint16_t>(0, 1) = 4000;
+  cv::imwrite(dir / "f0.png", grey);
+  cv::imwrite(dir / "f1.tif", colour);
+  cv::imwrite(dir / "f2.png", cv::Mat(24, 32, CV_16UC1, cv::Scalar(60000)));
+  cv::imwrite(dir / "f3.png", cv::Mat(24, 32, CV_8UC3, cv::Scalar(7, 8, 9)));
+  const auto source = FrameSource::Open(dir.path());
+  std::vector<InputFrame> f;
+  for (InputFrame next; source->Next(&next);) f.push_back(next);
+  ASSERT_EQ(f.size(), 4u);
+  for (const InputFrame& x : f) {
+    ASSERT_FALSE(x.image.empty()) << x.source << ": " << x.error;
+    EXPECT_EQ(x.image.type(), CV_8UC3) << x.source;
+  }
+  EXPECT_EQ(f[0].image.at<cv::Vec3b>(0, 0), cv::Vec3b(125, 125, 125));  // 2000 of 4095
+  EXPECT_EQ(f[0].image.at<cv::Vec3b>(0, 1)[0], 249);                    // 4000 of 4095
+  EXPECT_EQ(f[1].image.at<cv::Vec3b>(0, 0), cv::Vec3b(255, 62, 19));    // one scale for the camera
+  EXPECT_EQ(f[2].image.at<cv::Vec3b>(0, 0)[0], 233);                    // 60000 of 65535
+  EXPECT_EQ(f[3].image.at<cv::Vec3b>(0, 0), cv::Vec3b(7, 8, 9));        // 8-bit frames as they are
+}
+
+TEST(FrameSource, TheDepthOnlyRisesWithinASource) {
+  std::atomic<int> bits{8};
+  const cv::Mat twelve(4, 4, CV_16UC1, cv::Scalar(4095)), dark(4, 4, CV_16UC1, cv::Scalar(1000));
+  EXPECT_EQ(ToEightBit(twelve, &bits).at<uint8_t>(0, 0), 255);
+  EXPECT_EQ(bits.load(), 12);
+  // A darker frame after it keeps the 12-bit scale: not brightened as if it were 10-bit.
+  EXPECT_EQ(ToEightBit(dark, &bits).at<uint8_t>(0, 0), 62);
+  EXPECT_EQ(ToEightBit(cv::Mat(4, 4, CV_32FC1, cv::Scalar(0.5)), &bits).at<uint8_t>(0, 0), 128);
+}
+
 }  // namespace
 }  // namespace rolamos

@@ -89,7 +89,7 @@ class GrowingFolderSource : public LiveSource {
         Took();
         f->source = path;
         f->error.clear();
-        f->image = ReadFrameImage(path, &f->error);
+        f->image = ReadFrameImage(path, &bits_, &f->error);
         arrival_ = arrived;
         return true;
       }
@@ -101,6 +101,8 @@ class GrowingFolderSource : public LiveSource {
   }
 
  private:
+  std::atomic<int> bits_{8};  // the depth the frames' values use (ToEightBit)
+
   // Until something may have arrived: an inotify event, or the next listing.
   void Wait() {
 #if defined(__linux__)
