@@ -414,6 +414,32 @@ TEST_F(LiveTest, AFileCutShortIsTakenAndCounted) {
       << st.dump();
 }
 
+// A logger numbering its frames without leading zeros (frame9.jpg, then frame10.jpg): by name,
+// every frame from frame10 to frame89 sorted before frame9 and was dropped as a late arrival (9
+// of 40 frames mapped). In the camera's order, none is.
+TEST_F(LiveTest, FramesNumberedWithoutLeadingZerosAreTakenInTheirOrder) {
+  const std::string store = dir_ / "unpadded.rolamos";
+  std::thread logger([&] {
+    std::vector<fs::path> frames;
+    for (const auto& e : fs::directory_iterator(dir_ / "survey/frames")) frames.push_back(e.path());
+    std::sort(frames.begin(), frames.end());
+    const fs::path incoming = dir_ / "incoming";
+    fs::create_directories(incoming);
+    for (size_t i = 0; i < 25 && i < frames.size(); ++i) {
+      fs::copy_file(frames[i], incoming / ".incoming");
+      fs::rename(incoming / ".incoming", incoming / ("frame" + std::to_string(i + 1) + ".jpg"));
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+  });
+  auto r = test::RunCli("mosaic -q " + (dir_ / "incoming") + " -o " + store + " --live --idle-timeout 3 --mask none");
+  logger.join();
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  const auto st = Status(store);
+  EXPECT_EQ(st["frames_received"], 25) << st.dump();
+  EXPECT_EQ(st["frames_skipped"], 0) << st.dump();
+  EXPECT_EQ(st["frames_registered"], 25) << st.dump();
+}
+
 // Frames arrive far faster than the engine takes them (large frames, 100 a second, without end):
 // the signal is still honoured while they pour in, and the open patch is written.
 TEST_F(LiveTest, SigintIsHonouredWhileFramesArriveFasterThanTheEngineTakesThem) {

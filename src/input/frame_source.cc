@@ -155,7 +155,7 @@ std::unique_ptr<FrameSource> FrameSource::Open(const std::string& input) {
     std::vector<std::string> paths;
     for (const auto& e : fs::directory_iterator(input, ec))
       if (e.is_regular_file() && IsImageName(e.path().string())) paths.push_back(e.path().string());
-    std::sort(paths.begin(), paths.end());
+    std::sort(paths.begin(), paths.end(), NaturalLess);
     if (paths.empty()) Fail(input, "holds no images (.jpg, .png, .tif, ...)");
     return std::make_unique<FileListSource>(std::move(paths));
   }

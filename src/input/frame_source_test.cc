@@ -46,6 +46,19 @@ TEST(FrameSource, TakesSeveralFramesInOrderAndGoesOnAfterThem) {
   }
 }
 
+// `ffmpeg -i dive.mp4 frame%d.jpg` numbers frames without leading zeros: by name, frame10 would
+// come after frame1 and before frame2, and the survey would jump back and forth.
+TEST(FrameSource, AFoldersFramesComeInTheCamerasOrder) {
+  const test::ScratchDir dir;
+  for (int i = 1; i <= 12; ++i) cv::imwrite(dir / ("frame" + std::to_string(i) + ".png"), cv::Mat(8, 8, CV_8UC3));
+  const auto source = FrameSource::Open(dir.path());
+  InputFrame f;
+  for (int i = 1; i <= 12; ++i) {
+    ASSERT_TRUE(source->Next(&f));
+    EXPECT_NE(f.source.find("/frame" + std::to_string(i) + ".png"), std::string::npos) << f.source;
+  }
+}
+
 // Machine-vision cameras write 10 or 12 bits of data in 16-bit PNGs and TIFFs. Read as OpenCV
 // reads them (divided by 256), a 12-bit frame is black (0..15): every frame but a few rejected.
 TEST(FrameSource, SixteenBitFramesAreScaledByTheDepthTheirValuesUse) {

@@ -188,9 +188,9 @@ class GrowingFolderSource : public LiveSource {
       seen_ = sizes;
       unchanged_since_ = since;
     }
-    // In name order, and never one that sorts before a frame already taken (a late arrival of an
-    // older frame would go backwards in the survey).
-    std::sort(complete.begin(), complete.end());
+    // In name order (NaturalLess: a logger's frame9 before its frame10), and never one that sorts
+    // before a frame already taken (a late arrival of an older frame would go backwards in the survey).
+    std::sort(complete.begin(), complete.end(), NaturalLess);
     complete.erase(std::unique(complete.begin(), complete.end()), complete.end());
     for (const auto& p : complete) {
       if (taken_.count(p)) continue;
@@ -198,7 +198,7 @@ class GrowingFolderSource : public LiveSource {
       seen_.erase(p);
       ++counters_.received;
       counters_.last_arrival = UnixNow();
-      if (!last_.empty() && p < last_) {
+      if (!last_.empty() && NaturalLess(p, last_)) {
         ++counters_.skipped;
         continue;
       }

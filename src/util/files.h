@@ -18,5 +18,9 @@ void RenameFile(const std::string& from, const std::string& to);
 std::string ToLower(std::string s);
 std::string ToUpper(std::string s);
 std::string Extension(const std::string& path);  // lower-case, with the dot
+// Names in the order a person (and a camera's counter) numbers them: runs of digits compare by
+// their value, so frame9 comes before frame10 (`ffmpeg -i dive.mp4 frame%d.jpg` writes such names);
+// the rest as bytes. Names equal but for leading zeros fall back to byte order.
+bool NaturalLess(const std::string& a, const std::string& b);
 
 }  // namespace rolamos
