@@ -134,8 +134,12 @@ struct MosaickerOptions {
   // and pitch change between frames it is observable, and a wrong one bends the patch (90 degrees
   // across taken for 70, 3 degrees of jitter: 27 px per patch against 0.24; bench/RESULTS.md,
   // session 21); where they do not, it stays about where it starts, which then does no harm. A
-  // calibration file's focal length is held.
+  // calibration file's focal length is held, unless it was only assumed (below).
   bool estimate_focal = true;
+  // Whether the calibration file's focal length was measured (held) or only assumed, as in the
+  // file --calibration auto writes (0.9 x the width, where its radial distortion is found from):
+  // that one is where the adjustment starts, as the field of view is without a file.
+  bool calibration_focal_measured = true;
   double patch_frames_mb = 128;
   // 4. ECC
   bool ecc = true;

@@ -78,6 +78,11 @@ Preprocessor::Preprocessor(const PreprocessOptions& options) : options_(options)
   if (options.calibration == "auto")
     Fail("calibration \"auto\"", "is estimated from the first frames by MosaicInput, not by the pre-processor");
   if (!options.calibration.empty()) calibration_ = ReadCalibration(options.calibration);
+  // Coefficients all zero (as --calibration auto writes for a lens without distortion, and as
+  // hand-written files often hold): the frames are used as they are, not resampled through a map
+  // that moves nothing and blurs a little.
+  if (calibration_ && !calibration_->distortion.empty() && cv::countNonZero(calibration_->distortion) == 0)
+    calibration_->distortion = cv::Mat();
 }
 
 cv::Mat Preprocessor::Spatial(const cv::Mat& frame) { return Bilateral(Undistort(frame)); }

@@ -73,7 +73,11 @@ MosaickerOptions AutoCalibrate(const std::string& input, const Store& store,
                 "over %d frame pairs; written to %s",
                 r.k1, r.inliers_uncorrected, r.inliers_corrected, r.pairs, path.c_str());
   *note = buf;
-  options.calibration = path;
+  // No distortion found: the frames as they are, the focal length from the field of view as
+  // without a file (the file is kept, for the record). Found: the file's focal length is only
+  // assumed, where the adjustment starts.
+  options.calibration = r.k1 == 0 ? "" : path;
+  options.calibration_focal_measured = false;
   return options;
 }
 
@@ -361,6 +365,7 @@ MosaickerOptions LiveCalibration(MosaickerOptions options, const std::string& di
     Fail(dir, "has no calibration.yml from an earlier run; live mapping cannot self-calibrate first "
               "(give a calibration file, or none)");
   options.calibration = dir + "/calibration.yml";
+  options.calibration_focal_measured = false;  // an earlier run's --calibration auto: assumed
   *note = "calibration from " + options.calibration;
   return options;
 }
