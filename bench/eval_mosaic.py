@@ -8,8 +8,14 @@ sidecar's frame_to_patch and to the texture by the ground-truth frame_to_world; 
 homography (patch -> texture, least squares) is fitted per patch, and the residuals of every
 frame (its grid's RMS, in texture pixels) are reported: RMS over frames, 95th percentile, max.
 Also the share of frames stitched. Texture pixels equal frame pixels at --gsd 1.
+
+A survey made through a distorting lens (`synth --k1`): its ground truth maps the pinhole's
+undistorted pixels, the engine's placements map the frames as it took them (the raw pixels, or the
+frames it rectified with a calibration file, whose camera matrix the sidecar holds as
+`frame_camera_matrix`); each grid point is followed back to the raw pixel and through the true
+lens to the pinhole's pixel first.
 """
-import glob, json, os, sys
+import glob, json, os, re, sys
 import numpy as np
 
 
@@ -43,6 +49,63 @@ def fit_homography(src, dst):
     return np.append(h, 1).reshape(3, 3)
 
 
+def distort(n, k1):
+    """Normalised pinhole coordinates -> normalised distorted ones (OpenCV's k1 alone)."""
+    return n * (1 + k1 * (n ** 2).sum(1, keepdims=True))
+
+
+def undistort(d, k1):
+    n = d.copy()
+    for _ in range(50):
+        n = d / (1 + k1 * (n ** 2).sum(1, keepdims=True))
+    return n
+
+
+def to_pixels(K, n):
+    return n @ K[:2, :2].T + K[:2, 2]
+
+
+def to_normalised(K, p):
+    return (p - K[:2, 2]) @ np.linalg.inv(K[:2, :2]).T
+
+
+def read_calibration(path):
+    """(camera matrix, k1) of an OpenCV YAML calibration file, as the engine wrote or was given."""
+    text = open(path).read()
+    def numbers(name):
+        m = re.search(name + r":.*?data:\s*\[([^\]]*)\]", text, re.S)
+        return [float(x) for x in m.group(1).replace("\n", " ").split(",")] if m else None
+    K, dist = numbers("camera_matrix"), numbers("distortion_coefficients")
+    return np.array(K).reshape(3, 3), (dist[0] if dist else 0.0)
+
+
+def lens_of(survey_gt, store, manifest):
+    """The true lens (K, k1) and the calibration the engine used (K, k1), or None where it took the
+    frames as they came."""
+    k1 = survey_gt.get("options", {}).get("k1", 0.0)
+    if not k1:
+        return None
+    true = (np.array(survey_gt["camera_matrix"]).reshape(3, 3), k1)
+    cal = (manifest.get("camera") or {}).get("calibration_file")
+    if cal == "auto":
+        cal = os.path.join(store, "calibration.yml")
+    used = read_calibration(cal) if cal and os.path.exists(cal) else None
+    if used is not None and used[1] == 0:
+        used = None  # no distortion found: the frames as they came
+    return true, used
+
+
+def engine_grid_to_pinhole(grid, lens, side):
+    """Grid points in the engine's frame coordinates -> the true pinhole's pixels."""
+    (K_true, k1_true), used = lens
+    raw = grid
+    if used is not None:
+        K_used, k1_used = used
+        K_frame = np.array(side["frame_camera_matrix"]).reshape(3, 3)
+        raw = to_pixels(K_used, distort(to_normalised(K_frame, grid), k1_used))
+    return to_pixels(K_true, undistort(to_normalised(K_true, raw), k1_true))
+
+
 def main():
     survey, store = sys.argv[1], sys.argv[2]
     gt = json.load(open(os.path.join(survey, "ground_truth.json")))
@@ -53,9 +116,11 @@ def main():
     grid = np.c_[gx.ravel(), gy.ravel()]
     frame_rms, stitched, is_key = [], 0, []
     manifest = json.load(open(os.path.join(store, "store.json")))
+    lens = lens_of(gt, store, manifest)
     for entry in manifest["patches"]:
         side = os.path.join(store, entry["sidecar"])
         s = json.load(open(side))
+        truth_grid = grid if lens is None else engine_grid_to_pinhole(grid, lens, s)
         src, dst, owners, keys = [], [], [], []
         for i, f in enumerate(s["frames"]):
             name = os.path.basename(f["source"])
@@ -65,7 +130,7 @@ def main():
                 truth = gt_by_file.get(name)
             if truth is None:
                 continue
-            src.append(apply(f["frame_to_patch"], grid)); dst.append(apply(truth, grid))
+            src.append(apply(f["frame_to_patch"], grid)); dst.append(apply(truth, truth_grid))
             keys.append(f.get("keyframe", True))
             owners += [i] * len(grid)
         stitched += len(s["frames"])

@@ -59,6 +59,8 @@ void AddSynthCommand(CLI::App& app, Runner* run) {
       ->capture_default_str();
   cmd->add_option("--vignetting", o.vignetting, "corner darkening 0..1")->capture_default_str();
   cmd->add_option("--backscatter", o.backscatter, "haze (0 = off)")->capture_default_str();
+  cmd->add_option("--k1", o.k1, "radial lens distortion (OpenCV's k1; negative = barrel, as wide lenses); the ground truth stays the pinhole's")
+      ->capture_default_str();
   cmd->add_option("--light-cone", o.light_cone, "the vehicle's lights, a bright spot off the centre (0..1, 0 = off)")
       ->capture_default_str();
   cmd->add_option("--exposure-jitter", o.exposure_jitter, "per-frame exposure gain, standard deviation (0 = off)")

@@ -103,6 +103,9 @@ struct PatchSidecar {
   std::optional<PatchLink> link;
   std::optional<long long> pixel_budget;              // the budget it was built under, pixels
   std::optional<std::array<int, 2>> frame_size;       // width, height of the rectified frames
+  // Their pinhole camera matrix (after undistortion: a calibration's rectified one, or the field
+  // of view's), as the engine took it; the adjustment's focal length is in `extra["adjustment"]`.
+  std::optional<Homography> frame_camera_matrix;
   std::optional<Homography> patch_to_global_online;   // the online placement, kept by align
   std::optional<bool> aligned;                        // patch_to_global is the aligned placement
   std::optional<std::string> closed_by;               // "pixel_budget", "lost_tracking" or "end"

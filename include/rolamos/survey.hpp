@@ -41,6 +41,9 @@ struct SurveyOptions {
   double attenuation = 1.0;   // red/green loss with altitude
   double vignetting = 0.35;   // darkening at the corners
   double backscatter = 0.08;  // blue-green haze
+  // Radial lens distortion, OpenCV's k1 (negative: barrel, as wide lenses; 0 = a pinhole). The
+  // ground truth stays the pinhole's: frame_to_world maps undistorted pixels.
+  double k1 = 0;
   double light_cone = 0;      // the vehicle's lights: a bright spot off the centre, 0..1 of brightness
   double exposure_jitter = 0; // per-frame exposure gain drawn around 1 (standard deviation)
   double noise = 2.0;         // sensor noise sigma, grey levels

@@ -784,6 +784,7 @@ void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Clo
   job.frame_size = frame_size;
   job.pixel_budget = options.PixelBudget(frame_size);
   job.focal = K(0, 0);
+  job.camera = K;
   job.frames = std::move(frames);
   job.rejected = std::move(rejected);
   job.link = link;

@@ -291,6 +291,7 @@ void PatchWriter::Write(PatchJob& job) {
   PatchSidecar sidecar =
       AssemblePatchSidecar(job.id, rect, std::move(job.frames), std::move(job.rejected), job.link, job.pixel_budget,
                            job.frame_size);
+  sidecar.frame_camera_matrix = ToArray9(job.camera);
   sidecar.closed_by = job.closed_by;
   if (adjusted.used) {
     sidecar.extra["adjustment"] = {{"rms_px", adjusted.stats.final_rms_px},

@@ -47,6 +47,7 @@ struct PatchJob {
   cv::Size frame_size;
   long long pixel_budget = 0;
   double focal = 0;
+  cv::Matx33d camera = cv::Matx33d::eye();  // the frames' pinhole camera, as assumed
   // Every placed frame, online frame -> first-frame coordinates; the frames that are not
   // keyframes have `placed_from`.
   std::vector<FrameRecord> frames;

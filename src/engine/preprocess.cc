@@ -113,6 +113,11 @@ cv::Mat Preprocessor::Undistort(const cv::Mat& frame) {
                            : cv::Matx33d(cv::getOptimalNewCameraMatrix(
                                  cv::Mat(calibration_->camera_matrix), calibration_->distortion,
                                  frame.size(), 0.0));
+        // OpenCV fills the frame in each axis on its own: pixels 3 % taller than wide for a
+        // 90-degree lens, which the engine's cameras (one focal length) cannot hold. Square pixels,
+        // zoomed by the larger: still every pixel valid.
+        const double f = std::max(rectified_K_(0, 0), rectified_K_(1, 1));
+        rectified_K_(0, 0) = rectified_K_(1, 1) = f;
         cv::initUndistortRectifyMap(cv::Mat(calibration_->camera_matrix), calibration_->distortion,
                                     cv::Mat(), cv::Mat(rectified_K_), frame.size(), CV_16SC2,
                                     map_x_, map_y_);
@@ -120,7 +125,14 @@ cv::Mat Preprocessor::Undistort(const cv::Mat& frame) {
       map_x = map_x_;
       map_y = map_y_;
     }
-    if (!calibration_->distortion.empty()) cv::remap(frame, out, map_x, map_y, cv::INTER_LINEAR);
+    // Into a new image: `out` shares the caller's pixels, and remap writes over its destination
+    // when the size fits. The overlay search undistorted the frames it held in place that way,
+    // and the engine then undistorted them again (the first 24 frames of a calibrated run: 24 px).
+    if (!calibration_->distortion.empty()) {
+      cv::Mat undistorted;
+      cv::remap(frame, undistorted, map_x, map_y, cv::INTER_LINEAR);
+      out = undistorted;
+    }
   }
   return out;
 }

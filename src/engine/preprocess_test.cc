@@ -47,6 +47,33 @@ TEST(Calibration, ReadsOpenCvFilesAndNamesBadFields) {
             std::string::npos);
 }
 
+// Undistortion makes a new image: it wrote over the caller's frame, and the frames the overlay
+// search had undistorted were undistorted again by the engine (a calibrated run's first 24
+// frames, 24 px off). Its camera has square pixels, as the engine's cameras have one focal length.
+TEST(Preprocess, UndistortionLeavesTheFrameAloneAndHasSquarePixels) {
+  test::ScratchDir dir;
+  cv::FileStorage fs(dir / "cal.yml", cv::FileStorage::WRITE);
+  fs << "image_width" << 160 << "image_height" << 120;
+  fs << "camera_matrix" << cv::Mat(cv::Matx33d(80, 0, 79.5, 0, 80, 59.5, 0, 0, 1));
+  fs << "distortion_coefficients" << (cv::Mat_<double>(1, 4) << -0.05, 0, 0, 0);
+  fs.release();
+  PreprocessOptions o;
+  o.calibration = dir / "cal.yml";
+  Preprocessor pre(o);
+  cv::Mat frame(120, 160, CV_8UC3);
+  cv::randu(frame, 1, 255);
+  const cv::Mat before = frame.clone();
+  const cv::Mat out = pre.Undistort(frame);
+  EXPECT_EQ(cv::norm(frame, before, cv::NORM_INF), 0) << "the caller's frame was written over";
+  EXPECT_GT(cv::norm(out, before, cv::NORM_INF), 0);
+  const cv::Matx33d K = pre.CameraMatrix(frame.size());
+  EXPECT_EQ(K(0, 0), K(1, 1));
+  // No black band at a border: at most a few corner pixels (OpenCV's alpha 0 is found on a grid).
+  cv::Mat grey;
+  cv::cvtColor(out, grey, cv::COLOR_BGR2GRAY);
+  EXPECT_LE(int(grey.total()) - cv::countNonZero(grey), int(grey.total()) / 1000);
+}
+
 TEST(Preprocess, TemporalTermRemovesParticlesWithoutSmearingTexture) {
   cv::Mat ground = RenderSeafloor(0, 0, 700, 500);
   const cv::Matx33d cur_to_prev(1, 0, 12, 0, 1, 7, 0, 0, 1);  // the camera moved

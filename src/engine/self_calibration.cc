@@ -76,7 +76,10 @@ SelfCalibrationResult EstimateRadialDistortion(const std::vector<cv::Mat>& gray,
   r.calibration.camera_matrix = K;
   r.calibration.image_size = size;
   r.calibration.distortion = cv::Mat::zeros(1, 4, CV_64F);
-  if (pairs.empty()) return r;
+  if (pairs.size() < 3) {
+    r.why_none = "too few pairs of frames match to tell (" + std::to_string(pairs.size()) + " of at least 3)";
+    return r;
+  }
   const Score zero = ScoreWith(pairs, K, 0.0);
   r.inliers_uncorrected = zero.inliers;
   // Coarse grid, then a finer one around the best.
@@ -91,9 +94,11 @@ SelfCalibrationResult EstimateRadialDistortion(const std::vector<cv::Mat>& gray,
     const Score s = ScoreWith(pairs, K, k1);
     if (s.cost < best_score.cost) best_score = s, best = k1;
   }
-  if (best_score.cost > (1.0 - min_gain) * zero.cost) {
+  if (best_score.cost > (1.0 - min_gain) * zero.cost || best_score.inliers < 150) {
     r.inliers_corrected = r.inliers_uncorrected;
-    return r;  // no clear gain: leave the frames alone
+    r.why_none = best_score.inliers < 150 ? "too few matches agree to tell (" + std::to_string(best_score.inliers) + " of at least 150)"
+                                          : "no distortion lowers the error clearly";
+    return r;  // leave the frames alone
   }
   r.k1 = best;
   r.inliers_corrected = best_score.inliers;

@@ -143,6 +143,7 @@ json SidecarToJson(const PatchSidecar& s) {
   }
   if (s.pixel_budget) j["pixel_budget"] = *s.pixel_budget;
   if (s.frame_size) j["frame_size"] = *s.frame_size;
+  if (s.frame_camera_matrix) j["frame_camera_matrix"] = *s.frame_camera_matrix;
   if (s.patch_to_global_online) j["patch_to_global_online"] = *s.patch_to_global_online;
   if (s.aligned) j["aligned"] = *s.aligned;
   if (s.closed_by) j["closed_by"] = *s.closed_by;
@@ -254,6 +255,7 @@ PatchSidecar SidecarFromJson(const json& j, const std::string& where) {
     }
     s.frame_size = size;
   }
+  if (r.Has("frame_camera_matrix")) s.frame_camera_matrix = ReadHomography(r, "frame_camera_matrix");
   if (r.Has("patch_to_global_online")) s.patch_to_global_online = ReadHomography(r, "patch_to_global_online");
   if (r.Has("aligned")) {
     if (!r.Get("aligned").is_boolean()) Fail(r.Where("aligned"), "must be true or false");
@@ -265,7 +267,7 @@ PatchSidecar SidecarFromJson(const json& j, const std::string& where) {
   if (r.Has("component")) s.component = static_cast<int>(r.Int("component", 0, kMaxInt));
   s.extra = Extra(j, {"id", "size", "n_images", "offset", "first_homography", "last_homography",
                       "patch_to_global", "frames", "rejected", "link", "pixel_budget", "frame_size",
-                      "patch_to_global_online", "aligned", "closed_by", "frame_links", "frame_features",
+                      "frame_camera_matrix", "patch_to_global_online", "aligned", "closed_by", "frame_links", "frame_features",
                       "component"});
   return s;
 }

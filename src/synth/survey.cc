@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include <nlohmann/json.hpp>
+#include <opencv2/calib3d.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
@@ -55,6 +56,7 @@ bool SurveyOptions::IsValid(std::string* error) const {
           (video_codec == "mjpeg" && !mp4)))
       return bad("video codec \"" + video_codec + "\" is not mpeg4 or h264 for .mp4, or mjpeg for .avi");
   }
+  if (!(k1 >= -0.5 && k1 <= 0.5)) return bad("lens distortion k1 " + std::to_string(k1) + " is outside -0.5..0.5");
   if (!(light_cone >= 0 && light_cone <= 1) || !(exposure_jitter >= 0 && exposure_jitter <= 0.5))
     return bad("light cone must be in [0, 1] and exposure jitter in [0, 0.5]");
   if (noise < 0 || particles < 0 || vignetting < 0 || vignetting > 1 || backscatter < 0 ||
@@ -255,6 +257,50 @@ nlohmann::json Mat33(const cv::Matx33d& m) {
                                 m(2, 1), m(2, 2)});
 }
 
+// Where each pixel of the (distorted) frame looks through the pinhole camera K: its undistorted
+// pixel. Empty without distortion.
+std::vector<cv::Point2f> LensLookup(const SurveyOptions& o, const cv::Matx33d& K) {
+  std::vector<cv::Point2f> raw, out;
+  if (o.k1 == 0) return out;
+  raw.reserve(size_t(o.frame_width) * size_t(o.frame_height));
+  for (int y = 0; y < o.frame_height; ++y)
+    for (int x = 0; x < o.frame_width; ++x) raw.emplace_back(float(x), float(y));
+  cv::undistortPoints(raw, out, cv::Mat(K), cv::Mat(cv::Vec4d(o.k1, 0, 0, 0)), cv::noArray(), cv::Mat(K),
+                      cv::TermCriteria(cv::TermCriteria::COUNT | cv::TermCriteria::EPS, 40, 1e-6));
+  return out;
+}
+
+// The clean frame the camera sees from `world_to_frame`: the texture warped to it, through the
+// lens when it has distortion (`lens`, from LensLookup).
+cv::Mat RenderFrame(const TextureSource& texture, const cv::Matx33d& world_to_frame, cv::Size size,
+                    const std::vector<cv::Point2f>& lens) {
+  const cv::Matx33d frame_to_world = world_to_frame.inv();
+  std::vector<cv::Point2f> seen = {{0, 0}, {size.width - 1.f, 0}, {size.width - 1.f, size.height - 1.f},
+                                   {0, size.height - 1.f}};
+  if (!lens.empty()) seen = lens;  // every pixel's ray: barrel lenses see beyond the pinhole's corners
+  std::vector<cv::Point2f> world;
+  cv::perspectiveTransform(seen, world, cv::Mat(frame_to_world));
+  cv::Rect box = cv::boundingRect(world);
+  box.x -= 3;
+  box.y -= 3;
+  box.width += 6;
+  box.height += 6;
+  cv::Mat window = texture.Window(box);
+  cv::Mat clean;
+  if (lens.empty()) {
+    const cv::Matx33d shift(1, 0, box.x, 0, 1, box.y, 0, 0, 1);  // window pixel -> world
+    cv::warpPerspective(window, clean, cv::Mat(world_to_frame * shift), size, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+    return clean;
+  }
+  cv::Mat map(size, CV_32FC2);
+  for (int y = 0; y < size.height; ++y)
+    for (int x = 0; x < size.width; ++x)
+      map.at<cv::Vec2f>(y, x) = cv::Vec2f(world[size_t(y) * size.width + x].x - box.x,
+                                          world[size_t(y) * size.width + x].y - box.y);
+  cv::remap(window, clean, map, cv::noArray(), cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+  return clean;
+}
+
 }  // namespace
 
 Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
@@ -267,7 +313,12 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
                       (o.frame_height - 1) / 2.0, 0, 0, 1);
   // The camera centre keeps the whole (tilted, higher) footprint on the texture.
   const double jitter_tilt = 3 * o.attitude_jitter_deg * CV_PI / 180;  // room for the jitter's extremes
-  const double half_diag = 0.5 * std::hypot(o.frame_width, o.frame_height) * o.gsd *
+  // A barrel lens sees beyond the pinhole's corners: room for its reach too.
+  const std::vector<cv::Point2f> lens = LensLookup(o, K);
+  double reach = 1;
+  for (const auto& p : lens)
+    reach = std::max(reach, std::hypot(p.x - K(0, 2), p.y - K(1, 2)) / std::hypot(K(0, 2), K(1, 2)));
+  const double half_diag = reach * 0.5 * std::hypot(o.frame_width, o.frame_height) * o.gsd *
                                (1.0 + o.altitude_jitter) * 1.1 + altitude * std::tan(jitter_tilt);
   cv::Rect2d area(half_diag, half_diag, texture.size().width - 2 * half_diag,
                   texture.size().height - 2 * half_diag);
@@ -309,22 +360,7 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
   for (size_t i = 0; i < poses.size(); ++i) {
     const cv::Matx33d world_to_frame = WorldToFrame(poses[i], K);
     const cv::Matx33d frame_to_world = world_to_frame.inv();
-    std::vector<cv::Point2d> corners{{0, 0},
-                                     {o.frame_width - 1.0, 0},
-                                     {o.frame_width - 1.0, o.frame_height - 1.0},
-                                     {0, o.frame_height - 1.0}},
-        world;
-    cv::perspectiveTransform(corners, world, cv::Mat(frame_to_world));
-    cv::Rect box = cv::boundingRect(std::vector<cv::Point2f>(world.begin(), world.end()));
-    box.x -= 3;
-    box.y -= 3;
-    box.width += 6;
-    box.height += 6;
-    cv::Mat window = texture.Window(box);
-    const cv::Matx33d shift(1, 0, box.x, 0, 1, box.y, 0, 0, 1);  // window pixel -> world
-    cv::Mat clean;
-    cv::warpPerspective(window, clean, cv::Mat(world_to_frame * shift), survey.frame_size,
-                        cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+    const cv::Mat clean = RenderFrame(texture, world_to_frame, survey.frame_size, lens);
     cv::Mat frame = Degrade(clean, o, poses[i], altitude, static_cast<int>(i));
     if (o.overlay) BurnOverlay(frame, static_cast<int>(i));
     char name[64];
@@ -359,7 +395,7 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
                      {"attitude_jitter_deg", o.attitude_jitter_deg}, {"lane_turns", o.lane_turns},
                      {"lanes", o.lanes}, {"max_turn_deg", o.max_turn_deg}, {"overlay", o.overlay},
                      {"repeat", o.repeat},
-                     {"focal_px", o.Focal()}}},
+                     {"focal_px", o.Focal()}, {"k1", o.k1}}},
                    {"frames", frames}};
   WriteFileAtomic((fs::path(dir) / "ground_truth.json").string(), j.dump(1) + "\n");
   return survey;
