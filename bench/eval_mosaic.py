@@ -100,6 +100,8 @@ def engine_grid_to_pinhole(grid, lens, side):
     (K_true, k1_true), used = lens
     raw = grid
     if used is not None:
+        if "frame_camera_matrix" not in side:
+            return None  # a store of an engine before session 26: its rectified frames are not known
         K_used, k1_used = used
         K_frame = np.array(side["frame_camera_matrix"]).reshape(3, 3)
         raw = to_pixels(K_used, distort(to_normalised(K_frame, grid), k1_used))
@@ -121,6 +123,11 @@ def main():
         side = os.path.join(store, entry["sidecar"])
         s = json.load(open(side))
         truth_grid = grid if lens is None else engine_grid_to_pinhole(grid, lens, s)
+        if truth_grid is None:
+            print(f"{side}: no frame_camera_matrix (an older engine's store): its frames through a calibration "
+                  "cannot be followed back to the lens; the patch is not evaluated", file=sys.stderr)
+            stitched += len(s["frames"])
+            continue
         src, dst, owners, keys = [], [], [], []
         for i, f in enumerate(s["frames"]):
             name = os.path.basename(f["source"])

@@ -92,6 +92,10 @@ py::dict SummaryDict(const MosaicSummary& s) {
   d["blended"] = s.blended;
   d["described"] = s.described;
   d["recovered"] = s.recovered;
+  d["adjusted"] = s.adjusted;
+  py::list unadjusted;
+  for (const auto& [id, why] : s.unadjusted_why) unadjusted.append(py::make_tuple(id, why));
+  d["unadjusted"] = unadjusted;  // (patch, why): the patches whose online placements were kept
   d["seconds"] = s.seconds;
   d["cpu_seconds"] = s.cpu_seconds;
   d["peak_rss_mb"] = s.peak_rss_mb;

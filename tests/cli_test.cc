@@ -203,6 +203,23 @@ test::CommandResult TwoLaneSurvey(const std::string& dir) {
 
 // Ctrl-C on a long `rolamos mosaic LIST` (a vehicle that held still over one frame for 3,000
 // frames): the run ends as at the end of its input, says so, and the store holds every frame read.
+// A 90-degree lens that distorts, uncalibrated: no patch fits flat ground seen through a pinhole,
+// and the map drifts hundreds of pixels. The summary says so and what to do; with the lens
+// calibrated (`auto`) it fits, and says nothing.
+TEST(Cli, MosaicSaysWhenTheFramesFitNoPinholeCamera) {
+  ScratchDir dir;
+  ASSERT_EQ(RunCli("synth -q -o " + (dir / "survey") + " --width 480 --height 360 --fov 90 --k1 -0.08 --frames 40 "
+                   "--lanes 1 --overlap 0.9").exit_code, 0);
+  auto r = RunCli("mosaic -q " + (dir / "survey/frames") + " -o " + (dir / "raw.rolamos"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("the adjustment did not fit them (patch 1: transfer error"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("a lens that distorts? Give its calibration"), std::string::npos) << r.output;
+  r = RunCli("mosaic -q " + (dir / "survey/frames") + " -o " + (dir / "auto.rolamos") + " --calibration auto");
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("calibration auto: k1 = -0.2"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("did not fit"), std::string::npos) << r.output;
+}
+
 TEST(Cli, MosaicStoppedByCtrlCWritesTheOpenPatch) {
   test::ScratchDir dir;
   auto r = TwoLaneSurvey(dir / "survey");

@@ -158,6 +158,28 @@ static MosaicSummary RunLive(MosaicSwitches& s, Store& store, const MosaickerOpt
   return sum;
 }
 
+// Patches the adjustment did not fit keep their online placements, which drift. Where the frames
+// fit no plane seen through a pinhole, the likely cause is a lens that distorts (a 90-degree lens
+// uncalibrated: one patch at 5.7 px after adjustment, the map hundreds of pixels off).
+// A patch of one or two frames has nothing to adjust: not said.
+static void PrintUnadjusted(const MosaicSummary& sum, bool calibrated) {
+  std::string which;
+  int failed = 0;
+  bool misfit = false;
+  for (const auto& [id, why] : sum.unadjusted_why) {
+    if (why.rfind("fewer than", 0) == 0) continue;
+    misfit = misfit || why.rfind("transfer error", 0) == 0;
+    if (++failed <= 3) which += (failed > 1 ? "; patch " : "patch ") + std::to_string(id) + ": " + why;
+  }
+  if (failed == 0) return;
+  if (failed > 3) which += "; ...";
+  std::printf("%d of %d patches kept their online placements, the adjustment did not fit them (%s)\n", failed,
+              sum.adjusted + sum.unadjusted, which.c_str());
+  if (misfit && !calibrated)
+    std::printf("frames that fit no flat ground seen through a pinhole camera: a lens that distorts? Give its "
+                "calibration (--calibration FILE), or --calibration auto; or ground far from flat\n");
+}
+
 // The one-line summary, then what each stage cost per frame and per keyframe.
 static void PrintSummary(const MosaicSwitches& s, const MosaicSummary& sum, int input_frames) {
   if (!sum.preview_problem.empty())
@@ -170,6 +192,7 @@ static void PrintSummary(const MosaicSwitches& s, const MosaicSummary& sum, int 
               s.output.c_str(), sum.frames, sum.stitched, sum.keyframes, sum.blended, sum.described, sum.recovered,
               sum.rejected, sum.patches, sum.seconds, sum.frames / std::max(sum.seconds, 1e-9),
               100.0 * sum.cpu_seconds / std::max(sum.seconds, 1e-9) / cores, cores, sum.peak_rss_mb);
+  if (sum.unadjusted > 0) PrintUnadjusted(sum, !s.options.calibration.empty());
   if (s.live)
     std::printf("live: %d frames skipped to keep up, coverage lost after %d of them, %d mapped while shedding load%s\n",
                 sum.frames_skipped, sum.coverage_lost, sum.frames_shedding,

@@ -209,6 +209,8 @@ struct MosaicSummary {
   int described = 0;  // of the keyframes: their features found and stored
   int recovered = 0;  // of the stitched: rejected at first, registered against a later frame
   int adjusted = 0, unadjusted = 0;  // patches whose placements the adjustment replaced, or not
+  // The patches the adjustment did not fit, and why (their online placements kept).
+  std::vector<std::pair<int, std::string>> unadjusted_why;
   double seconds = 0;
   double cpu_seconds = 0;  // the process's CPU time (user + system, every thread) during the run
   double peak_rss_mb = 0;

@@ -1479,6 +1479,9 @@ MosaicSummary Mosaicker::Finish() {
   m.ClosePatch("end");
   m.keyframe_pool.Wait();
   m.writer.Wait();
+  m.summary.adjusted = m.writer.adjusted();
+  m.summary.unadjusted_why = m.writer.unadjusted();
+  m.summary.unadjusted = static_cast<int>(m.summary.unadjusted_why.size());
   m.ListLateRejections();
   if ((m.options.flat_field || m.options.water_colour) && m.colour->frames() > 0)
     WriteFileAtomic(m.store.dir() + "/lighting.json", m.colour->ToJson());

@@ -304,6 +304,12 @@ void PatchWriter::Write(PatchJob& job) {
   } else if (job.adjust.enabled) {
     sidecar.extra["adjustment"] = {{"skipped", adjusted.note}};
   }
+  if (adjusted.used) {
+    ++adjusted_;
+  } else if (job.adjust.enabled) {
+    std::lock_guard<std::mutex> lock(unadjusted_mutex_);
+    unadjusted_.emplace_back(job.id, adjusted.note);
+  }
   // For the global map: the links (thinned) and each keyframe's strongest features.
   std::map<int, int> patch_of;
   for (const auto& f : sidecar.frames) patch_of[f.index] = job.id;

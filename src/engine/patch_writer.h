@@ -8,6 +8,7 @@
 #include <atomic>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <vector>
 
@@ -77,6 +78,12 @@ class PatchWriter {
   void Wait();
   void OnPatch(std::function<void(const PatchSidecar&)> f) { on_patch_ = std::move(f); }
   int written() const { return written_; }
+  // Patches whose placements the adjustment replaced; the others, with the reason.
+  int adjusted() const { return adjusted_; }
+  std::vector<std::pair<int, std::string>> unadjusted() const {
+    std::lock_guard<std::mutex> lock(unadjusted_mutex_);
+    return unadjusted_;
+  }
   // Time spent closing patches (adjustment, blending, writing), seconds, and of it the adjustment.
   double busy_seconds() const { return busy_ns_.load() * 1e-9; }
   double adjust_seconds() const { return adjust_ns_.load() * 1e-9; }
@@ -90,6 +97,9 @@ class PatchWriter {
   TiffWriteOptions options_;
   std::function<void(const PatchSidecar&)> on_patch_;
   std::atomic<int> written_{0};
+  std::atomic<int> adjusted_{0};
+  mutable std::mutex unadjusted_mutex_;
+  std::vector<std::pair<int, std::string>> unadjusted_;
   std::atomic<long long> busy_ns_{0}, adjust_ns_{0}, encode_ns_{0};
   // Where the last patch's closing frame is in its image: the next patch's link.
   std::optional<cv::Matx33d> closing_to_image_;
