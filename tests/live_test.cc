@@ -6,6 +6,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -22,14 +23,16 @@ namespace {
 namespace fs = std::filesystem;
 
 // Copies the survey's frames into `to` at `fps`, each written under a temporary name and renamed
-// (as loggers do) or, with `in_place`, written in two halves (a frame caught half-written).
-void Feed(const fs::path& from, const fs::path& to, double fps, int first, int count, bool in_place = false) {
+// (as loggers do) or, with `in_place`, written in two halves (a frame caught half-written); named
+// as in the survey, or by `name_of` (the frame's number).
+void Feed(const fs::path& from, const fs::path& to, double fps, int first, int count, bool in_place = false,
+          const std::function<std::string(int)>& name_of = nullptr) {
   std::vector<fs::path> frames;
   for (const auto& e : fs::directory_iterator(from)) frames.push_back(e.path());
   std::sort(frames.begin(), frames.end());
   fs::create_directories(to);
   for (int i = first; i < std::min<int>(first + count, static_cast<int>(frames.size())); ++i) {
-    const fs::path target = to / frames[size_t(i)].filename();
+    const fs::path target = to / (name_of ? fs::path(name_of(i)) : frames[size_t(i)].filename());
     if (in_place) {
       std::ifstream in(frames[size_t(i)], std::ios::binary);
       const std::string bytes((std::istreambuf_iterator<char>(in)), {});
@@ -420,16 +423,8 @@ TEST_F(LiveTest, AFileCutShortIsTakenAndCounted) {
 TEST_F(LiveTest, FramesNumberedWithoutLeadingZerosAreTakenInTheirOrder) {
   const std::string store = dir_ / "unpadded.rolamos";
   std::thread logger([&] {
-    std::vector<fs::path> frames;
-    for (const auto& e : fs::directory_iterator(dir_ / "survey/frames")) frames.push_back(e.path());
-    std::sort(frames.begin(), frames.end());
-    const fs::path incoming = dir_ / "incoming";
-    fs::create_directories(incoming);
-    for (size_t i = 0; i < 25 && i < frames.size(); ++i) {
-      fs::copy_file(frames[i], incoming / ".incoming");
-      fs::rename(incoming / ".incoming", incoming / ("frame" + std::to_string(i + 1) + ".jpg"));
-      std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    }
+    Feed(dir_ / "survey/frames", dir_ / "incoming", 10, 0, 25, false,
+         [](int i) { return "frame" + std::to_string(i + 1) + ".jpg"; });
   });
   auto r = test::RunCli("mosaic -q " + (dir_ / "incoming") + " -o " + store + " --live --idle-timeout 3 --mask none");
   logger.join();
