@@ -12,6 +12,7 @@
 #include "rolamos/store.hpp"
 
 namespace rolamos {
+
 std::string StoreWriterLock::PathIn(const std::string& store_dir) { return store_dir + "/.writer.lock"; }
 
 StoreWriterLock::StoreWriterLock(const Store& store, const std::string& who) : store_(std::make_unique<Store>(store)) {
