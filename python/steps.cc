@@ -40,6 +40,7 @@ const OptionTable<SurveyOptions>& SurveyTable() {
         .Text("repeat", &SurveyOptions::repeat)
         .Number("attenuation", &SurveyOptions::attenuation).Number("vignetting", &SurveyOptions::vignetting)
         .Number("backscatter", &SurveyOptions::backscatter).Number("light_cone", &SurveyOptions::light_cone)
+        .Number("k1", &SurveyOptions::k1)
         .Number("exposure_jitter", &SurveyOptions::exposure_jitter).Number("noise", &SurveyOptions::noise)
         .Integer("particles", &SurveyOptions::particles).Integer("jpeg", &SurveyOptions::jpeg_quality)
         .Custom("seed", [](SurveyOptions& o, const py::handle& v) { o.seed = v.cast<uint32_t>(); })

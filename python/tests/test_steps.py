@@ -48,6 +48,18 @@ def mapped(survey):
     return rolamos.Store(store)
 
 
+def test_a_lens_that_distorts_is_said_and_calibrated(tmp_path):
+    # A 90-degree lens, uncalibrated: no patch fits a pinhole camera, and the summary says which
+    # and why; calibrated from the frames, every patch is adjusted.
+    rolamos.synth(tmp_path / "lens", frames=40, width=480, height=360, fov=90, k1=-0.08, lanes=1, overlap=0.9)
+    raw = rolamos.mosaic(tmp_path / "lens" / "frames", tmp_path / "raw.rolamos")
+    assert raw["stitched"] == 40
+    assert raw["unadjusted"] and raw["unadjusted"][0][1].startswith("transfer error"), raw["unadjusted"]
+    cal = rolamos.mosaic(tmp_path / "lens" / "frames", tmp_path / "cal.rolamos", calibration="auto")
+    assert "k1 = -0.2" in cal["calibration_note"], cal["calibration_note"]
+    assert cal["unadjusted"] == [] and cal["adjusted"] >= 1, cal
+
+
 def test_compose_in_a_local_frame_places_pixels_on_the_map(mapped):
     r = rolamos.compose(mapped.path, altitude=2.0, focal=420)
     assert r["patches_used"] == len(mapped.patches)
