@@ -1,6 +1,7 @@
 #include "engine/patch_adjustment.h"
 
 #include <algorithm>
+#include <cstdio>
 #include <map>
 
 namespace rolamos {
@@ -141,7 +142,10 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
     return out;
   }
   if (!(out.stats.final_rms_px <= o.max_rms_px)) {
-    out.note = "transfer error " + std::to_string(out.stats.final_rms_px) + " px after adjustment";
+    char note[96];
+    std::snprintf(note, sizeof note, "transfer error %.2f px after adjustment, more than %.2f", out.stats.final_rms_px,
+                  o.max_rms_px);
+    out.note = note;
     return out;
   }
   // The first camera's altitude made one plane pixel one frame pixel at the focal length it started
