@@ -2,6 +2,7 @@
 
 
 #include <cmath>
+#include <vector>
 
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
@@ -65,8 +66,11 @@ SelfCalibrationResult EstimateRadialDistortion(const std::vector<cv::Mat>& gray,
   fo.max_features = std::max(fo.max_features, 3000);
   fo.detect_scale = std::max(fo.detect_scale, 0.5);
   FeatureExtractor extractor(fo);
-  std::vector<Features> found;
-  for (const auto& g : gray) found.push_back(extractor.Extract(g));
+  std::vector<Features> found(gray.size());
+  // On every core: a run's start waits for this (the extractor makes a detector per call).
+  cv::parallel_for_(cv::Range(0, static_cast<int>(gray.size())), [&](const cv::Range& r) {
+    for (int i = r.start; i < r.end; ++i) found[size_t(i)] = extractor.Extract(gray[size_t(i)]);
+  });
   std::vector<Matches> pairs;
   for (size_t i = 0; i + 1 < found.size(); ++i) {
     Matches m = MatchFeatures(found[i + 1], found[i], fo);
@@ -82,7 +86,8 @@ SelfCalibrationResult EstimateRadialDistortion(const std::vector<cv::Mat>& gray,
   }
   const Score zero = ScoreWith(pairs, K, 0.0);
   r.inliers_uncorrected = zero.inliers;
-  // Coarse grid, then a finer one around the best.
+  // Coarse grid, then a finer one around the best. One after the other on purpose: MAGSAC draws
+  // from the thread's random generator, so scores made on several threads differ run to run.
   double best = 0;
   Score best_score = zero;
   for (double k1 = -0.4; k1 <= 0.8 + 1e-9; k1 += 0.05) {
