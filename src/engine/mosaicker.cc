@@ -245,8 +245,8 @@ struct Mosaicker::Impl {
         ecc_options(ToEccOptions(o)),
         writer(s, o.tiff) {
     adjust_options.enabled = o.adjust_patches;
-    adjust_options.solver.refine_focal =
-        o.estimate_focal && (o.calibration.empty() || o.calibration == "auto" || !o.calibration_focal_measured);
+    // ("auto" never reaches the engine: MosaicInput replaces it by the file it writes, or by none.)
+    adjust_options.solver.refine_focal = o.estimate_focal && (o.calibration.empty() || !o.calibration_focal_measured);
     ColourOptions co;
     co.lighting = o.flat_field;
     co.exposure = o.exposure;

@@ -63,15 +63,18 @@ SelfCalibrationResult CalibrateFromInput(const std::string& input, const std::st
   InputFrame f;
   for (int read = 0; gray.size() < 10 && read < 90 && source->Next(&f); ++read) {
     if (f.image.empty()) continue;
-    cv::Mat g, small;
+    cv::Mat g;
     cv::cvtColor(f.image, g, f.image.channels() == 3 ? cv::COLOR_BGR2GRAY : cv::COLOR_BGRA2GRAY);
     if (!gray.empty() && g.size() != gray[0].size()) continue;
     if (consecutive.size() < 10) consecutive.push_back(g);
-    const double scale = 0.25;
-    cv::resize(g, small, cv::Size(), scale, scale, cv::INTER_AREA);
-    small.convertTo(small, CV_32F);
-    if (!last_small.empty()) moved += ShiftBetween(last_small, small, scale);
-    last_small = small;
+    if (spaced) {  // stills are taken as they come: their motion is not measured
+      const double scale = 0.25;
+      cv::Mat small;
+      cv::resize(g, small, cv::Size(), scale, scale, cv::INTER_AREA);
+      small.convertTo(small, CV_32F);
+      if (!last_small.empty()) moved += ShiftBetween(last_small, small, scale);
+      last_small = small;
+    }
     if (gray.empty() || !spaced || moved >= 0.25 * std::min(g.cols, g.rows)) {
       gray.push_back(g);
       moved = 0;
