@@ -142,8 +142,13 @@ KINDS = {
 # The paper's video again, encoded as a vehicle streams it (H.264 at libx264's default quality).
 KINDS["video-1292-h264"] = (KINDS["video-1292"][0].replace("MPEG-4", "H.264"),
                             KINDS["video-1292"][1] + ["--video-codec", "h264"])
+# Session 27: motion blur, the shutter open half the frame interval (1/60 s at 30 frames/s, as a
+# camera over a dim seafloor sets itself), over video-800's ground and path.
+KINDS["video-800-blur"] = ("video 800 x 600 at 30 frames/s, 60 deg, motion blur (shutter open half the frame interval), "
+                           "MPEG-4, 300 frames",
+                           KINDS["video-800"][1] + ["--motion-blur", "0.5"])
 # The video surveys' JPEG frames (same survey, no video codec).
-SAME_SURVEY = {"video-1292-jpeg": "video-1292", "video-800-jpeg": "video-800", "video-1292-lights-jpeg": "video-1292-lights",
+SAME_SURVEY = {"video-800-blur-jpeg": "video-800-blur", "video-1292-jpeg": "video-1292", "video-800-jpeg": "video-800", "video-1292-lights-jpeg": "video-1292-lights",
                "video-800-lights-jpeg": "video-800-lights"}
 for _name, _of in SAME_SURVEY.items():
     KINDS[_name] = (KINDS[_of][0].replace("MPEG-4", "its JPEG frames"), KINDS[_of][1])

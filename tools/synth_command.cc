@@ -65,6 +65,10 @@ void AddSynthCommand(CLI::App& app, Runner* run) {
       ->capture_default_str();
   cmd->add_option("--exposure-jitter", o.exposure_jitter, "per-frame exposure gain, standard deviation (0 = off)")
       ->capture_default_str();
+  cmd->add_option("--motion-blur", o.motion_blur,
+                  "shutter open for this share of the frame interval (0 = off; 0.5 = 1/60 s at 30 frames/s): "
+                  "frames smeared along the camera's motion")
+      ->capture_default_str();
   cmd->add_option("--noise", o.noise, "sensor noise sigma")->capture_default_str();
   cmd->add_option("--particles", o.particles, "marine snow per frame")->capture_default_str();
   cmd->add_option("--jpeg", o.jpeg_quality, "JPEG quality (0 = PNG)")->capture_default_str();

@@ -46,6 +46,10 @@ struct SurveyOptions {
   double k1 = 0;
   double light_cone = 0;      // the vehicle's lights: a bright spot off the centre, 0..1 of brightness
   double exposure_jitter = 0; // per-frame exposure gain drawn around 1 (standard deviation)
+  // Motion blur: the shutter open for this fraction of the time between frames (0 = a still
+  // picture; 0.5 = 1/60 s at 30 frames/s), the frame smeared along the camera's own motion and
+  // turn, centred on its pose (the ground truth). A dim seafloor needs long exposures.
+  double motion_blur = 0;
   double noise = 2.0;         // sensor noise sigma, grey levels
   int particles = 40;         // marine snow per frame
   int jpeg_quality = 92;      // 0 = write PNG

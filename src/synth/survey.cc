@@ -57,6 +57,8 @@ bool SurveyOptions::IsValid(std::string* error) const {
       return bad("video codec \"" + video_codec + "\" is not mpeg4 or h264 for .mp4, or mjpeg for .avi");
   }
   if (!(k1 >= -0.5 && k1 <= 0.5)) return bad("lens distortion k1 " + std::to_string(k1) + " is outside -0.5..0.5");
+  if (!(motion_blur >= 0 && motion_blur <= 1))
+    return bad("motion blur " + std::to_string(motion_blur) + " is outside 0..1 (the shutter's share of the frame interval)");
   if (!(light_cone >= 0 && light_cone <= 1) || !(exposure_jitter >= 0 && exposure_jitter <= 0.5))
     return bad("light cone must be in [0, 1] and exposure jitter in [0, 0.5]");
   if (noise < 0 || particles < 0 || vignetting < 0 || vignetting > 1 || backscatter < 0 ||
@@ -301,6 +303,62 @@ cv::Mat RenderFrame(const TextureSource& texture, const cv::Matx33d& world_to_fr
   return clean;
 }
 
+// The camera's motion at frame i per frame interval (position and yaw; the attitude's jitter is
+// per frame, not a motion): towards the next frame, or from the previous one where the next is
+// a jump (a lawnmower's lanes joined without turns start turned 180 degrees). Zero when neither
+// neighbour is a continuation. `typical` is the path's median step.
+CameraPose MotionAt(const std::vector<CameraPose>& poses, size_t i, double typical) {
+  auto step = [&](size_t a, size_t b, CameraPose* out) {
+    const double yaw = std::remainder(poses[b].yaw - poses[a].yaw, 2 * CV_PI);
+    if (cv::norm(poses[b].position - poses[a].position) > 3 * typical + 1 || std::abs(yaw) > CV_PI / 4) return false;
+    out->position = poses[b].position - poses[a].position;
+    out->yaw = yaw;
+    return true;
+  };
+  CameraPose v;
+  v.position = cv::Vec3d(0, 0, 0);
+  if (i + 1 < poses.size() && step(i, i + 1, &v)) return v;
+  if (i > 0 && step(i - 1, i, &v)) return v;
+  v.position = cv::Vec3d(0, 0, 0);
+  v.yaw = 0;
+  return v;
+}
+
+// The frame as the shutter saw it while the camera moved: renders along the motion, averaged,
+// one a pixel of smear (at most 32), centred on the frame's own pose.
+cv::Mat RenderExposure(const TextureSource& texture, const std::vector<CameraPose>& poses, size_t i,
+                       double typical_step, const cv::Matx33d& K, cv::Size size,
+                       const std::vector<cv::Point2f>& lens, double blur) {
+  const cv::Matx33d centre = WorldToFrame(poses[i], K);
+  if (blur <= 0) return RenderFrame(texture, centre, size, lens);
+  const CameraPose v = MotionAt(poses, i, typical_step);
+  auto at = [&](double t) {
+    CameraPose p = poses[i];
+    p.position += t * v.position;
+    p.yaw += t * v.yaw;
+    return WorldToFrame(p, K);
+  };
+  // The smear's length: how far a corner of the frame moves while the shutter is open.
+  const std::vector<cv::Point2f> corners = {{0, 0}, {size.width - 1.f, 0}, {size.width - 1.f, size.height - 1.f},
+                                            {0, size.height - 1.f}};
+  std::vector<cv::Point2f> world, a, b;
+  cv::perspectiveTransform(corners, world, cv::Mat(centre.inv()));
+  cv::perspectiveTransform(world, a, cv::Mat(at(-blur / 2)));
+  cv::perspectiveTransform(world, b, cv::Mat(at(blur / 2)));
+  double length = 0;
+  for (size_t k = 0; k < corners.size(); ++k) length = std::max(length, double(cv::norm(a[k] - b[k])));
+  const int n = std::clamp(static_cast<int>(std::ceil(length)) + 1, 1, 32);
+  if (n == 1) return RenderFrame(texture, centre, size, lens);
+  cv::Mat sum = cv::Mat::zeros(size, CV_32FC3);
+  for (int k = 0; k < n; ++k) {
+    const double t = blur * (double(k) / (n - 1) - 0.5);
+    cv::accumulate(RenderFrame(texture, at(t), size, lens), sum);
+  }
+  cv::Mat out;
+  sum.convertTo(out, CV_8UC3, 1.0 / n);
+  return out;
+}
+
 }  // namespace
 
 Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
@@ -335,6 +393,10 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
                         std::to_string(int(area.width)) + "x" + std::to_string(int(area.height)) +
                         " (lower the ground sample distance, or fewer frames)");
   auto poses = PlanCameraPath(o, area);
+  std::vector<double> steps;
+  for (size_t k = 0; k + 1 < poses.size(); ++k) steps.push_back(cv::norm(poses[k + 1].position - poses[k].position));
+  std::nth_element(steps.begin(), steps.begin() + steps.size() / 2, steps.end());
+  const double typical_step = steps.empty() ? 0 : steps[steps.size() / 2];
 
   std::error_code ec;
   fs::create_directories(fs::path(dir) / "frames", ec);
@@ -360,7 +422,7 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
   for (size_t i = 0; i < poses.size(); ++i) {
     const cv::Matx33d world_to_frame = WorldToFrame(poses[i], K);
     const cv::Matx33d frame_to_world = world_to_frame.inv();
-    const cv::Mat clean = RenderFrame(texture, world_to_frame, survey.frame_size, lens);
+    const cv::Mat clean = RenderExposure(texture, poses, i, typical_step, K, survey.frame_size, lens, o.motion_blur);
     cv::Mat frame = Degrade(clean, o, poses[i], altitude, static_cast<int>(i));
     if (o.overlay) BurnOverlay(frame, static_cast<int>(i));
     char name[64];
@@ -395,7 +457,7 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
                      {"attitude_jitter_deg", o.attitude_jitter_deg}, {"lane_turns", o.lane_turns},
                      {"lanes", o.lanes}, {"max_turn_deg", o.max_turn_deg}, {"overlay", o.overlay},
                      {"repeat", o.repeat},
-                     {"focal_px", o.Focal()}, {"k1", o.k1}}},
+                     {"focal_px", o.Focal()}, {"k1", o.k1}, {"motion_blur", o.motion_blur}}},
                    {"frames", frames}};
   WriteFileAtomic((fs::path(dir) / "ground_truth.json").string(), j.dump(1) + "\n");
   return survey;

@@ -80,6 +80,50 @@ TEST(Synth, ALensDistortsTheFramesAndTheGroundTruthStaysThePinholes) {
   }
 }
 
+// Motion blur smears a frame along the camera's motion, not across it, and leaves its pose (the
+// ground truth, the exposure's middle) where it was: the blurred frames still meet each other
+// through it as sharp ones do.
+TEST(Synth, MotionBlurSmearsAlongTheMotionAndKeepsTheGroundTruth) {
+  test::ScratchDir sharp_dir, blurred_dir;
+  SurveyOptions o = Clean("lawnmower");
+  o.forward_overlap = 0.9;
+  o.frames = 8;
+  const Survey sharp = WriteSurvey(o, sharp_dir.path());
+  o.motion_blur = 0.8;
+  const Survey blurred = WriteSurvey(o, blurred_dir.path());
+  const int i = 5, j = 6;  // inside the first lane
+  for (int k = 0; k < 9; ++k) ASSERT_EQ(sharp.frames[i].frame_to_world[k], blurred.frames[i].frame_to_world[k]);
+  const cv::Matx33d H = ToMatx(blurred.frames[j].frame_to_world).inv() * ToMatx(blurred.frames[i].frame_to_world);
+  const cv::Vec3d c = H * cv::Vec3d(240, 180, 1);
+  cv::Point2d along(c[0] / c[2] - 240, c[1] / c[2] - 180);
+  ASSERT_GT(cv::norm(along), 5.0) << "the camera moves between frames " << i << " and " << j;
+  along *= 1.0 / cv::norm(along);
+  // Mean absolute derivative of the grey frame along and across the motion.
+  auto derivatives = [&](const cv::Mat& frame) {
+    cv::Mat grey, gx, gy;
+    cv::cvtColor(frame, grey, cv::COLOR_BGR2GRAY);
+    cv::Sobel(grey, gx, CV_32F, 1, 0);
+    cv::Sobel(grey, gy, CV_32F, 0, 1);
+    const cv::Mat d_along = gx * along.x + gy * along.y, d_across = gx * -along.y + gy * along.x;
+    return std::make_pair(cv::mean(cv::abs(d_along))[0], cv::mean(cv::abs(d_across))[0]);
+  };
+  const auto [sharp_along, sharp_across] = derivatives(cv::imread(sharp_dir / sharp.frames[i].file));
+  const auto [blur_along, blur_across] = derivatives(cv::imread(blurred_dir / blurred.frames[i].file));
+  EXPECT_LT(blur_along, 0.6 * sharp_along) << "no smear along the motion";
+  EXPECT_GT(blur_across, 0.8 * blur_along) << "smeared across the motion as much as along it";
+  EXPECT_GT(blur_across / sharp_across, 1.5 * blur_along / sharp_along);
+  // The two blurred frames meet through the ground truth (blur is symmetric about the pose).
+  const cv::Mat fi = cv::imread(blurred_dir / blurred.frames[i].file), fj = cv::imread(blurred_dir / blurred.frames[j].file);
+  cv::Mat warped, mask, diff;
+  cv::warpPerspective(fi, warped, cv::Mat(H), fj.size());
+  cv::warpPerspective(cv::Mat(fi.size(), CV_8U, cv::Scalar(255)), mask, cv::Mat(H), fj.size(), cv::INTER_NEAREST);
+  cv::erode(mask, mask, cv::Mat(), cv::Point(-1, -1), 3);
+  cv::absdiff(warped, fj, diff);
+  EXPECT_LT(cv::mean(diff, mask)[1], 2.0);
+  o.motion_blur = 1.5;
+  EXPECT_THROW(WriteSurvey(o, blurred_dir.path()), Error);
+}
+
 TEST(Synth, BadOptionsAreRefused) {
   test::ScratchDir dir;
   SurveyOptions o = Clean("zigzag");
