@@ -7,7 +7,9 @@
 //   cell_rms_px   RMS over frames and 4 x 4 cells of each cell's mean displacement (full-size
 //                 pixels): what moves regions of a frame, the part a homography cannot average out;
 //   point_median_px  the median displacement of single points (this includes the matching noise);
-//   by_contrast   the median displacement in each quarter of the points by raw local contrast.
+//   by_contrast   the median displacement in each quarter of the points by raw local contrast;
+//   by_frame      each frame's cell RMS (a codec's intra frames, every 12th for OpenCV's MPEG-4,
+//                 are where its displacement starts again).
 //   codec_displacement_bench SURVEY_DIR [frames=60] [scale=0.5]
 #include <algorithm>
 #include <cmath>
@@ -80,6 +82,7 @@ int main(int argc, char** argv) {
   int cell_count = 0, used = 0;
   std::vector<double> points;
   std::vector<std::pair<float, double>> by_contrast;
+  std::string by_frame;
   for (int i = 0; i < frames && i < int(originals.size()); ++i) {
     cv::Mat decoded;
     if (!video.read(decoded)) break;
@@ -108,12 +111,20 @@ int main(int argc, char** argv) {
       points.push_back(cv::norm(d));
       by_contrast.emplace_back(contrast.at<float>(from[k]), cv::norm(d));
     }
+    double frame_sse = 0;
+    int frame_cells = 0;
     for (int c = 0; c < kCells * kCells; ++c) {
       if (count[c] < 6) continue;
       const cv::Vec2d mean = sum[c] / count[c];
-      cell_sse += mean.dot(mean);
-      ++cell_count;
+      frame_sse += mean.dot(mean);
+      ++frame_cells;
     }
+    cell_sse += frame_sse;
+    cell_count += frame_cells;
+    char part[32];
+    std::snprintf(part, sizeof part, "%s%.3f", by_frame.empty() ? "" : ", ",
+                  frame_cells ? std::sqrt(frame_sse / frame_cells) : NAN);
+    by_frame += part;
     ++used;
   }
   if (cell_count == 0) {
@@ -132,7 +143,8 @@ int main(int argc, char** argv) {
     quarters += part;
   }
   std::printf("{\"survey\": \"%s\", \"frames\": %d, \"scale\": %.3f, \"cell_rms_px\": %.3f, \"point_median_px\": %.3f, "
-              "\"by_contrast\": [%s]}\n",
-              dir.c_str(), used, scale, std::sqrt(cell_sse / cell_count), Median(points), quarters.c_str());
+              "\"by_contrast\": [%s], \"by_frame\": [%s]}\n",
+              dir.c_str(), used, scale, std::sqrt(cell_sse / cell_count), Median(points), quarters.c_str(),
+              by_frame.c_str());
   return 0;
 }

@@ -97,6 +97,8 @@ py::dict SummaryDict(const MosaicSummary& s) {
   py::list unadjusted;
   for (const auto& [id, why] : s.unadjusted_why) unadjusted.append(py::make_tuple(id, why));
   d["unadjusted"] = unadjusted;  // (patch, why): the patches whose online placements were kept
+  d["misfit_patches"] = s.misfit_patches;  // of those: frames that fit no flat ground through a pinhole
+  d["trivial_patches"] = s.trivial_patches;  // of those: fewer than three frames
   d["seconds"] = s.seconds;
   d["cpu_seconds"] = s.cpu_seconds;
   d["peak_rss_mb"] = s.peak_rss_mb;

@@ -5,6 +5,7 @@
 #include <filesystem>
 #include <functional>
 #include <memory>
+#include <set>
 #include <thread>
 
 #include <signal.h>
@@ -165,17 +166,16 @@ static MosaicSummary RunLive(MosaicSwitches& s, Store& store, const MosaickerOpt
 static void PrintUnadjusted(const MosaicSummary& sum, bool calibrated) {
   std::string which;
   int failed = 0;
-  bool misfit = false;
+  const std::set<int> trivial(sum.trivial_patches.begin(), sum.trivial_patches.end());
   for (const auto& [id, why] : sum.unadjusted_why) {
-    if (why.rfind("fewer than", 0) == 0) continue;
-    misfit = misfit || why.rfind("transfer error", 0) == 0;
+    if (trivial.count(id)) continue;
     if (++failed <= 3) which += (failed > 1 ? "; patch " : "patch ") + std::to_string(id) + ": " + why;
   }
   if (failed == 0) return;
   if (failed > 3) which += "; ...";
   std::printf("%d of %d patches kept their online placements, the adjustment did not fit them (%s)\n", failed,
               sum.adjusted + sum.unadjusted, which.c_str());
-  if (misfit && !calibrated)
+  if (!sum.misfit_patches.empty() && !calibrated)
     std::printf("frames that fit no flat ground seen through a pinhole camera: a lens that distorts? Give its "
                 "calibration (--calibration FILE), or --calibration auto; or ground far from flat\n");
 }

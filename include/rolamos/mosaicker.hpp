@@ -211,6 +211,10 @@ struct MosaicSummary {
   int adjusted = 0, unadjusted = 0;  // patches whose placements the adjustment replaced, or not
   // The patches the adjustment did not fit, and why (their online placements kept).
   std::vector<std::pair<int, std::string>> unadjusted_why;
+  // Of those, the patches whose frames fit no flat ground seen through a pinhole camera (solved,
+  // but their transfer error stayed above the bound): a lens that distorts, or ground far from
+  // flat. And those of fewer than three frames, which have nothing to adjust.
+  std::vector<int> misfit_patches, trivial_patches;
   double seconds = 0;
   double cpu_seconds = 0;  // the process's CPU time (user + system, every thread) during the run
   double peak_rss_mb = 0;

@@ -55,9 +55,10 @@ def test_a_lens_that_distorts_is_said_and_calibrated(tmp_path):
     raw = rolamos.mosaic(tmp_path / "lens" / "frames", tmp_path / "raw.rolamos")
     assert raw["stitched"] == 40
     assert raw["unadjusted"] and raw["unadjusted"][0][1].startswith("transfer error"), raw["unadjusted"]
+    assert raw["misfit_patches"] == [p for p, _ in raw["unadjusted"]], raw
     cal = rolamos.mosaic(tmp_path / "lens" / "frames", tmp_path / "cal.rolamos", calibration="auto")
     assert "k1 = -0.2" in cal["calibration_note"], cal["calibration_note"]
-    assert cal["unadjusted"] == [] and cal["adjusted"] >= 1, cal
+    assert cal["unadjusted"] == [] and cal["misfit_patches"] == [] and cal["adjusted"] >= 1, cal
 
 
 def test_compose_in_a_local_frame_places_pixels_on_the_map(mapped):

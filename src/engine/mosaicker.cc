@@ -1480,7 +1480,11 @@ MosaicSummary Mosaicker::Finish() {
   m.keyframe_pool.Wait();
   m.writer.Wait();
   m.summary.adjusted = m.writer.adjusted();
-  m.summary.unadjusted_why = m.writer.unadjusted();
+  for (const auto& u : m.writer.unadjusted()) {
+    m.summary.unadjusted_why.emplace_back(u.patch, u.why);
+    if (u.miss == PatchAdjustment::Miss::kMisfit) m.summary.misfit_patches.push_back(u.patch);
+    if (u.miss == PatchAdjustment::Miss::kTooFewFrames) m.summary.trivial_patches.push_back(u.patch);
+  }
   m.summary.unadjusted = static_cast<int>(m.summary.unadjusted_why.size());
   m.ListLateRejections();
   if ((m.options.flat_field || m.options.water_colour) && m.colour->frames() > 0)

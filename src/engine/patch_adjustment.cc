@@ -86,10 +86,12 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
   PatchAdjustment out;
   out.frame_to_patch = online;
   if (!o.enabled) {
+    out.miss = PatchAdjustment::Miss::kOff;
     out.note = "off";
     return out;
   }
   if (indices.size() < 3) {
+    out.miss = PatchAdjustment::Miss::kTooFewFrames;
     out.note = "fewer than three frames";
     return out;
   }
@@ -138,6 +140,7 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
   held.refine_focal = false;
   out.stats = AdjustPlanePoses(&poses, &f, frame, plane_links, 0, {}, {}, held);
   if (!out.stats.ok) {
+    out.miss = PatchAdjustment::Miss::kFailed;
     out.note = "adjustment failed: " + out.stats.message;
     return out;
   }
@@ -145,6 +148,7 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
     char note[96];
     std::snprintf(note, sizeof note, "transfer error %.2f px after adjustment, more than %.2f", out.stats.final_rms_px,
                   o.max_rms_px);
+    out.miss = PatchAdjustment::Miss::kMisfit;
     out.note = note;
     return out;
   }

@@ -34,6 +34,14 @@ struct PatchAdjustmentOptions {
 
 struct PatchAdjustment {
   bool used = false;            // the adjusted placements replace the online ones
+  // Why not, when not: for callers to act on (`note` is for people).
+  enum class Miss {
+    kNone,
+    kOff,           // not asked for
+    kTooFewFrames,  // under three frames: nothing to adjust
+    kFailed,        // the solver gave up
+    kMisfit,        // solved, but the frames fit no flat ground seen through a pinhole camera
+  } miss = Miss::kNone;
   std::string note;             // why not, when not
   std::vector<cv::Matx33d> frame_to_patch;  // per frame, in the order given
   std::vector<PlanePose> poses;

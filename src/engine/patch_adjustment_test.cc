@@ -142,5 +142,47 @@ TEST(PatchAdjustment, AFocalLengthFoundKeepsThePatchAtTheFramesResolution) {
     EXPECT_LT(CornerError(first.inv() * adjusted.frame_to_patch[size_t(i)], online[size_t(i)]), 0.5) << "frame " << i;
 }
 
+// Why an adjustment was not used, as a code callers act on: the command suggests a calibration
+// for frames that fit no flat ground seen through a pinhole (a lens bends every link the same
+// way), not for a patch too small to adjust.
+TEST(PatchAdjustment, SaysWhyItWasNotUsed) {
+  const double focal = 0.5 * kFrame.width / std::tan(35.0 * CV_PI / 180);
+  std::vector<int> indices;
+  std::vector<cv::Matx33d> online;
+  std::vector<FrameLink> links;
+  for (int i = 0; i < 6; ++i) {
+    indices.push_back(i);
+    online.push_back(Truth(i));
+  }
+  // Links bent as a barrel lens bends them: points moved towards the centre by their radius
+  // squared, differently in the two frames of a pair, so that no homography joins them.
+  auto bent = [](int a, int b) {
+    FrameLink l = LinkOf(a, b);
+    const cv::Point2f c(kFrame.width / 2.f, kFrame.height / 2.f);
+    for (auto& p : l.in_b) {
+      const cv::Point2f d = p - c;
+      p = c + d * (1.f - 0.12f * (d.dot(d) / (c.dot(c))));
+    }
+    return l;
+  };
+  for (int i = 1; i < 6; ++i) links.push_back(bent(i, i - 1));
+  for (int i = 2; i < 6; ++i) links.push_back(bent(i, i - 2));
+  const PatchAdjustment misfit = AdjustPatch(indices, online, links, focal, kFrame, PatchAdjustmentOptions());
+  EXPECT_FALSE(misfit.used);
+  EXPECT_EQ(misfit.miss, PatchAdjustment::Miss::kMisfit) << misfit.note;
+
+  const PatchAdjustment two = AdjustPatch({0, 1}, {Truth(0), Truth(1)}, {LinkOf(1, 0)}, focal, kFrame,
+                                          PatchAdjustmentOptions());
+  EXPECT_EQ(two.miss, PatchAdjustment::Miss::kTooFewFrames);
+  PatchAdjustmentOptions off;
+  off.enabled = false;
+  EXPECT_EQ(AdjustPatch(indices, online, links, focal, kFrame, off).miss, PatchAdjustment::Miss::kOff);
+  std::vector<FrameLink> straight;
+  for (int i = 1; i < 6; ++i) straight.push_back(LinkOf(i, i - 1));
+  const PatchAdjustment fits = AdjustPatch(indices, online, straight, focal, kFrame, PatchAdjustmentOptions());
+  EXPECT_TRUE(fits.used) << fits.note;
+  EXPECT_EQ(fits.miss, PatchAdjustment::Miss::kNone);
+}
+
 }  // namespace
 }  // namespace rolamos

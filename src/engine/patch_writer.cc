@@ -308,7 +308,7 @@ void PatchWriter::Write(PatchJob& job) {
     ++adjusted_;
   } else if (job.adjust.enabled) {
     std::lock_guard<std::mutex> lock(unadjusted_mutex_);
-    unadjusted_.emplace_back(job.id, adjusted.note);
+    unadjusted_.push_back({job.id, adjusted.miss, adjusted.note});
   }
   // For the global map: the links (thinned) and each keyframe's strongest features.
   std::map<int, int> patch_of;

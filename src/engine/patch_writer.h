@@ -80,7 +80,12 @@ class PatchWriter {
   int written() const { return written_; }
   // Patches whose placements the adjustment replaced; the others, with the reason.
   int adjusted() const { return adjusted_; }
-  std::vector<std::pair<int, std::string>> unadjusted() const {
+  struct Unadjusted {
+    int patch = 0;
+    PatchAdjustment::Miss miss = PatchAdjustment::Miss::kNone;
+    std::string why;
+  };
+  std::vector<Unadjusted> unadjusted() const {
     std::lock_guard<std::mutex> lock(unadjusted_mutex_);
     return unadjusted_;
   }
@@ -99,7 +104,7 @@ class PatchWriter {
   std::atomic<int> written_{0};
   std::atomic<int> adjusted_{0};
   mutable std::mutex unadjusted_mutex_;
-  std::vector<std::pair<int, std::string>> unadjusted_;
+  std::vector<Unadjusted> unadjusted_;
   std::atomic<long long> busy_ns_{0}, adjust_ns_{0}, encode_ns_{0};
   // Where the last patch's closing frame is in its image: the next patch's link.
   std::optional<cv::Matx33d> closing_to_image_;
