@@ -44,6 +44,49 @@ std::string Kvp(const httplib::Request& req, const std::string& name) {
 }  // namespace
 
 void TileServer::Impl::GisRoutes() {
+  MercatorRoutes();
+  WmtsRoutes();
+  GdalWmsRoutes();
+  StoreFileRoutes();
+}
+
+// Web Mercator tiles: /tiles/NAME/webmercator/Z/X/Y.png|jpg|webp (?background=RRGGBB for JPEG).
+void TileServer::Impl::MercatorTile(const httplib::Request& req, httplib::Response& res, const std::string& name,
+                                    long long z, long long x, long long y, const std::string& ext) {
+  const auto s = Find(name, res);
+  if (!s) return;
+  if (!s->mercator) return Bad(res, 404, name + " has no Web Mercator tiles: " + s->mercator_why);
+  cv::Scalar background(0, 0, 0);
+  if (req.has_param("background")) {
+    const std::string v = req.get_param_value("background");
+    if (v.size() != 6 || v.find_first_not_of("0123456789abcdefABCDEF") != std::string::npos)
+      return Bad(res, 400, "background must be RRGGBB (hex)");
+    const long rgb = std::stol(v, nullptr, 16);
+    background = cv::Scalar(rgb & 255, (rgb >> 8) & 255, (rgb >> 16) & 255);
+  }
+  if (!s->mercator->InGrid(int(std::min(z, 99LL)), x, y))
+    return Bad(res, 404, "tile " + std::to_string(z) + "/" + std::to_string(x) + "/" + std::to_string(y) +
+                             " is outside the Web Mercator grid (zoom 0..30, x and y below 2^zoom)");
+  if (z > s->mercator->max_zoom())
+    return Bad(res, 404, "zoom " + std::to_string(z) + " is finer than the map (" +
+                             std::to_string(s->mercator->max_zoom()) + " is its full resolution)");
+  const std::string key = "merc-" + std::to_string(z) + "-" + std::to_string(x) + "-" + std::to_string(y);
+  // The warped tiles cost most: kept encoded (a recomposed image has a new version).
+  std::string bytes;
+  const std::string cache_key = s->name + "/" + s->version + "/" + key + "." + ext + "/" +
+                                std::to_string(int(background[0])) + "," + std::to_string(int(background[1])) +
+                                "," + std::to_string(int(background[2]));
+  if (mercator_tiles.Get(cache_key, &bytes)) {
+    res.set_header("ETag", "\"" + s->version + "-" + key + "." + ext + "\"");
+    res.set_header("Cache-Control", "public, max-age=3600");
+    res.set_content(bytes, ext == "png" ? "image/png" : ext == "webp" ? "image/webp" : "image/jpeg");
+    return;
+  }
+  Reply(req, res, *s, key, ext, background, [&] { return s->mercator->Tile(int(z), x, y); }, "outside the grid");
+  if ((res.status == 200 || res.status == -1) && !res.body.empty()) mercator_tiles.Put(cache_key, res.body);
+}
+
+void TileServer::Impl::MercatorRoutes() {
   // What the map page needs to know: the base map, when one was configured.
   http.Get("/api/config", [this](const httplib::Request&, httplib::Response& res) {
     nlohmann::json c = {{"basemap", options.basemap.empty() ? nlohmann::json(nullptr) : nlohmann::json(options.basemap)},
@@ -53,49 +96,15 @@ void TileServer::Impl::GisRoutes() {
     res.set_content(c.dump(), "application/json");
   });
 
-  // Web Mercator tiles: /tiles/NAME/webmercator/Z/X/Y.png|jpg|webp (?background=RRGGBB for JPEG).
-  auto mercator_tile = [this](const httplib::Request& req, httplib::Response& res, const std::string& name,
-                              long long z, long long x, long long y, const std::string& ext) {
-    const auto s = Find(name, res);
-    if (!s) return;
-    if (!s->mercator) return Bad(res, 404, name + " has no Web Mercator tiles: " + s->mercator_why);
-    cv::Scalar background(0, 0, 0);
-    if (req.has_param("background")) {
-      const std::string v = req.get_param_value("background");
-      if (v.size() != 6 || v.find_first_not_of("0123456789abcdefABCDEF") != std::string::npos)
-        return Bad(res, 400, "background must be RRGGBB (hex)");
-      const long rgb = std::stol(v, nullptr, 16);
-      background = cv::Scalar(rgb & 255, (rgb >> 8) & 255, (rgb >> 16) & 255);
-    }
-    if (!s->mercator->InGrid(int(std::min(z, 99LL)), x, y))
-      return Bad(res, 404, "tile " + std::to_string(z) + "/" + std::to_string(x) + "/" + std::to_string(y) +
-                               " is outside the Web Mercator grid (zoom 0..30, x and y below 2^zoom)");
-    if (z > s->mercator->max_zoom())
-      return Bad(res, 404, "zoom " + std::to_string(z) + " is finer than the map (" +
-                               std::to_string(s->mercator->max_zoom()) + " is its full resolution)");
-    const std::string key = "merc-" + std::to_string(z) + "-" + std::to_string(x) + "-" + std::to_string(y);
-    // The warped tiles cost most: kept encoded (a recomposed image has a new version).
-    std::string bytes;
-    const std::string cache_key = s->name + "/" + s->version + "/" + key + "." + ext + "/" +
-                                  std::to_string(int(background[0])) + "," + std::to_string(int(background[1])) +
-                                  "," + std::to_string(int(background[2]));
-    if (mercator_tiles.Get(cache_key, &bytes)) {
-      res.set_header("ETag", "\"" + s->version + "-" + key + "." + ext + "\"");
-      res.set_header("Cache-Control", "public, max-age=3600");
-      res.set_content(bytes, ext == "png" ? "image/png" : ext == "webp" ? "image/webp" : "image/jpeg");
-      return;
-    }
-    Reply(req, res, *s, key, ext, background, [&] { return s->mercator->Tile(int(z), x, y); }, "outside the grid");
-    if ((res.status == 200 || res.status == -1) && !res.body.empty()) mercator_tiles.Put(cache_key, res.body);
-  };
+  // Web Mercator tiles by XYZ.
   http.Get(R"(/tiles/([^/]+)/webmercator/([^/]+)/([^/]+)/([^/.]+)\.([a-z]+))",
-           [mercator_tile](const httplib::Request& req, httplib::Response& res) {
+           [this](const httplib::Request& req, httplib::Response& res) {
              long long z, x, y;
              const std::string ext = req.matches[5];
              if (!ParseIndex(req.matches[2], &z) || !ParseIndex(req.matches[3], &x) ||
                  !ParseIndex(req.matches[4], &y) || (ext != "jpg" && ext != "png" && ext != "webp"))
                return Bad(res, 400, "expected /tiles/NAME/webmercator/Z/X/Y.jpg|png|webp with whole numbers");
-             mercator_tile(req, res, req.matches[1], z, x, y, ext);
+             MercatorTile(req, res, req.matches[1], z, x, y, ext);
            });
 
   // TileJSON 3.0.0 of the Web Mercator tiles.
@@ -108,7 +117,9 @@ void TileServer::Impl::GisRoutes() {
     const std::string url = BaseUrl(req, port) + "/tiles/" + s->name + "/webmercator/{z}/{x}/{y}." + format;
     res.set_content(TileJson({s->name, s->mercator.get()}, url).dump(1), "application/json");
   });
+}
 
+void TileServer::Impl::WmtsRoutes() {
   // WMTS: the capabilities (RESTful and KVP) and GetTile by KVP.
   auto capabilities = [this](const httplib::Request& req, httplib::Response& res) {
     Refresh();
@@ -128,7 +139,7 @@ void TileServer::Impl::GisRoutes() {
     res.set_content(WmtsCapabilities(layers, BaseUrl(req, port)), "application/xml");
   };
   http.Get("/wmts/1.0.0/WMTSCapabilities.xml", capabilities);
-  http.Get("/wmts", [capabilities, mercator_tile](const httplib::Request& req, httplib::Response& res) {
+  http.Get("/wmts", [this, capabilities](const httplib::Request& req, httplib::Response& res) {
     const std::string service = Kvp(req, "SERVICE"), request = Kvp(req, "REQUEST");
     if (service != "WMTS") return OgcBad(res, "MissingParameterValue", "service", "SERVICE=WMTS is required");
     if (request == "GetCapabilities") return capabilities(req, res);
@@ -144,9 +155,11 @@ void TileServer::Impl::GisRoutes() {
                     "TILEMATRIX, TILEROW and TILECOL must be whole numbers");
     const std::string ext = format == "image/jpeg" ? "jpg" : format == "image/png" || format.empty() ? "png" : "";
     if (ext.empty()) return OgcBad(res, "InvalidParameterValue", "format", "FORMAT must be image/png or image/jpeg");
-    mercator_tile(req, res, layer, z, col, row, ext);
+    MercatorTile(req, res, layer, z, col, row, ext);
   });
+}
 
+void TileServer::Impl::GdalWmsRoutes() {
   // GDAL WMS descriptions (TMS minidriver): `gdalinfo http://HOST/gdal/NAME.xml` or in QGIS.
   http.Get(R"(/gdal/([^/]+)\.xml)", [this](const httplib::Request& req, httplib::Response& res) {
     std::string name = req.matches[1];
@@ -171,7 +184,9 @@ void TileServer::Impl::GisRoutes() {
     res.set_content(GdalWmsPixel(*s->tiles, base + "/tiles/" + name + "/${z}/${x}/${y}.png", int(zoom)),
                     "application/xml");
   });
+}
 
+void TileServer::Impl::StoreFileRoutes() {
   // The store's files, by the names its manifest gives them: mosaic.tif, patches/NNNNNN.tif and
   // the exports recorded there (a COG `rolamos export --cog` wrote inside the store).
   http.Get(R"(/files/(.+))", [this](const httplib::Request& req, httplib::Response& res) {

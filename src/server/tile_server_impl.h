@@ -89,6 +89,13 @@ struct TileServer::Impl {
   void PageRoutes();  // the viewer
   void LiveAndExportRoutes();  // the live view, overlays, export, the error page
   void GisRoutes();  // Web Mercator tiles, TileJSON, WMTS, GDAL WMS descriptions, files with ranges
+  void MercatorRoutes();   // of GisRoutes: the map page's config, Web Mercator tiles, TileJSON
+  void WmtsRoutes();       // capabilities (RESTful and KVP), GetTile by KVP
+  void GdalWmsRoutes();    // GDAL WMS descriptions of the XYZ and Web Mercator tiles
+  void StoreFileRoutes();  // the store's files by their manifest names, with range requests
+  // A Web Mercator tile of image `name` (the XYZ route's and WMTS GetTile's), cached encoded.
+  void MercatorTile(const httplib::Request& req, httplib::Response& res, const std::string& name, long long z,
+                    long long x, long long y, const std::string& ext);
 };
 
 }  // namespace rolamos
