@@ -97,6 +97,9 @@ py::dict SummaryDict(const MosaicSummary& s) {
   py::list unadjusted;
   for (const auto& [id, why] : s.unadjusted_why) unadjusted.append(py::make_tuple(id, why));
   d["unadjusted"] = unadjusted;  // (patch, why): the patches whose online placements were kept
+  py::list rejected_frames;
+  for (const auto& r : s.rejected_frames) rejected_frames.append(py::make_tuple(r.index, r.source, r.reason));
+  d["rejected_frames"] = rejected_frames;  // (index, source, reason) of every frame rejected for good
   d["misfit_patches"] = s.misfit_patches;  // of those: frames that fit no flat ground through a pinhole
   d["trivial_patches"] = s.trivial_patches;  // of those: fewer than three frames
   d["seconds"] = s.seconds;

@@ -201,6 +201,29 @@ test::CommandResult TwoLaneSurvey(const std::string& dir) {
   return test::RunCli("synth -q -o " + dir + " --frames 40 --width 480 --height 360 --focal 420 --lanes 2");
 }
 
+// The frames a run rejected are named with their reasons, not only counted: where a patch was
+// written the sidecars hold them too; where none was (every frame unreadable), the summary is all
+// the user gets.
+TEST(Cli, MosaicNamesTheFramesItRejected) {
+  ScratchDir dir;
+  ASSERT_EQ(RunCli("synth -q -o " + (dir / "survey") + " --frames 12 --width 480 --height 360 --focal 420 --lanes 1")
+                .exit_code, 0);
+  std::ofstream(dir / "survey/frames/frame_00003.jpg") << "not a jpeg";
+  auto r = RunCli("mosaic -q " + (dir / "survey/frames") + " -o " + (dir / "s.rolamos"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("rejected: frame 3 frame_00003.jpg, unreadable"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("(all in the patches' sidecars)"), std::string::npos) << r.output;
+  fs::create_directories(dir / "junk");
+  for (const char* name : {"/a.jpg", "/b.jpg", "/c.jpg"}) std::ofstream((dir / "junk") + name) << "not a jpeg";
+  r = RunCli("mosaic -q " + (dir / "junk") + " -o " + (dir / "j.rolamos"));
+  EXPECT_EQ(r.exit_code, 1) << r.output;  // nothing placed
+  EXPECT_NE(r.output.find("rejected: frame 0 a.jpg, unreadable"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("frame 2 c.jpg"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("sidecar"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("no frame placed"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("Look at it"), std::string::npos) << r.output;
+}
+
 // Ctrl-C on a long `rolamos mosaic LIST` (a vehicle that held still over one frame for 3,000
 // frames): the run ends as at the end of its input, says so, and the store holds every frame read.
 // A 90-degree lens that distorts, uncalibrated: no patch fits flat ground seen through a pinhole,

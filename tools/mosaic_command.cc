@@ -180,6 +180,22 @@ static void PrintUnadjusted(const MosaicSummary& sum, bool calibrated) {
                 "calibration (--calibration FILE), or --calibration auto; or ground far from flat\n");
 }
 
+// Which frames were rejected and why, the first few: a count alone leaves the user to search the
+// sidecars (and a run that placed nothing has none).
+static void PrintRejected(const MosaicSummary& sum) {
+  if (sum.rejected_frames.empty()) return;
+  constexpr size_t kShown = 5;
+  std::string which;
+  for (size_t i = 0; i < sum.rejected_frames.size() && i < kShown; ++i) {
+    const RejectedFrame& r = sum.rejected_frames[i];
+    which += (i ? "; " : "") + std::string("frame ") + std::to_string(r.index) + " " +
+             std::filesystem::path(r.source).filename().string() + ", " + r.reason;
+  }
+  if (sum.rejected_frames.size() > kShown)
+    which += "; and " + std::to_string(sum.rejected_frames.size() - kShown) + " more";
+  std::printf("rejected: %s%s\n", which.c_str(), sum.patches > 0 ? " (all in the patches' sidecars)" : "");
+}
+
 // The one-line summary, then what each stage cost per frame and per keyframe.
 static void PrintSummary(const MosaicSwitches& s, const MosaicSummary& sum, int input_frames) {
   if (!sum.preview_problem.empty())
@@ -192,6 +208,7 @@ static void PrintSummary(const MosaicSwitches& s, const MosaicSummary& sum, int 
               s.output.c_str(), sum.frames, sum.stitched, sum.keyframes, sum.blended, sum.described, sum.recovered,
               sum.rejected, sum.patches, sum.seconds, sum.frames / std::max(sum.seconds, 1e-9),
               100.0 * sum.cpu_seconds / std::max(sum.seconds, 1e-9) / cores, cores, sum.peak_rss_mb);
+  PrintRejected(sum);
   if (sum.unadjusted > 0) PrintUnadjusted(sum, !s.options.calibration.empty());
   if (s.live)
     std::printf("live: %d frames skipped to keep up, coverage lost after %d of them, %d mapped while shedding load%s\n",
@@ -200,6 +217,10 @@ static void PrintSummary(const MosaicSwitches& s, const MosaicSummary& sum, int 
   else if (sum.stopped)
     std::printf("stopped by a signal after %d frames%s: the open patch written, the frames after them not mapped\n",
                 sum.frames, input_frames > 0 ? (" of " + std::to_string(input_frames)).c_str() : "");
+  if (sum.stitched == 0) {
+    std::printf("no frame placed: the store holds no patch from this run\n");
+    return;
+  }
   std::string stages, per_key;
   for (const auto& [name, sec] : sum.stage_seconds) {
     char b[64];

@@ -211,6 +211,10 @@ struct MosaicSummary {
   int adjusted = 0, unadjusted = 0;  // patches whose placements the adjustment replaced, or not
   // The patches the adjustment did not fit, and why (their online placements kept).
   std::vector<std::pair<int, std::string>> unadjusted_why;
+  // The frames rejected for good (not those placed on a second chance), in the order of the input,
+  // each with its reason: `rejected` counts them. Also in their patches' sidecars, except when no
+  // patch was written at all (every frame rejected: open water, black, unreadable).
+  std::vector<RejectedFrame> rejected_frames;
   // Of those, the patches whose frames fit no flat ground seen through a pinhole camera (solved,
   // but their transfer error stayed above the bound): a lens that distorts, or ground far from
   // flat. And those of fewer than three frames, which have nothing to adjust.

@@ -325,3 +325,14 @@ def test_box_detector_train_evaluate_validate_detect(mapped, tmp_path):
         rolamos.objects.train_boxes(tmp_path / "train", features="sift")
     with pytest.raises(rolamos.Error, match="labels_gt"):
         rolamos.objects.train_boxes(tmp_path / "nothing")
+
+
+def test_the_summary_names_the_frames_rejected(tmp_path):
+    # A frame that is not an image: rejected, named with its reason in the summary, the others placed.
+    rolamos.synth(tmp_path / "s", frames=10, width=480, height=360, lanes=1, overlap=0.8)
+    bad = tmp_path / "s" / "frames" / "frame_00004.jpg"
+    bad.write_text("not a jpeg")
+    summary = rolamos.mosaic(tmp_path / "s" / "frames", tmp_path / "s.rolamos")
+    assert summary["rejected"] == 1 and summary["stitched"] == 9, summary
+    [(index, source, reason)] = summary["rejected_frames"]
+    assert index == 4 and source.endswith("frame_00004.jpg") and reason.startswith("unreadable"), summary["rejected_frames"]

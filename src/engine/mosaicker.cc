@@ -786,6 +786,7 @@ void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Clo
   job.focal = K(0, 0);
   job.camera = K;
   job.frames = std::move(frames);
+  summary.rejected_frames.insert(summary.rejected_frames.end(), rejected.begin(), rejected.end());
   job.rejected = std::move(rejected);
   job.link = link;
   for (const auto& k : keys) job.products.emplace_back(k.index, k.products);
@@ -809,6 +810,9 @@ void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Clo
 }
 
 void Mosaicker::Impl::ListLateRejections() {
+  summary.rejected_frames.insert(summary.rejected_frames.end(), rejected.begin(), rejected.end());
+  std::sort(summary.rejected_frames.begin(), summary.rejected_frames.end(),
+            [](const RejectedFrame& a, const RejectedFrame& b) { return a.index < b.index; });
   if (rejected.empty() || summary.patches == 0) return;
   PatchSidecar s = store.ReadSidecar(patch_id);
   s.rejected.insert(s.rejected.end(), rejected.begin(), rejected.end());

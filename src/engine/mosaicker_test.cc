@@ -321,6 +321,14 @@ TEST(Mosaicker, BadFramesAreRejectedWithReasonsAndPatchesStayValid) {
   int rejected = 0;
   for (const auto& p : reopened.patches()) rejected += static_cast<int>(reopened.ReadSidecar(p.id).rejected.size());
   EXPECT_EQ(rejected, sum.rejected);
+  // The summary lists them too, in the input's order, with the reasons the reports gave.
+  ASSERT_EQ(static_cast<int>(sum.rejected_frames.size()), sum.rejected);
+  for (size_t i = 0; i < sum.rejected_frames.size(); ++i) {
+    const RejectedFrame& r = sum.rejected_frames[i];
+    if (i > 0) EXPECT_LT(sum.rejected_frames[i - 1].index, r.index);
+    EXPECT_EQ(reports[size_t(r.index)].status, "rejected") << r.source;
+    EXPECT_EQ(reports[size_t(r.index)].reason, r.reason) << r.source;
+  }
 }
 
 TEST(Mosaicker, ReadsVideoAndFrameLists) {
