@@ -164,7 +164,9 @@ std::unique_ptr<FrameSource> FrameSource::Open(const std::string& input) {
     std::vector<std::string> paths;
     std::string line;
     while (std::getline(in, line)) {
-      while (!line.empty() && (line.back() == '\r' || line.back() == ' ')) line.pop_back();
+      // Lists written by hand or by a spreadsheet: blanks and tabs around a name, Windows line ends.
+      const size_t first = line.find_first_not_of(" \t\r"), last = line.find_last_not_of(" \t\r");
+      line = first == std::string::npos ? "" : line.substr(first, last - first + 1);
       if (line.empty() || line[0] == '#') continue;
       fs::path p(line);
       paths.push_back(p.is_absolute() ? line : (fs::path(input).parent_path() / p).string());

@@ -46,6 +46,22 @@ TEST(FrameSource, TakesSeveralFramesInOrderAndGoesOnAfterThem) {
   }
 }
 
+// A list of frames as people and spreadsheets write them: comments, blank lines, blanks and tabs
+// around names, Windows line ends, names relative to the list's folder, spaces inside names.
+TEST(FrameSource, AListTakesItsNamesAsWrittenAroundBlanksAndComments) {
+  const test::ScratchDir dir;
+  for (const char* name : {"/a.png", "/b c.png", "/d.png"}) cv::imwrite(dir.path() + name, cv::Mat(8, 8, CV_8UC3));
+  std::ofstream(dir / "frames.txt") << "# dive 12\n\n  a.png  \n\tb c.png\t\r\n" << (dir / "d.png") << "\r\n   \n";
+  const auto source = FrameSource::Open(dir / "frames.txt");
+  InputFrame f;
+  for (const char* name : {"/a.png", "/b c.png", "/d.png"}) {
+    ASSERT_TRUE(source->Next(&f)) << name;
+    EXPECT_EQ(f.source, dir.path() + name);
+    EXPECT_TRUE(f.error.empty()) << f.source << ": " << f.error;
+  }
+  EXPECT_FALSE(source->Next(&f));
+}
+
 // `ffmpeg -i dive.mp4 frame%d.jpg` numbers frames without leading zeros: by name, frame10 would
 // come after frame1 and before frame2, and the survey would jump back and forth.
 TEST(FrameSource, AFoldersFramesComeInTheCamerasOrder) {
