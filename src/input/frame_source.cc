@@ -21,6 +21,11 @@ bool IsImageName(const std::string& name) {
   return std::any_of(std::begin(exts), std::end(exts), [&](const char* x) { return e == x; });
 }
 
+bool IsFolderFrame(const std::string& path) {
+  const std::string name = fs::path(path).filename().string();
+  return !name.empty() && name[0] != '.' && IsImageName(name);
+}
+
 // Decoders fill a cut-off JPEG or PNG with grey and carry on; a frame like that would put a grey
 // band into the mosaic. The end marker tells.
 bool LooksTruncated(const std::string& path) {
@@ -154,7 +159,7 @@ std::unique_ptr<FrameSource> FrameSource::Open(const std::string& input) {
   if (fs::is_directory(input, ec)) {
     std::vector<std::string> paths;
     for (const auto& e : fs::directory_iterator(input, ec))
-      if (e.is_regular_file() && IsImageName(e.path().string())) paths.push_back(e.path().string());
+      if (e.is_regular_file() && IsFolderFrame(e.path().string())) paths.push_back(e.path().string());
     std::sort(paths.begin(), paths.end(), NaturalLess);
     if (paths.empty()) Fail(input, "holds no images (.jpg, .png, .tif, ...)");
     return std::make_unique<FileListSource>(std::move(paths));

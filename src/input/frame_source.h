@@ -41,6 +41,10 @@ class FrameSource {
 
 // Helpers shared with the live sources.
 bool IsImageName(const std::string& name);
+// A file a folder of frames contributes: an image by its extension, and not hidden. macOS leaves
+// a "._NAME.jpg" (AppleDouble, not an image) beside every frame it copies onto a USB drive;
+// editors and sync tools write hidden temporaries.
+bool IsFolderFrame(const std::string& path);
 // A JPEG or PNG whose end-of-image marker is missing (cut off, or still being written).
 bool LooksTruncated(const std::string& path);
 // Frames of more than 8 bits (16-bit PNG or TIFF from machine-vision cameras, which often hold

@@ -63,16 +63,22 @@ TEST(FrameSource, AListTakesItsNamesAsWrittenAroundBlanksAndComments) {
 }
 
 // `ffmpeg -i dive.mp4 frame%d.jpg` numbers frames without leading zeros: by name, frame10 would
-// come after frame1 and before frame2, and the survey would jump back and forth.
+// come after frame1 and before frame2, and the survey would jump back and forth. Hidden files
+// beside them are not frames.
 TEST(FrameSource, AFoldersFramesComeInTheCamerasOrder) {
   const test::ScratchDir dir;
-  for (int i = 1; i <= 12; ++i) cv::imwrite(dir / ("frame" + std::to_string(i) + ".png"), cv::Mat(8, 8, CV_8UC3));
+  for (int i = 1; i <= 12; ++i) {
+    cv::imwrite(dir / ("frame" + std::to_string(i) + ".png"), cv::Mat(8, 8, CV_8UC3));
+    // What macOS leaves beside each file it copies to a USB drive: hidden, not an image.
+    std::ofstream(dir / ("._frame" + std::to_string(i) + ".png")) << "Mac OS X        ATTR";
+  }
   const auto source = FrameSource::Open(dir.path());
   InputFrame f;
   for (int i = 1; i <= 12; ++i) {
     ASSERT_TRUE(source->Next(&f));
     EXPECT_NE(f.source.find("/frame" + std::to_string(i) + ".png"), std::string::npos) << f.source;
   }
+  EXPECT_FALSE(source->Next(&f)) << "a hidden file taken as a frame: " << f.source;
 }
 
 // Machine-vision cameras write 10 or 12 bits of data in 16-bit PNGs and TIFFs. Read as OpenCV

@@ -148,7 +148,7 @@ class GrowingFolderSource : public LiveSource {
   void Collect() {
     std::vector<std::string> complete;
     for (const auto& p : Reported())
-      if (IsImageName(p) && !taken_.count(p) && !LooksTruncated(p)) complete.push_back(p);
+      if (IsFolderFrame(p) && !taken_.count(p) && !LooksTruncated(p)) complete.push_back(p);
     const auto now = std::chrono::steady_clock::now();
     if (now - listed_ >= std::chrono::duration<double>(options_.poll_s)) {
       listed_ = now;
@@ -156,7 +156,7 @@ class GrowingFolderSource : public LiveSource {
       std::map<std::string, uintmax_t> sizes;
       for (const auto& e : fs::directory_iterator(dir_, ec)) {
         const std::string p = e.path().string();
-        if (!IsImageName(p) || taken_.count(p)) continue;
+        if (!IsFolderFrame(p) || taken_.count(p)) continue;
         std::error_code ec2;
         if (!e.is_regular_file(ec2)) continue;
         sizes[p] = e.file_size(ec2);
