@@ -21,7 +21,10 @@ struct StaticMaskOptions {
   double min_edge = 4.0;       // grey levels per pixel: weaker edges are noise
   int min_area_px = 8;         // connected marks smaller than this (analysis pixels) are chance
   double grow = 0.012;         // the mask is grown by this fraction of the frame width, over glow and blur
-  double max_fraction = 0.15;  // a larger mask means the camera hardly moved: none is used
+  // A larger mask means the camera hardly moved: none is used. A part of the vehicle in view (a
+  // skid, a manipulator, a sampling basket) takes a sixth of the frame or more: at 0.15 such a
+  // part was not masked and was smeared along the map.
+  double max_fraction = 0.35;
 
   bool IsValid(std::string* error) const;
 };
