@@ -78,10 +78,12 @@ static int RunAlign(const AlignSwitches& s) {
   for (size_t c = 0; c < r.component_frames.size() && c < 8; ++c)
     parts += (c ? ", " : "") + std::to_string(r.component_frames[c]);
   if (r.component_frames.size() > 8) parts += ", ...";
-  std::printf("%s: %d frames in %d part%s (%s frames), placed side by side where they share no ground; "
-              "edge error %.2f -> %.2f px, %.1f s; run `rolamos compose %s` to draw the map\n",
-              s.store.c_str(), r.frames, r.components, r.components == 1 ? "" : "s", parts.c_str(), r.rms_before_px,
-              r.rms_after_px, r.seconds, s.store.c_str());
+  // Parts that share no ground are placed side by side: said only when there are several.
+  const std::string layout = r.components == 1 ? "1 part"
+                                               : std::to_string(r.components) + " parts (" + parts +
+                                                     " frames), placed side by side where they share no ground";
+  std::printf("%s: %d frames in %s; edge error %.2f -> %.2f px, %.1f s; run `rolamos compose %s` to draw the map\n",
+              s.store.c_str(), r.frames, layout.c_str(), r.rms_before_px, r.rms_after_px, r.seconds, s.store.c_str());
   return 0;
 }
 

@@ -164,7 +164,7 @@ std::string FormatDescription(const json& j) {
     part.second += p.value("n_images", 0);
   }
   if (!parts.empty()) {
-    out << "  map: " << parts.size() << " part" << (parts.size() == 1 ? "" : "s") << " (side by side where no ground connects them):";
+    out << "  map: " << parts.size() << (parts.size() == 1 ? " part:" : " parts (side by side where no ground connects them):");
     for (const auto& [c, pi] : parts) out << " [" << c << "] " << pi.second << " images in " << pi.first << " patches;";
     out << "\n";
   }
