@@ -39,7 +39,9 @@ struct MosaickerOptions {
   bool clahe = true;            // detection image only
   // Static overlays (timestamp, laser dots, housing) left out of matching, ECC and blending:
   // an image of the frames' size, white where the frames hold a fixed overlay; "" = none;
-  // "auto" = found from the first frames (MosaicInput writes it to <store>/static_mask.png).
+  // "auto" = found from the first frames, or the frames after them where the seafloor hardly
+  // moves under those (a descent through open water); MosaicInput writes it to
+  // <store>/static_mask.png.
   std::string mask = "auto";
   // 2. Egomotion. Every frame is followed from the current keyframe with pyramidal Lucas-Kanade
   // (forward and backward), the homography and the paper's F-RANSAC / bilateral check fitted to

@@ -37,6 +37,7 @@ StaticMask EstimateStaticMask(const std::vector<cv::Mat>& frames, const StaticMa
   if (!o.IsValid(&error)) Fail("static mask", error);
   if (static_cast<int>(frames.size()) < o.min_frames) {
     out.note = "too few frames (" + std::to_string(frames.size()) + ") to tell fixed overlays from the seafloor";
+    out.conclusive = false;
     return out;
   }
   const cv::Size size = frames[0].size();
@@ -59,6 +60,7 @@ StaticMask EstimateStaticMask(const std::vector<cv::Mat>& frames, const StaticMa
   }
   if (n < o.min_frames) {
     out.note = "too few frames (" + std::to_string(n) + ") to tell fixed overlays from the seafloor";
+    out.conclusive = false;
     return out;
   }
   const cv::Mat mean = sum / n, mean_grad = grad_sum / n;
@@ -84,7 +86,10 @@ StaticMask EstimateStaticMask(const std::vector<cv::Mat>& frames, const StaticMa
     moving = r[r.size() / 2];
   }
   if (!(moving < bar)) {
-    out.note = "the frames hardly move (edge ratio " + std::to_string(moving) + "): no overlay search";
+    char buf[96];
+    std::snprintf(buf, sizeof buf, "the seafloor hardly moves under these frames (edge ratio %.2f)", moving);
+    out.note = buf;
+    out.conclusive = false;
     return out;
   }
   // Overlays are marks of some size; single pixels are the chance residue of the average.
@@ -110,11 +115,11 @@ StaticMask EstimateStaticMask(const std::vector<cv::Mat>& frames, const StaticMa
     return out;
   }
   if (out.fraction == 0) {
-    out.note = "no fixed overlay found in the first " + std::to_string(n) + " frames";
+    out.note = "no fixed overlay found in " + std::to_string(n) + " frames";
     return out;
   }
   out.mask = full;
-  std::snprintf(buf, sizeof buf, "fixed overlay found in the first %d frames: %.1f %% of the frame left out",
+  std::snprintf(buf, sizeof buf, "fixed overlay found in %d frames: %.1f %% of the frame left out",
                 n, 100 * out.fraction);
   out.note = buf;
   return out;

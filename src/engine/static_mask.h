@@ -33,6 +33,9 @@ struct StaticMask {
   cv::Mat mask;       // CV_8U, the frames' size, 255 = fixed in the image (left out); empty = none
   double fraction = 0;
   std::string note;   // what was found, or why no mask is used
+  // False when these frames cannot tell (too few, or the seafloor hardly moves under them: a
+  // descent through open water, a vehicle holding still): later frames may.
+  bool conclusive = true;
 };
 
 // From frames (BGR or gray, one size).

@@ -19,6 +19,7 @@
 #include "input/live_preview.h"
 #include "input/live_source.h"
 #include "input/live_status.h"
+#include "input/overlay_search.h"
 #include "input/load_shedding.h"
 #include "engine/prepared_frame.h"
 #include "engine/self_calibration.h"
@@ -110,22 +111,10 @@ MosaickerOptions AutoCalibrate(const std::string& input, const Store& store,
   return options;
 }
 
-// Automatic overlay mask from frames as they came (undistorted here as the engine will see
-// them), written into the store as an image the user can look at, edit and give back.
-MosaickerOptions MaskFromFrames(const std::vector<cv::Mat>& raw, const Store& store, MosaickerOptions options,
-                                std::string* note) {
-  StaticMaskOptions mo;
-  Preprocessor pre(ToPreprocessOptions(options));
-  std::vector<cv::Mat> frames;
-  for (const cv::Mat& image : raw) {
-    if (image.empty()) continue;
-    try {
-      frames.push_back(pre.Undistort(image));
-    } catch (const Error&) {
-      // A frame the calibration does not fit is the engine's to report.
-    }
-  }
-  const StaticMask found = EstimateStaticMask(frames, mo);
+// The overlay mask found, written into the store as an image the user can look at, edit and
+// give back; the options use it.
+MosaickerOptions UseOverlay(const StaticMask& found, const Store& store, MosaickerOptions options,
+                            std::string* note) {
   *note = "mask auto: " + found.note;
   options.mask = "";
   if (!found.mask.empty()) {
@@ -212,7 +201,8 @@ class HeldSource : public FrameSource {
 
 // The same from the first frames of a folder, list or video, which `source` keeps for the
 // mosaicking (unreadable ones too: the engine reports them in order).
-MosaickerOptions AutoMask(HeldSource* source, const Store& store, MosaickerOptions options, std::string* note) {
+MosaickerOptions AutoMask(HeldSource* source, const std::string& input, const Store& store,
+                          MosaickerOptions options, std::string* note) {
   const StaticMaskOptions mo;
   std::vector<cv::Mat> frames;
   // As many frames at once as are still wanted (decoded on every core), again past unreadable
@@ -224,7 +214,16 @@ MosaickerOptions AutoMask(HeldSource* source, const Store& store, MosaickerOptio
       if (!f->image.empty()) frames.push_back(f->image);
     read += static_cast<int>(held.size());
   }
-  return MaskFromFrames(frames, store, options, note);
+  StaticMask found = FindOverlay(frames, options);
+  if (found.conclusive) {
+    found.note += " (the first frames)";
+  } else if (!source->stopped()) {
+    // A descent through open water, a vehicle holding still: the frames after these may tell. The
+    // input is read again for it; the frames held stay held for the engine.
+    const StaticMask further = SearchOverlayFurther(input, static_cast<int>(source->held()), options, {}, source->stop);
+    found = further.conclusive ? further : StaticMask{cv::Mat(), 0, found.note + "; " + further.note, false};
+  }
+  return UseOverlay(found, store, options, note);
 }
 
 }  // namespace
@@ -371,7 +370,7 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
   const auto opened = FrameSource::Open(input);
   HeldSource source(opened.get());
   source.stop = stop;  // the overlay search reads up to 72 frames: a stop ends it too
-  if (options.mask == "auto") options = AutoMask(&source, store, options, &mask_note);
+  if (options.mask == "auto") options = AutoMask(&source, input, store, options, &mask_note);
   options.track_halve = TrackHalving(options, source);
   Mosaicker mosaicker(store, options);
   const double decode = RunPipeline(&source, mosaicker, on_frame, nullptr);
@@ -419,7 +418,7 @@ MosaickerOptions LiveMask(MosaickerOptions options, const Store& store, LiveSour
     if (!f) break;
     images.push_back(f->image);
   }
-  options = MaskFromFrames(images, store, options, mask_note);
+  options = UseOverlay(FindOverlay(images, options), store, options, mask_note);
   source->CatchUp(mo.frames);  // what arrived meanwhile is mapped, not skipped
   *mask_note += " (from the first " + std::to_string(images.size()) + " frames of the live run)";
   return options;
