@@ -115,13 +115,11 @@ StaticMask EstimateStaticMask(const std::vector<cv::Mat>& frames, const StaticMa
     return out;
   }
   if (out.fraction == 0) {
-    out.note = "no fixed overlay found in " + std::to_string(n) + " frames";
+    out.note = "no fixed overlay found";
     return out;
   }
   out.mask = full;
-  std::snprintf(buf, sizeof buf, "fixed overlay found in %d frames: %.1f %% of the frame left out",
-                n, 100 * out.fraction);
-  out.note = buf;
+  out.note = "fixed overlay found";  // the caller says where and how much
   return out;
 }
 

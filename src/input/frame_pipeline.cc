@@ -123,7 +123,9 @@ MosaickerOptions UseOverlay(const StaticMask& found, const Store& store, Mosaick
     cv::imencode(".png", found.mask, png);
     WriteFileAtomic(path, std::string(png.begin(), png.end()));
     options.mask = path;
-    *note += "; written to " + path;
+    char share[64];
+    std::snprintf(share, sizeof share, ": %.1f %% of the frame left out", 100 * found.fraction);
+    *note += share + std::string("; written to ") + path;
   }
   return options;
 }
@@ -216,10 +218,11 @@ MosaickerOptions AutoMask(HeldSource* source, const std::string& input, const St
   }
   StaticMask found = FindOverlay(frames, options);
   if (found.conclusive) {
-    found.note += " (the first frames)";
-  } else if (!source->stopped()) {
-    // A descent through open water, a vehicle holding still: the frames after these may tell. The
-    // input is read again for it; the frames held stay held for the engine.
+    found.note += " in the first " + std::to_string(frames.size()) + " frames";
+  } else if (!source->stopped() && static_cast<int>(frames.size()) >= mo.frames) {
+    // A descent through open water, a vehicle holding still: the frames after these may tell (a
+    // shorter input has none). The input is read again for it; the frames held stay held for the
+    // engine.
     const StaticMask further = SearchOverlayFurther(input, static_cast<int>(source->held()), options, {}, source->stop);
     found = further.conclusive ? further : StaticMask{cv::Mat(), 0, found.note + "; " + further.note, false};
   }
@@ -369,7 +372,7 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
   std::string mask_note;
   const auto opened = FrameSource::Open(input);
   HeldSource source(opened.get());
-  source.stop = stop;  // the overlay search reads up to 72 frames: a stop ends it too
+  source.stop = stop;  // the overlay search reads up to 72 frames, and on (again) past a descent: a stop ends it too
   if (options.mask == "auto") options = AutoMask(&source, input, store, options, &mask_note);
   options.track_halve = TrackHalving(options, source);
   Mosaicker mosaicker(store, options);
@@ -418,9 +421,10 @@ MosaickerOptions LiveMask(MosaickerOptions options, const Store& store, LiveSour
     if (!f) break;
     images.push_back(f->image);
   }
-  options = UseOverlay(FindOverlay(images, options), store, options, mask_note);
+  StaticMask found = FindOverlay(images, options);
+  found.note += " in the first " + std::to_string(images.size()) + " frames of the live run";
+  options = UseOverlay(found, store, options, mask_note);
   source->CatchUp(mo.frames);  // what arrived meanwhile is mapped, not skipped
-  *mask_note += " (from the first " + std::to_string(images.size()) + " frames of the live run)";
   return options;
 }
 

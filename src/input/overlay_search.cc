@@ -50,8 +50,8 @@ StaticMask SearchOverlayFurther(const std::string& input, int skip, const Mosaic
     std::vector<cv::Mat> frames;
     for (const auto& [index, image] : latest) frames.push_back(image);
     result = FindOverlay(frames, options);
-    result.note += " (frames " + std::to_string(latest.front().first) + "-" + std::to_string(latest.back().first) +
-                   "; the first " + std::to_string(skip) + " could not tell)";
+    result.note += " in frames " + std::to_string(latest.front().first) + "-" + std::to_string(latest.back().first) +
+                   " (the first " + std::to_string(skip) + " could not tell)";
     if (result.conclusive) return result;
   }
   result.note += "; searched " + std::to_string(read) + " frames";
