@@ -287,6 +287,10 @@ struct Mosaicker::Impl {
     // recovery of the frame after it often places both within the patch (lanes joined without a
     // turn). It opens the next patch, joined by this, only when the next frame fails too.
     std::optional<Candidate> thin_overlap;
+    // Frames after it it was tried against to start the next patch (BreakAt). A lane's first
+    // frame pairs with the first frame after it or not at all (every such pairing on 34 spread
+    // and seed surveys); open water never pairs, and each try costs a registration.
+    int break_tries = 0;
   };
   std::deque<Pending> pending;
 
@@ -1057,12 +1061,16 @@ FrameReport Mosaicker::Impl::Lost(const std::shared_ptr<PreparedFrame>& p, Frame
 // frame, so no frame is lost at a break. True when it did.
 bool Mosaicker::Impl::BreakAt(const std::shared_ptr<PreparedFrame>& p) {
   if (pending.empty() || !options.recover) return false;
+  constexpr int kBreakTries = 2;
   for (auto it = pending.rbegin(); it != pending.rend(); ++it) {
-    if (it->frame->size != frame_size) continue;
+    if (it->frame->size != frame_size || it->break_tries >= kBreakTries) continue;
     // Following too: dark ground at a lane's start can leave SIFT too few matches where
     // following holds (small-narrow-lights: 16 matches, none kept, between a lane's first two).
     const EgomotionResult ego = RegisterPair(*p, *it->frame);
-    if (!ego.ok || !AssessSupport(ego, frame_size, support_options).strong) continue;
+    if (!ego.ok || !AssessSupport(ego, frame_size, support_options).strong) {
+      ++it->break_tries;
+      continue;
+    }
     // This one opens the next patch; the others wait on: the frames before it may be the lane's
     // first too, and are tried against it at once.
     Pending start = *it;
