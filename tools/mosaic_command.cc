@@ -328,8 +328,10 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
   cmd->add_option("-o,--output", s->output, "store to create (or add to)")->required();
   cmd->add_option("--mask", o.mask,
                   "static overlays to leave out of matching and blending: an image of the frames' size, white where "
-                  "the frames hold a fixed overlay (timestamp, laser dots); \"auto\" finds them in the first frames "
-                  "and writes <store>/static_mask.png; \"none\" for no mask")
+                  "the frames hold a fixed overlay (timestamp, laser dots, a part of the vehicle); \"auto\" finds "
+                  "them in the first frames, or in those after them where the seafloor hardly moves under the first "
+                  "(a descent; a live run uses its first frames or an earlier run's mask), and writes "
+                  "<store>/static_mask.png; \"none\" for no mask")
       ->capture_default_str();
   cmd->add_option("--calibration", o.calibration,
                   "OpenCV calibration file (YAML/XML/JSON), or \"auto\" to estimate radial "
