@@ -74,6 +74,12 @@ class LiveTest : public testing::Test {
     auto r = test::RunCli("synth -q -o " + (dir_ / "survey") + " --frames 40 --width 480 --height 360 --focal 420 --lanes 2");
     ASSERT_EQ(r.exit_code, 0) << r.output;
   }
+  // `mosaic --live` over dir_/incoming into `store`, without an overlay mask, until the feed has
+  // been idle for `idle_s`.
+  test::CommandResult MapIncoming(const std::string& store, int idle_s) {
+    return test::RunCli("mosaic -q " + (dir_ / "incoming") + " -o " + store + " --live --idle-timeout " +
+                        std::to_string(idle_s) + " --mask none");
+  }
   test::ScratchDir dir_;
 };
 
@@ -407,7 +413,7 @@ TEST_F(LiveTest, AFileCutShortIsTakenAndCounted) {
     std::ofstream(dir_ / "incoming/frame_00010.jpg", std::ios::binary).write(bytes.data(), static_cast<std::streamsize>(bytes.size() / 3));
     std::this_thread::sleep_for(std::chrono::seconds(4));  // the writer is gone; no later frame
   });
-  auto r = test::RunCli("mosaic -q " + (dir_ / "incoming") + " -o " + store + " --live --idle-timeout 6 --mask none");
+  auto r = MapIncoming(store, 6);
   logger.join();
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const auto st = Status(store);
@@ -426,7 +432,7 @@ TEST_F(LiveTest, FramesNumberedWithoutLeadingZerosAreTakenInTheirOrder) {
     Feed(dir_ / "survey/frames", dir_ / "incoming", 10, 0, 25, false,
          [](int i) { return "frame" + std::to_string(i + 1) + ".jpg"; });
   });
-  auto r = test::RunCli("mosaic -q " + (dir_ / "incoming") + " -o " + store + " --live --idle-timeout 3 --mask none");
+  auto r = MapIncoming(store, 3);
   logger.join();
   ASSERT_EQ(r.exit_code, 0) << r.output;
   const auto st = Status(store);

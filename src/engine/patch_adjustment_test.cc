@@ -13,6 +13,17 @@ const cv::Size kFrame(640, 480);
 // A level camera moving along a lane: frame i is shifted `step` pixels right of frame 0.
 cv::Matx33d Truth(int i, double step = 150) { return cv::Matx33d(1, 0, step * i, 0, 1, 3.0 * i, 0, 0, 1); }
 
+// The focal length of a 70-degree lens (the engine's default) for kFrame: where solves start.
+double Focal70() { return 0.5 * kFrame.width / std::tan(35.0 * CV_PI / 180); }
+
+// Frames 0..n-1 of the lane, placed online where the truth puts them.
+void Lane(int n, std::vector<int>* indices, std::vector<cv::Matx33d>* online) {
+  for (int i = 0; i < n; ++i) {
+    indices->push_back(i);
+    online->push_back(Truth(i));
+  }
+}
+
 // Exact correspondences between frames a and b where they overlap (a grid in frame a), through
 // the homography from a's pixels to b's.
 FrameLink LinkThrough(int a, int b, const cv::Matx33d& a_to_b) {
@@ -53,7 +64,7 @@ TEST(PatchAdjustment, AGroupNoLinkJoinsIsTiedByItsOnlinePlacement) {
     if (i > 0 && i != 5) links.push_back(LinkOf(i, i - 1));
     if (i > 1 && i != 5 && i != 6) links.push_back(LinkOf(i, i - 2));
   }
-  const double focal = 0.5 * kFrame.width / std::tan(35.0 * CV_PI / 180);
+  const double focal = Focal70();
   const PatchAdjustment adjusted = AdjustPatch(indices, online, links, focal, kFrame, PatchAdjustmentOptions());
   ASSERT_TRUE(adjusted.used) << adjusted.note;
   EXPECT_EQ(adjusted.ties, 1);
@@ -73,13 +84,10 @@ TEST(PatchAdjustment, AGroupNoLinkJoinsIsTiedByItsOnlinePlacement) {
 TEST(PatchAdjustment, AFrameWithNoLinkIsTiedAndThePatchStillAdjusted) {
   std::vector<int> indices;
   std::vector<cv::Matx33d> online;
+  Lane(6, &indices, &online);
   std::vector<FrameLink> links;
-  for (int i = 0; i < 6; ++i) {
-    indices.push_back(i);
-    online.push_back(Truth(i));
-    if (i > 0 && i < 5) links.push_back(LinkOf(i, i - 1));
-  }
-  const double focal = 0.5 * kFrame.width / std::tan(35.0 * CV_PI / 180);
+  for (int i = 1; i < 5; ++i) links.push_back(LinkOf(i, i - 1));
+  const double focal = Focal70();
   const PatchAdjustment adjusted = AdjustPatch(indices, online, links, focal, kFrame, PatchAdjustmentOptions());
   ASSERT_TRUE(adjusted.used) << adjusted.note;
   EXPECT_EQ(adjusted.ties, 1);
@@ -96,7 +104,7 @@ TEST(PatchAdjustment, LinkedPatchesNeedNoTies) {
     online.push_back(Truth(i));
     if (i > 0) links.push_back(LinkOf(i, i - 1));
   }
-  const double focal = 0.5 * kFrame.width / std::tan(35.0 * CV_PI / 180);
+  const double focal = Focal70();
   const PatchAdjustment adjusted = AdjustPatch(indices, online, links, focal, kFrame, PatchAdjustmentOptions());
   ASSERT_TRUE(adjusted.used) << adjusted.note;
   EXPECT_EQ(adjusted.ties, 0);
@@ -126,7 +134,7 @@ TEST(PatchAdjustment, AFocalLengthFoundKeepsThePatchAtTheFramesResolution) {
   for (int i = 0; i < 8; ++i)
     for (int j = i + 1; j <= std::min(7, i + 2); ++j)
       links.push_back(LinkThrough(j, i, PlaneToFrame(truth[size_t(i)], K) * FrameToPlane(truth[size_t(j)], K)));
-  const double assumed = 0.5 * kFrame.width / std::tan(35.0 * CV_PI / 180);  // 457 px: 70 deg
+  const double assumed = Focal70();  // 457 px
   PatchAdjustmentOptions o;
   o.solver.refine_focal = true;
   const PatchAdjustment adjusted = AdjustPatch(indices, online, links, assumed, kFrame, o);
@@ -146,14 +154,11 @@ TEST(PatchAdjustment, AFocalLengthFoundKeepsThePatchAtTheFramesResolution) {
 // for frames that fit no flat ground seen through a pinhole (a lens bends every link the same
 // way), not for a patch too small to adjust.
 TEST(PatchAdjustment, SaysWhyItWasNotUsed) {
-  const double focal = 0.5 * kFrame.width / std::tan(35.0 * CV_PI / 180);
+  const double focal = Focal70();
   std::vector<int> indices;
   std::vector<cv::Matx33d> online;
+  Lane(6, &indices, &online);
   std::vector<FrameLink> links;
-  for (int i = 0; i < 6; ++i) {
-    indices.push_back(i);
-    online.push_back(Truth(i));
-  }
   // Links bent as a barrel lens bends them: points moved towards the centre by their radius
   // squared, differently in the two frames of a pair, so that no homography joins them.
   auto bent = [](int a, int b) {

@@ -11,24 +11,38 @@
 
 namespace rolamos {
 
+namespace {
+
+// `image` as the engine will see it; empty when the calibration does not fit it (the engine's to
+// report).
+cv::Mat AsTheEngineSees(Preprocessor& pre, const cv::Mat& image) {
+  try {
+    return pre.Undistort(image);
+  } catch (const Error&) {
+    return {};
+  }
+}
+
+}  // namespace
+
 StaticMask FindOverlay(const std::vector<cv::Mat>& raw, const MosaickerOptions& options) {
   Preprocessor pre(ToPreprocessOptions(options));
   std::vector<cv::Mat> frames;
   for (const cv::Mat& image : raw) {
     if (image.empty()) continue;
-    try {
-      frames.push_back(pre.Undistort(image));
-    } catch (const Error&) {
-      // A frame the calibration does not fit is the engine's to report.
-    }
+    if (cv::Mat seen = AsTheEngineSees(pre, image); !seen.empty()) frames.push_back(seen);
   }
   return EstimateStaticMask(frames, StaticMaskOptions());
 }
 
 StaticMask SearchOverlayFurther(const std::string& input, int skip, const MosaickerOptions& options,
                                 const OverlaySearchOptions& search, const std::atomic<bool>* stop) {
-  const int window = StaticMaskOptions().frames;
+  const StaticMaskOptions mo;
+  const int window = mo.frames;
   const auto source = FrameSource::Open(input);
+  // One preprocessor for the whole search (its undistortion maps are made once), and each frame
+  // undistorted once, as it enters the window, not again in each of the three windows it is in.
+  Preprocessor pre(ToPreprocessOptions(options));
   // The latest frames, grey (the search looks at nothing else; a third of the memory).
   std::deque<std::pair<int, cv::Mat>> latest;
   StaticMask result;
@@ -43,13 +57,15 @@ StaticMask SearchOverlayFurther(const std::string& input, int skip, const Mosaic
     cv::Mat grey;
     if (f.image.channels() == 1) grey = f.image;
     else cv::cvtColor(f.image, grey, f.image.channels() == 4 ? cv::COLOR_BGRA2GRAY : cv::COLOR_BGR2GRAY);
+    grey = AsTheEngineSees(pre, grey);
+    if (grey.empty()) continue;
     latest.emplace_back(f.index, grey);
     if (static_cast<int>(latest.size()) > window) latest.pop_front();
     if (static_cast<int>(latest.size()) < window || ++since < search.step) continue;
     since = 0;
     std::vector<cv::Mat> frames;
     for (const auto& [index, image] : latest) frames.push_back(image);
-    result = FindOverlay(frames, options);
+    result = EstimateStaticMask(frames, mo);
     result.note += " in frames " + std::to_string(latest.front().first) + "-" + std::to_string(latest.back().first) +
                    " (the first " + std::to_string(skip) + " could not tell)";
     if (result.conclusive) return result;

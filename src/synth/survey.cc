@@ -315,12 +315,10 @@ CameraPose MotionAt(const std::vector<CameraPose>& poses, size_t i, double typic
     out->yaw = yaw;
     return true;
   };
-  CameraPose v;
+  CameraPose v;  // still, unless a neighbour continues the motion (step sets v only then)
   v.position = cv::Vec3d(0, 0, 0);
   if (i + 1 < poses.size() && step(i, i + 1, &v)) return v;
-  if (i > 0 && step(i - 1, i, &v)) return v;
-  v.position = cv::Vec3d(0, 0, 0);
-  v.yaw = 0;
+  if (i > 0) step(i - 1, i, &v);
   return v;
 }
 
