@@ -330,7 +330,8 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
                   "static overlays to leave out of matching and blending: an image of the frames' size, white where "
                   "the frames hold a fixed overlay (timestamp, laser dots, a part of the vehicle); \"auto\" finds "
                   "them in the first frames, or in those after them where the seafloor hardly moves under the first "
-                  "(a descent; a live run uses its first frames or an earlier run's mask), and writes "
+                  "(a descent; a live run reads on a window of 24 frames ahead of the mapping), or an earlier run's mask in "
+                  "the store (live), and writes "
                   "<store>/static_mask.png; \"none\" for no mask")
       ->capture_default_str();
   cmd->add_option("--calibration", o.calibration,

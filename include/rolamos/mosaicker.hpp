@@ -351,6 +351,11 @@ class Mosaicker {
   // on, recovery's last try (the frame and the last keyframe described densely) is left out.
   // Same thread as Integrate. Throws Error when `describe_overlap` is outside (0, 1].
   void ShedLoad(bool on, double describe_overlap = 0.5);
+  // An overlay mask found after the run began (MosaickerOptions::mask's image; a live run's
+  // overlay search goes on past a descent): frames prepared from now on leave it out of tracking
+  // and features, and keyframes integrated from now on out of blending. Any thread. Throws Error
+  // naming the file when it cannot be read.
+  void UseMask(const std::string& path);
   // Called (from the writer thread) after each patch is committed to the store.
   void OnPatch(std::function<void(const PatchSidecar&)> callback);
 

@@ -148,7 +148,9 @@ struct Mosaicker::Impl {
   std::shared_ptr<const FeatherCode> weights;
   // Static overlays: 255 where the frame is usable (full size), and at the detection scale.
   std::mutex mask_mutex;
+  std::string mask_path;  // options.mask, or a mask given mid-run (UseMask)
   cv::Mat usable, usable_small;
+  std::atomic<bool> mask_changed{false};  // the blending weights are made again at the next frame
   std::unique_ptr<MotionGate> gate;
   // A frame of another size waits here: a second one like it means the camera changed for good.
   std::shared_ptr<PreparedFrame> resized;
@@ -387,14 +389,17 @@ struct Mosaicker::Impl {
   // A rejected frame placed after all: out of the rejected list, counted as recovered; its report
   // as stitched.
   FrameReport Unreject(const FrameReport& rejected);
-  // The overlay mask at detection scale `s` (empty when there is none).
-  cv::Mat ScaledUsable(double s) {
+  // The overlay mask at full size (empty when there is none), from any thread.
+  cv::Mat Usable() {
     std::lock_guard<std::mutex> lock(mask_mutex);
-    if (usable.empty()) return {};
-    cv::Mat small;
-    cv::resize(usable, small, cv::Size(), s, s, cv::INTER_NEAREST);
-    cv::erode(small, small, cv::Mat(), cv::Point(-1, -1), 4);
-    return small;
+    return usable;
+  }
+  // Feathering weights for the frame size, zero on the overlay mask: overlays never blend.
+  void MakeWeights() {
+    cv::Mat w = FeatherWeights(frame_size, options.feather_sigma);
+    const cv::Mat u = Usable();
+    if (!u.empty() && u.size() == frame_size) w.setTo(0, u == 0);
+    weights = std::make_shared<const FeatherCode>(w);
   }
 };
 
@@ -403,9 +408,7 @@ void Mosaicker::Impl::InitCamera(cv::Size size) {
   K = pre.CameraMatrix(size);
   summary.track_scale = tracker.options().ScaleFor(size);
   track_points = tracker.options().PointsFor(size);
-  cv::Mat w = FeatherWeights(size, options.feather_sigma);
-  if (!usable.empty() && usable.size() == size) w.setTo(0, usable == 0);  // overlays never blend
-  weights = std::make_shared<const FeatherCode>(w);
+  MakeWeights();
   MotionGateOptions g;
   g.enabled = options.kalman;
   gate = std::make_unique<MotionGate>(g, size);
@@ -879,7 +882,7 @@ bool Mosaicker::Impl::Blends(const Candidate& c, const cv::Matx33d& to_patch) co
 void Mosaicker::Impl::AddToCanvas(const PreparedFrame& p, const cv::Matx33d& to_patch) {
   canvas->Add(p.image, *weights, to_patch);
   if (options.flat_field || options.water_colour)
-    colour->Add(p.image, usable.size() == p.image.size() ? usable : cv::Mat());
+    if (const cv::Mat u = Usable(); true) colour->Add(p.image, u.size() == p.image.size() ? u : cv::Mat());
 }
 
 void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch,
@@ -1230,8 +1233,9 @@ FrameReport Mosaicker::Impl::Place(const std::shared_ptr<PreparedFrame>& p, Cand
   if (options.ecc && blend) {
     cv::Mat gray;
     cv::cvtColor(p->image, gray, cv::COLOR_BGR2GRAY);
+    const cv::Mat u = Usable();
     const EccResult ecc = RefineWithEcc(gray, to_patch, *canvas, ecc_options,
-                                        usable.size() == frame_size ? usable : cv::Mat());
+                                        u.size() == frame_size ? u : cv::Mat());
     r.ecc = ecc.correlation;
     if (ecc.applied) {
       r.ecc_shift = MaxCornerShift(to_patch, ecc.frame_to_patch, frame_size);
@@ -1301,6 +1305,7 @@ Mosaicker::Mosaicker(Store store, const MosaickerOptions& options) {
     mask_note = "mask auto: frames pushed one by one are not looked ahead at; no overlay mask (MosaicInput finds one)";
   }
   impl_ = std::make_unique<Impl>(store, o);
+  impl_->mask_path = o.mask;
   impl_->summary.mask_note = mask_note;
   impl_->next_patch_id = store.NextPatchId();
 }
@@ -1333,10 +1338,9 @@ std::shared_ptr<PreparedFrame> Mosaicker::Prepare(const cv::Mat& input, const st
     return p;
   }
   cv::Mat usable;
-  if (!m.options.mask.empty()) {
-    std::lock_guard<std::mutex> lock(m.mask_mutex);
+  if (std::lock_guard<std::mutex> lock(m.mask_mutex); !m.mask_path.empty()) {
     if (m.usable.empty() || m.usable.size() != p->size) {
-      m.usable = 255 - ReadStaticMask(m.options.mask, p->size);
+      m.usable = 255 - ReadStaticMask(m.mask_path, p->size);
       const double scale = m.extractor.options().ScaleFor(p->size);
       cv::resize(m.usable, m.usable_small, cv::Size(), scale, scale, cv::INTER_NEAREST);
       // Features need a margin around an overlay: their descriptors reach out.
@@ -1370,6 +1374,10 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   if (p->size != m.frame_size)
     if (auto rep = m.FollowSizeChange(p, r)) return done(*rep);
   m.resized.reset();
+  if (m.mask_changed && !m.Usable().empty()) {  // a mask given mid-run (UseMask), read by a preparer
+    m.mask_changed = false;
+    m.MakeWeights();
+  }
   if (!m.canvas) return done(m.OpenPatch(p, r, lap));
   m.gate->Predict(m.StepsSinceLast(*p, r.index));
   // 1. Followed from the current keyframe, from where the motion model expects it; again from a
@@ -1455,6 +1463,16 @@ LivePreview Mosaicker::Preview(double scale, double max_megapixels, bool image) 
     out.to_previous_first = m.link_to_first;
   }
   return out;
+}
+
+void Mosaicker::UseMask(const std::string& path) {
+  Impl& m = *impl_;
+  ReadStaticMask(path, cv::Size(16, 16));  // fails here, naming the file, not in a preparer
+  std::lock_guard<std::mutex> lock(m.mask_mutex);
+  m.mask_path = path;
+  m.usable.release();  // read again, at the frames' size, by the next frame prepared
+  m.usable_small.release();
+  m.mask_changed = true;
 }
 
 void Mosaicker::ShedLoad(bool on, double describe_overlap) {

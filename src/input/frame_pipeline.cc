@@ -155,6 +155,9 @@ class HeldSource : public FrameSource {
       std::vector<InputFrame> taken;
       const int got = source_->Take(live_ ? 1 : want, &taken);
       if (got == 0) break;
+      // A live source counts what it hands out as in flight; held frames count once handed on
+      // (Next), beyond the backlog bound by design.
+      if (live_ && in_flight) *in_flight -= got;
       for (InputFrame& f : taken) {
         first_.push_back({std::move(f), live_ ? live_->arrival() : Clock::time_point{}});
         held.push_back(&first_.back().frame);
@@ -165,6 +168,13 @@ class HeldSource : public FrameSource {
   }
   size_t held() const { return first_.size(); }
   bool Next(InputFrame* f) override {
+    // The overlay search going on: frames are read `look_ahead` ahead of the mapping, each looked
+    // at as it is read, so that a mask found in a window reaches every frame of that window.
+    while (look_ahead > 0 && static_cast<int>(first_.size()) <= look_ahead) {
+      const InputFrame* held = HoldNext();
+      if (!held) break;
+      look(*held);
+    }
     if (!first_.empty()) {
       if (in_flight) ++*in_flight;
       *f = std::move(first_.front().frame);
@@ -187,6 +197,10 @@ class HeldSource : public FrameSource {
   std::atomic<long>* in_flight = nullptr;  // live: frames taken and not yet mapped
   // Set: no frame is read any more (MosaicInput's stop; a live source has its own).
   const std::atomic<bool>* stop = nullptr;
+  // While set (from the thread that calls Next, under the caller's lock): frames read ahead, at
+  // most this many, and `look` called on each as it is read.
+  int look_ahead = 0;
+  std::function<void(const InputFrame&)> look;
   bool stopped() const { return stopped_; }
 
  private:
@@ -388,7 +402,8 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
 // What needs the first frames before mapping (self-calibration, the overlay search) cannot wait
 // for them live: an earlier run's results in the store are used. Without them self-calibration
 // fails; the overlay search takes the live run's first frames, which wait in `feed` (every one
-// kept) and are mapped first.
+// kept) and are mapped first. When those cannot tell (a descent), it goes on over the frames as
+// they come, a window ahead of the mapping (LookFurtherLive).
 // Checked before the stream is opened.
 MosaickerOptions LiveCalibration(MosaickerOptions options, const std::string& dir, std::string* note) {
   if (options.calibration != "auto") return options;
@@ -402,7 +417,8 @@ MosaickerOptions LiveCalibration(MosaickerOptions options, const std::string& di
 }
 
 MosaickerOptions LiveMask(MosaickerOptions options, const Store& store, LiveSource* source, HeldSource* feed,
-                          std::string* mask_note) {
+                          std::string* mask_note, bool* search_on) {
+  *search_on = false;
   const std::string dir = store.dir();
   if (options.mask != "auto") return options;
   if (fs::exists(dir + "/static_mask.png")) {
@@ -424,8 +440,37 @@ MosaickerOptions LiveMask(MosaickerOptions options, const Store& store, LiveSour
   StaticMask found = FindOverlay(images, options);
   found.note += " in the first " + std::to_string(images.size()) + " frames of the live run";
   options = UseOverlay(found, store, options, mask_note);
+  // A descent through open water, a vehicle holding still: the frames after these may tell.
+  *search_on = !found.conclusive && static_cast<int>(images.size()) >= mo.frames;
   source->CatchUp(mo.frames);  // what arrived meanwhile is mapped, not skipped
   return options;
+}
+
+// Live, after a first look that could not tell: the frames are read a window ahead of the mapping
+// and looked at as they come (every 8, windows of 24, up to 3,600 frames, as in a batch run).
+// The first window that tells gives the mapping its mask from that window's first frame on;
+// the note says where it was found. The held frames cost memory (24 frames more) and latency (24
+// frames later on the page) only while the search goes on.
+void LookFurtherLive(HeldSource* feed, LiveSource* source, Mosaicker* mosaicker, const Store& store,
+                     const MosaickerOptions& options, std::string* mask_note, std::unique_ptr<OverlayWindows>* keep) {
+  *keep = std::make_unique<OverlayWindows>(options, static_cast<int>(feed->held()));
+  OverlayWindows* windows = keep->get();
+  const std::string first = *mask_note;
+  feed->look_ahead = StaticMaskOptions().frames;
+  feed->look = [=](const InputFrame& f) {
+    const bool looked = windows->Add(f.index, f.image);
+    if (looked && windows->conclusive()) {
+      const MosaickerOptions found = UseOverlay(windows->result(), store, options, mask_note);
+      if (!found.mask.empty()) mosaicker->UseMask(found.mask);
+    } else if (windows->exhausted()) {
+      *mask_note = first + "; " + windows->FinalNote();
+    } else {
+      return;
+    }
+    // The frames read ahead are mapped now: what arrives meanwhile is mapped too, not skipped.
+    source->CatchUp(feed->look_ahead);
+    feed->look_ahead = 0;
+  };
 }
 
 // The open patch for the page: the track and the current frame after every frame (written at
@@ -480,7 +525,8 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
   // From the first frame (the overlay search may hold the first ones a while), and before the
   // engine: its patch writer reports to it until the engine is gone.
   LiveStatusKeeper status(source.get(), live.max_waiting, on_status);
-  options = LiveMask(options, store, source.get(), &feed, &mask_note);
+  bool search_on = false;
+  options = LiveMask(options, store, source.get(), &feed, &mask_note, &search_on);
   options.track_halve = TrackHalving(options, *source);
   // Frames taken from the source and not yet mapped: with those waiting in the source, never
   // more than the backlog bound (the pipeline prepares at most one fewer ahead).
@@ -488,6 +534,8 @@ MosaicSummary MosaicLive(const std::string& input, Store store, const MosaickerO
   source->SetInFlight(&in_flight);
   feed.in_flight = &in_flight;
   Mosaicker mosaicker(store, options);
+  std::unique_ptr<OverlayWindows> windows;
+  if (search_on) LookFurtherLive(&feed, source.get(), &mosaicker, store, options, &mask_note, &windows);
   PreviewOffers preview(dir, live.preview_s);
   mosaicker.OnPatch([&](const PatchSidecar&) { status.PatchWritten(); });
   // Behind the feed, the engine describes fewer keyframes rather than skip frames.

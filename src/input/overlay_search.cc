@@ -1,7 +1,5 @@
 #include "input/overlay_search.h"
 
-#include <deque>
-
 #include <opencv2/imgproc.hpp>
 
 #include "engine/preprocess.h"
@@ -35,42 +33,51 @@ StaticMask FindOverlay(const std::vector<cv::Mat>& raw, const MosaickerOptions& 
   return EstimateStaticMask(frames, StaticMaskOptions());
 }
 
+OverlayWindows::OverlayWindows(const MosaickerOptions& options, int skip, const OverlaySearchOptions& search)
+    : search_(search), skip_(skip), pre_(ToPreprocessOptions(options)) {
+  result_.conclusive = false;
+  result_.note = "no frames after the first " + std::to_string(skip);
+}
+
+bool OverlayWindows::Add(int index, const cv::Mat& image) {
+  ++seen_;
+  if (image.empty()) return false;
+  if (!latest_.empty() && image.size() != latest_.back().second.size()) latest_.clear();  // another camera size
+  cv::Mat grey;
+  if (image.channels() == 1) grey = image;
+  else cv::cvtColor(image, grey, image.channels() == 4 ? cv::COLOR_BGRA2GRAY : cv::COLOR_BGR2GRAY);
+  grey = AsTheEngineSees(pre_, grey);
+  if (grey.empty()) return false;
+  latest_.emplace_back(index, grey);
+  const int window = mask_options_.frames;
+  if (static_cast<int>(latest_.size()) > window) latest_.pop_front();
+  if (static_cast<int>(latest_.size()) < window || ++since_ < search_.step) return false;
+  since_ = 0;
+  std::vector<cv::Mat> frames;
+  for (const auto& [i, g] : latest_) frames.push_back(g);
+  result_ = EstimateStaticMask(frames, mask_options_);
+  result_.note += " in frames " + std::to_string(latest_.front().first) + "-" + std::to_string(latest_.back().first) +
+                  " (the first " + std::to_string(skip_) + " could not tell)";
+  return true;
+}
+
+std::string OverlayWindows::FinalNote() const {
+  return result_.note + "; searched " + std::to_string(seen_) + " frames";
+}
+
 StaticMask SearchOverlayFurther(const std::string& input, int skip, const MosaickerOptions& options,
                                 const OverlaySearchOptions& search, const std::atomic<bool>* stop) {
-  const StaticMaskOptions mo;
-  const int window = mo.frames;
   const auto source = FrameSource::Open(input);
-  // One preprocessor for the whole search (its undistortion maps are made once), and each frame
-  // undistorted once, as it enters the window, not again in each of the three windows it is in.
-  Preprocessor pre(ToPreprocessOptions(options));
-  // The latest frames, grey (the search looks at nothing else; a third of the memory).
-  std::deque<std::pair<int, cv::Mat>> latest;
-  StaticMask result;
-  result.conclusive = false;
-  result.note = "no frames after the first " + std::to_string(skip);
+  OverlayWindows windows(options, skip, search);
   InputFrame f;
-  int read = 0, since = 0;
+  int read = 0;
   while (read < search.max_frames && !(stop && stop->load()) && source->Next(&f)) {
     ++read;
-    if (f.index < skip || f.image.empty()) continue;
-    if (!latest.empty() && f.image.size() != latest.back().second.size()) latest.clear();  // another camera size
-    cv::Mat grey;
-    if (f.image.channels() == 1) grey = f.image;
-    else cv::cvtColor(f.image, grey, f.image.channels() == 4 ? cv::COLOR_BGRA2GRAY : cv::COLOR_BGR2GRAY);
-    grey = AsTheEngineSees(pre, grey);
-    if (grey.empty()) continue;
-    latest.emplace_back(f.index, grey);
-    if (static_cast<int>(latest.size()) > window) latest.pop_front();
-    if (static_cast<int>(latest.size()) < window || ++since < search.step) continue;
-    since = 0;
-    std::vector<cv::Mat> frames;
-    for (const auto& [index, image] : latest) frames.push_back(image);
-    result = EstimateStaticMask(frames, mo);
-    result.note += " in frames " + std::to_string(latest.front().first) + "-" + std::to_string(latest.back().first) +
-                   " (the first " + std::to_string(skip) + " could not tell)";
-    if (result.conclusive) return result;
+    if (f.index < skip) continue;
+    if (windows.Add(f.index, f.image) && windows.conclusive()) return windows.result();
   }
-  result.note += "; searched " + std::to_string(read) + " frames";
+  StaticMask result = windows.result();
+  result.note = result.note + "; searched " + std::to_string(read) + " frames";
   return result;
 }
 

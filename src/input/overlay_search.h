@@ -6,11 +6,14 @@
 #pragma once
 
 #include <atomic>
+#include <deque>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core.hpp>
 
+#include "engine/preprocess.h"
 #include "engine/static_mask.h"
 #include "rolamos/mosaicker.hpp"
 
@@ -23,6 +26,35 @@ StaticMask FindOverlay(const std::vector<cv::Mat>& raw, const MosaickerOptions& 
 struct OverlaySearchOptions {
   int step = 8;             // frames between two looks at the latest ones
   int max_frames = 3600;    // frames read at most (two minutes at 30 frames/s)
+};
+
+// The frames after the first ones, looked at window by window: each frame goes in as it is read;
+// every `step` frames, once a window of the overlay search's frame count is full, the window is
+// looked at. One preprocessor for the whole search (its undistortion maps made once), and each
+// frame undistorted once, as it enters, not again in each window it is in.
+class OverlayWindows {
+ public:
+  // `skip`: the frames the first look had (named in the notes).
+  OverlayWindows(const MosaickerOptions& options, int skip, const OverlaySearchOptions& search = {});
+  // Frame `index` (as the input gave it) into the window. True when a window was looked at:
+  // result() is its finding (conclusive() when it tells).
+  bool Add(int index, const cv::Mat& image);
+  const StaticMask& result() const { return result_; }
+  bool conclusive() const { return result_.conclusive; }
+  // Frames added so far; the search is over at the options' max_frames.
+  int seen() const { return seen_; }
+  bool exhausted() const { return seen_ >= search_.max_frames; }
+  // The last finding's note, with how many frames were looked at.
+  std::string FinalNote() const;
+
+ private:
+  StaticMaskOptions mask_options_;
+  OverlaySearchOptions search_;
+  int skip_;
+  Preprocessor pre_;
+  std::deque<std::pair<int, cv::Mat>> latest_;  // grey (the search looks at nothing else)
+  StaticMask result_;
+  int seen_ = 0, since_ = 0;
 };
 
 // The search over a folder, list or video read again from its start: frames after the first
