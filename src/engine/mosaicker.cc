@@ -214,6 +214,10 @@ struct Mosaicker::Impl {
   }
   long long next_track = 0;
   int lost = 0;
+  // The last frame rejected (-1: none, or placed after all), and whether the open patch's first
+  // frame came right after one (or first in a run whose tracking was then lost): IsolatedPatch.
+  int last_rejected = -1;
+  bool opened_in_loss = false;
   MosaicSummary summary;
 
   // Stage timers, in the order of the pipeline; nanoseconds, added atomically (several threads).
@@ -351,6 +355,13 @@ struct Mosaicker::Impl {
   // then listed in the patch that closes.
   void ClosePatch(const std::string& why, const std::optional<ClosingFrame>& closing = std::nullopt);
   void DropWaiting() { pending.clear(); }
+  // A patch of one frame that nothing joined, opened right after a rejected frame and followed
+  // by rejected ones (or by the end of the run): open water or nothing in view (an ROV's descent
+  // and ascent, a burst of black frames).
+  // Written, each would be a tile of water placed beside the map: one every four frames of a
+  // descent (max_lost_frames + 1). Its frame is rejected instead ("isolated").
+  bool IsolatedPatch(const std::string& why) const;
+  void DropIsolatedPatch();
   // Frames rejected after the last patch closed (the run ended over open water, in black
   // frames): no patch opened to list them, so the last one written does. None written: the
   // summary alone counts them.
@@ -447,6 +458,7 @@ FrameReport Mosaicker::Impl::Reject(FrameReport r, const std::string& reason) {
   r.patch_id = canvas ? patch_id : 0;
   rejected.push_back({r.index, r.source, reason});
   ++summary.rejected;
+  last_rejected = r.index;
   return r;
 }
 
@@ -456,6 +468,7 @@ FrameReport Mosaicker::Impl::Unreject(const FrameReport& report) {
                  rejected.end());
   --summary.rejected;
   ++summary.recovered;
+  if (last_rejected == report.index) last_rejected = -1;
   FrameReport r = report;
   r.status = "stitched";
   r.reason.clear();
@@ -757,6 +770,7 @@ void Mosaicker::Impl::StartPatch(const std::shared_ptr<PreparedFrame>& p, FrameR
   links.clear();
   keyframe_bytes = 0;
   link = join;
+  opened_in_loss = r.index == 0 || last_rejected == r.index - 1;
   gate->Reset();
   last = Placed{};
   r.started_patch = true;
@@ -773,6 +787,7 @@ void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Clo
     canvas.reset();
     return;
   }
+  if (IsolatedPatch(why)) return DropIsolatedPatch();
   if (!closing) PromoteLast();
   auto waiting = std::move(pending);
   for (auto& w : waiting) w.thin_overlap.reset();  // placements in the patch that closes
@@ -814,6 +829,38 @@ void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Clo
   pending = std::move(waiting);
   rejected = std::move(carried);
   keyframe_bytes = 0;
+}
+
+bool Mosaicker::Impl::IsolatedPatch(const std::string& why) const {
+  if (frames.size() != 1 || link || !opened_in_loss) return false;
+  const int first = frames.front().index;
+  // The run's first frame only when tracking was then lost: two frames that do not register
+  // leave the first mapped.
+  if (first == 0 && why != "lost_tracking") return false;
+  if (why == "end") return true;  // the run's last frames: nothing after it to join it
+  if (why != "lost_tracking") return false;
+  return std::any_of(rejected.begin(), rejected.end(), [&](const RejectedFrame& f) { return f.index > first; });
+}
+
+void Mosaicker::Impl::DropIsolatedPatch() {
+  const FrameRecord f = frames.front();
+  --summary.stitched;
+  --summary.keyframes;
+  summary.described -= f.is_described();
+  summary.blended -= f.is_blended();
+  ++summary.rejected;
+  // Its rejections, and its frame's, go with the next patch written (or the last one's late list).
+  rejected.push_back({f.index, f.source, "isolated"});
+  std::sort(rejected.begin(), rejected.end(), [](const RejectedFrame& a, const RejectedFrame& b) { return a.index < b.index; });
+  for (auto& w : pending) w.thin_overlap.reset();
+  canvas.reset();
+  frames.clear();
+  keys.clear();
+  links.clear();
+  followed_since_key.Clear();
+  keyframe_bytes = 0;
+  last = Placed{};
+  next_patch_id = patch_id--;  // the next patch takes its number; patch_id: the last one written
 }
 
 void Mosaicker::Impl::ListLateRejections() {

@@ -427,6 +427,54 @@ TEST(MosaickerRobustness, FramesRejectedAfterTheLastPatchClosedAreListedInIt) {
   EXPECT_EQ(listed, (std::set<int>{12, 13, 14, 15, 16, 17}));
 }
 
+// An ROV dive: a descent through open water with marine snow, the seafloor, and the ascent. The
+// snow gives SIFT features enough, so that water frames were not featureless: every fourth opened
+// a patch nothing joined, written as a tile of water placed beside the map (a 40-frame descent:
+// 10 of them). Such a frame is rejected as `isolated`; every frame over the seafloor is placed.
+TEST(MosaickerRobustness, OpenWaterWithMarineSnowLeavesNoPatchOfWater) {
+  test::ScratchDir dir;
+  WriteSurvey(test::SmallSurvey(20), dir / "survey");
+  cv::RNG rng(7);
+  auto water = [&](const std::string& name) {
+    cv::Mat w(360, 480, CV_8UC3, cv::Scalar(70, 90, 30));
+    cv::Mat noise(w.size(), CV_8UC3);
+    cv::randn(noise, 0, 3);
+    w += noise;
+    for (int k = 0; k < 150; ++k)  // snow: specks that drift between frames
+      cv::circle(w, {rng.uniform(0, 480), rng.uniform(0, 360)}, rng.uniform(1, 3), cv::Scalar::all(rng.uniform(150, 255)),
+                 cv::FILLED);
+    cv::imwrite(dir / name, w);
+    return name;
+  };
+  std::vector<std::string> names;
+  for (int k = 0; k < 16; ++k) names.push_back(water("down_" + std::to_string(k) + ".png"));
+  for (int i = 0; i < 20; ++i) names.push_back(FrameName("survey", i));
+  for (int k = 0; k < 8; ++k) names.push_back(water("up_" + std::to_string(k) + ".png"));
+  WriteFrameList(dir / "frames.txt", names);
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaickerOptions o = Options();
+  o.mask = "";  // no overlay to look for
+  const MosaicSummary sum = MosaicInput(dir / "frames.txt", store, o, nullptr);
+  EXPECT_EQ(sum.stitched, 20);
+  EXPECT_EQ(sum.rejected, 24);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  EXPECT_EQ(static_cast<int>(reopened.patches().size()), sum.patches);
+  std::set<int> listed;
+  int isolated = 0;
+  for (const auto& p : reopened.patches()) {
+    const PatchSidecar s = reopened.ReadSidecar(p.id);
+    for (const auto& f : s.frames)
+      EXPECT_NE(f.source.find("survey/frames"), std::string::npos) << "patch " << p.id << " holds " << f.source;
+    for (const auto& r : s.rejected) {
+      EXPECT_TRUE(listed.insert(r.index).second) << "frame " << r.index << " listed twice";
+      isolated += r.reason == "isolated";
+    }
+  }
+  EXPECT_EQ(listed.size(), 24u);  // every water frame, with its reason
+  EXPECT_GE(isolated, 2) << "the water frames that opened patches";
+  EXPECT_EQ(static_cast<int>(sum.rejected_frames.size()), 24);
+}
+
 // Frames followed between two keyframes (video) are placed where the keyframe before and the one
 // after put them (MosaickerOptions::follow_back): the keyframes stay where they were, the
 // followed frames move, and they are no further from the truth than from the one before alone.
