@@ -278,10 +278,13 @@ static int RunMosaic(MosaicSwitches s) {
   int input_frames = -1;
   const MosaicSummary sum =
       s.live ? RunLive(s, store, o, on_frame)
-             : MosaicInput(s.input, store, o, [&](const FrameReport& r, int total) {
-                 input_frames = total;
-                 on_frame(r, total);
-               }, &g_stop);
+             : MosaicInput(
+                   s.input, store, o,
+                   [&](const FrameReport& r, int total) {
+                     input_frames = total;
+                     on_frame(r, total);
+                   },
+                   &g_stop, [&](const std::string& note) { progress.Update(0.0, note); });
   progress.Done();
   PrintSummary(s, sum, input_frames);
   return sum.stitched > 0 ? 0 : 1;
@@ -330,8 +333,8 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
                   "static overlays to leave out of matching and blending: an image of the frames' size, white where "
                   "the frames hold a fixed overlay (timestamp, laser dots, a part of the vehicle); \"auto\" finds "
                   "them in the first frames, or in those after them where the seafloor hardly moves under the first "
-                  "(a descent; a live run reads on a window of 24 frames ahead of the mapping), or an earlier run's mask in "
-                  "the store (live), and writes "
+                  "(a descent: up to 30 minutes at 30 frames/s read again; a live run reads on, a window of 24 frames ahead "
+                  "of the mapping, for up to an hour), or an earlier run's mask in the store (live), and writes "
                   "<store>/static_mask.png; \"none\" for no mask")
       ->capture_default_str();
   cmd->add_option("--calibration", o.calibration,

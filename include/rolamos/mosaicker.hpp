@@ -377,9 +377,12 @@ void CheckMosaicInput(const std::string& input);
 
 // Reads INPUT (folder, list, video) and mosaics it into the store; `on_frame` sees every frame.
 // When `stop` is set (e.g. by SIGINT) no further frame is read: the frames read are mapped, the
-// open patch is written as at the end of the input, and the summary says `stopped`.
+// open patch is written as at the end of the input, and the summary says `stopped`. `on_note`
+// hears what the run does before its first frame is mapped when that takes long (the overlay
+// search reading on past a descent).
 MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& options,
                           const std::function<void(const FrameReport&, int total)>& on_frame = nullptr,
-                          const std::atomic<bool>* stop = nullptr);
+                          const std::atomic<bool>* stop = nullptr,
+                          const std::function<void(const std::string&)>& on_note = nullptr);
 
 }  // namespace rolamos

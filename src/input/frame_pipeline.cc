@@ -218,7 +218,8 @@ class HeldSource : public FrameSource {
 // The same from the first frames of a folder, list or video, which `source` keeps for the
 // mosaicking (unreadable ones too: the engine reports them in order).
 MosaickerOptions AutoMask(HeldSource* source, const std::string& input, const Store& store,
-                          MosaickerOptions options, std::string* note) {
+                          MosaickerOptions options, std::string* note,
+                          const std::function<void(const std::string&)>& on_note) {
   const StaticMaskOptions mo;
   std::vector<cv::Mat> frames;
   // As many frames at once as are still wanted (decoded on every core), again past unreadable
@@ -237,7 +238,13 @@ MosaickerOptions AutoMask(HeldSource* source, const std::string& input, const St
     // A descent through open water, a vehicle holding still: the frames after these may tell (a
     // shorter input has none). The input is read again for it; the frames held stay held for the
     // engine.
-    const StaticMask further = SearchOverlayFurther(input, static_cast<int>(source->held()), options, {}, source->stop);
+    OverlaySearchOptions search;
+    if (on_note)
+      search.progress = [&](int read) {
+        on_note("mask auto: the first frames could not tell (a descent?); reading on for the overlay: " +
+                std::to_string(read) + " frames read");
+      };
+    const StaticMask further = SearchOverlayFurther(input, static_cast<int>(source->held()), options, search, source->stop);
     found = further.conclusive ? further : StaticMask{cv::Mat(), 0, found.note + "; " + further.note, false};
   }
   return UseOverlay(found, store, options, note);
@@ -378,7 +385,7 @@ void CheckMosaicInput(const std::string& input) { FrameSource::Open(input); }
 
 MosaicSummary MosaicInput(const std::string& input, Store store, const MosaickerOptions& given,
                           const std::function<void(const FrameReport&, int)>& on_frame,
-                          const std::atomic<bool>* stop) {
+                          const std::atomic<bool>* stop, const std::function<void(const std::string&)>& on_note) {
   // Held before the calibration and the mask are written into the store, not from the engine on.
   const auto lock = LockStoreForChange(store, "a rolamos mosaic engine");
   std::string note;
@@ -387,7 +394,7 @@ MosaicSummary MosaicInput(const std::string& input, Store store, const Mosaicker
   const auto opened = FrameSource::Open(input);
   HeldSource source(opened.get());
   source.stop = stop;  // the overlay search reads up to 72 frames, and on (again) past a descent: a stop ends it too
-  if (options.mask == "auto") options = AutoMask(&source, input, store, options, &mask_note);
+  if (options.mask == "auto") options = AutoMask(&source, input, store, options, &mask_note, on_note);
   options.track_halve = TrackHalving(options, source);
   Mosaicker mosaicker(store, options);
   const double decode = RunPipeline(&source, mosaicker, on_frame, nullptr);
@@ -447,13 +454,16 @@ MosaickerOptions LiveMask(MosaickerOptions options, const Store& store, LiveSour
 }
 
 // Live, after a first look that could not tell: the frames are read a window ahead of the mapping
-// and looked at as they come (every 8, windows of 24, up to 3,600 frames, as in a batch run).
+// and looked at as they come (every 8, windows of 24, up to an hour at 30 frames/s: a live run
+// reads nothing again, so only the 24 frames held ahead cost while it looks).
 // The first window that tells gives the mapping its mask from that window's first frame on;
 // the note says where it was found. The held frames cost memory (24 frames more) and latency (24
 // frames later on the page) only while the search goes on.
 void LookFurtherLive(HeldSource* feed, LiveSource* source, Mosaicker* mosaicker, const Store& store,
                      const MosaickerOptions& options, std::string* mask_note, std::unique_ptr<OverlayWindows>* keep) {
-  *keep = std::make_unique<OverlayWindows>(options, static_cast<int>(feed->held()));
+  OverlaySearchOptions search;
+  search.max_frames = 108000;
+  *keep = std::make_unique<OverlayWindows>(options, static_cast<int>(feed->held()), search);
   OverlayWindows* windows = keep->get();
   const std::string first = *mask_note;
   feed->look_ahead = StaticMaskOptions().frames;

@@ -1,5 +1,7 @@
 #include "input/overlay_search.h"
 
+#include <algorithm>
+
 #include <opencv2/imgproc.hpp>
 
 #include "engine/preprocess.h"
@@ -73,6 +75,7 @@ StaticMask SearchOverlayFurther(const std::string& input, int skip, const Mosaic
   int read = 0;
   while (read < search.max_frames && !(stop && stop->load()) && source->Next(&f)) {
     ++read;
+    if (search.progress && read % std::max(1, search.progress_every) == 0) search.progress(read);
     if (f.index < skip) continue;
     if (windows.Add(f.index, f.image) && windows.conclusive()) return windows.result();
   }

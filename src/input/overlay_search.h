@@ -7,6 +7,7 @@
 
 #include <atomic>
 #include <deque>
+#include <functional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -25,7 +26,12 @@ StaticMask FindOverlay(const std::vector<cv::Mat>& raw, const MosaickerOptions& 
 
 struct OverlaySearchOptions {
   int step = 8;             // frames between two looks at the latest ones
-  int max_frames = 3600;    // frames read at most (two minutes at 30 frames/s)
+  // Frames read at most: 30 minutes at 30 frames/s, an ROV's descent to 1,000 m (two minutes,
+  // as before, left deeper dives' overlays unfound).
+  int max_frames = 54000;
+  // Called with the frames read so far, every `progress_every` (a long search is not silent).
+  std::function<void(int read)> progress;
+  int progress_every = 240;
 };
 
 // The frames after the first ones, looked at window by window: each frame goes in as it is read;

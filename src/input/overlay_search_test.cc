@@ -53,10 +53,14 @@ TEST(OverlaySearch, ADescentThroughOpenWaterDoesNotHideTheOverlay) {
   EXPECT_GT(found.mask.at<uchar>(180, 240), 0);
   EXPECT_EQ(found.mask.at<uchar>(20, 20), 0);
   EXPECT_NE(found.note.find("the first 24 could not tell"), std::string::npos) << found.note;
-  // No further than asked, and nothing once stopped.
+  // No further than asked, and nothing once stopped; a long search says how far it has read.
   OverlaySearchOptions short_search;
   short_search.max_frames = 40;  // all open water
+  short_search.progress_every = 10;
+  std::vector<int> heard;
+  short_search.progress = [&](int read) { heard.push_back(read); };
   EXPECT_FALSE(SearchOverlayFurther(dir.path(), 24, MosaickerOptions(), short_search).conclusive);
+  EXPECT_EQ(heard, (std::vector<int>{10, 20, 30, 40}));
   const std::atomic<bool> stop{true};
   const StaticMask stopped = SearchOverlayFurther(dir.path(), 24, MosaickerOptions(), {}, &stop);
   EXPECT_FALSE(stopped.conclusive);
