@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <set>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -101,6 +102,25 @@ TEST(LiveStream, RtpMjpegOverUdpIsMappedThroughAStallAndStopsWhileStalled) {
   int placed = 0;
   for (const auto& p : info["patches"]) placed += p.value("n_images", 0);
   EXPECT_EQ(placed, st["frames_registered"].get<int>()) << st.dump();
+  // Each frame named by its number in the stream (where it is in the recording), skipped frames
+  // counted: distinct, within what arrived, and past the frames mapped where some were skipped.
+  std::set<int> numbers;
+  for (const auto& e : fs::directory_iterator(fs::path(store) / "patches")) {
+    if (e.path().extension() != ".json" || e.path().string().find(".links") != std::string::npos) continue;
+    std::ifstream in(e.path());
+    const auto sidecar = nlohmann::json::parse(in);
+    for (const char* list : {"frames", "rejected"})
+      for (const auto& f : sidecar[list]) {
+        const std::string source = f["source"].get<std::string>();
+        ASSERT_NE(source.rfind('#'), std::string::npos) << source;
+        EXPECT_TRUE(numbers.insert(std::stoi(source.substr(source.rfind('#') + 1))).second) << source;
+      }
+  }
+  const int mapped = st["frames_registered"].get<int>() + st["frames_rejected"].get<int>();
+  EXPECT_EQ(static_cast<int>(numbers.size()), mapped);
+  ASSERT_FALSE(numbers.empty());
+  EXPECT_LT(*numbers.rbegin(), st["frames_received"].get<int>());
+  if (st["frames_skipped"].get<int>() > 0) EXPECT_GT(*numbers.rbegin(), mapped - 1) << st.dump();
 }
 
 }  // namespace

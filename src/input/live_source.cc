@@ -270,7 +270,8 @@ class StreamSource : public LiveSource {
     f->index = index_++;
     f->skipped_before = SkippedBefore(seq);
     Took();
-    f->source = name_ + "#" + std::to_string(f->index);
+    // Named by its number in the stream, skipped frames counted: where it is in the recording.
+    f->source = name_ + "#" + std::to_string(seq);
     f->error.clear();
     f->image = image;
     arrival_ = arrived;
