@@ -41,7 +41,8 @@ const OptionTable<SurveyOptions>& SurveyTable() {
         .Number("attenuation", &SurveyOptions::attenuation).Number("vignetting", &SurveyOptions::vignetting)
         .Number("backscatter", &SurveyOptions::backscatter).Number("light_cone", &SurveyOptions::light_cone)
         .Number("k1", &SurveyOptions::k1)
-        .Number("exposure_jitter", &SurveyOptions::exposure_jitter).Number("motion_blur", &SurveyOptions::motion_blur).Number("noise", &SurveyOptions::noise)
+        .Number("exposure_jitter", &SurveyOptions::exposure_jitter).Number("motion_blur", &SurveyOptions::motion_blur)
+        .Number("descent_from", &SurveyOptions::descent_from).Integer("descent_frames", &SurveyOptions::descent_frames).Number("noise", &SurveyOptions::noise)
         .Integer("particles", &SurveyOptions::particles).Integer("jpeg", &SurveyOptions::jpeg_quality)
         .Custom("seed", [](SurveyOptions& o, const py::handle& v) { o.seed = v.cast<uint32_t>(); })
         .Text("video", &SurveyOptions::video).Number("video_fps", &SurveyOptions::video_fps)
@@ -364,7 +365,7 @@ void BindSteps(py::module_& m) {
         "bands, or None: a procedural seafloor): frames/ and ground_truth.json in `output`. Options by the "
         "CLI's names: frames, path, width, height, focal, fov, gsd, overlap, side_overlap, tilt, "
         "attitude_jitter, turns, lanes, max_turn, overlay, altitude_jitter, attenuation, vignetting, "
-        "backscatter, light_cone, exposure_jitter, motion_blur, noise, particles, jpeg, seed, video, video_fps, video_codec.");
+        "backscatter, light_cone, exposure_jitter, motion_blur, descent_from, descent_frames, noise, particles, jpeg, seed, video, video_fps, video_codec.");
   m.def("mosaic", &Mosaic, py::arg("input"), py::arg("store"), py::kw_only(), py::arg("progress") = py::none(),
         "The online engine over a folder of frames, a .txt list or a video (rolamos mosaic), into `store` "
         "(created when new). Options as rolamos.Mosaicker's, with the CLI's defaults (mask='auto' finds a "

@@ -69,6 +69,11 @@ void AddSynthCommand(CLI::App& app, Runner* run) {
                   "shutter open for this share of the frame interval (0 = off; 0.5 = 1/60 s at 30 frames/s): "
                   "frames smeared along the camera's motion")
       ->capture_default_str();
+  cmd->add_option("--descent-from", o.descent_from,
+                  "an ROV's approach: the first frames come down from this many times the altitude to it (1 = none)")
+      ->capture_default_str();
+  cmd->add_option("--descent-frames", o.descent_frames, "frames the approach takes (0 = a third of them)")
+      ->capture_default_str();
   cmd->add_option("--noise", o.noise, "sensor noise sigma")->capture_default_str();
   cmd->add_option("--particles", o.particles, "marine snow per frame")->capture_default_str();
   cmd->add_option("--jpeg", o.jpeg_quality, "JPEG quality (0 = PNG)")->capture_default_str();

@@ -26,6 +26,11 @@ struct SurveyOptions {
   double forward_overlap = 0.8;  // between consecutive frames
   double side_overlap = 0.3;     // between lawnmower lanes
   double altitude_jitter = 0.05;  // relative altitude change (smooth)
+  // An ROV's approach to the seafloor: the first `descent_frames` frames (0: a third of them)
+  // come down from `descent_from` times the altitude to it, at a steady speed, along the path;
+  // from higher up the ground is smaller in the frame and the water takes more of its colour.
+  double descent_from = 1;
+  int descent_frames = 0;
   double tilt_deg = 2.0;          // roll/pitch amplitude (smooth)
   double attitude_jitter_deg = 0; // roll and pitch drawn independently for every frame (sd)
   bool lane_turns = true;         // lawnmower: false = the next lane starts turned 180 degrees

@@ -39,14 +39,6 @@ cv::Point2d Apply(const cv::Matx33d& H, cv::Point2d p) {
   return {q[0] / q[2], q[1] / q[2]};
 }
 
-// Jacobian of the homography at p.
-cv::Matx22d Jacobian(const cv::Matx33d& H, cv::Point2d p) {
-  const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1);
-  const double w = q[2], u = q[0] / w, v = q[1] / w;
-  return cv::Matx22d((H(0, 0) - u * H(2, 0)) / w, (H(0, 1) - u * H(2, 1)) / w,
-                     (H(1, 0) - v * H(2, 0)) / w, (H(1, 1) - v * H(2, 1)) / w);
-}
-
 std::vector<cv::Point2f> Corners(cv::Size s) {
   return {{0, 0}, {s.width - 1.0f, 0}, {s.width - 1.0f, s.height - 1.0f}, {0, s.height - 1.0f}};
 }
@@ -77,14 +69,14 @@ bool IsPlausibleMotion(const cv::Matx33d& H, cv::Size frame, const SupportOption
   // A camera over a roughly flat seafloor: no mirror, scale and shear within bounds, and the
   // projective terms changing the scale across the frame only a little.
   const cv::Point2d c((frame.width - 1) / 2.0, (frame.height - 1) / 2.0);
-  const cv::Matx22d J = Jacobian(H, c);
+  const cv::Matx22d J = HomographyJacobian(H, c);
   cv::Mat w;
   cv::SVD::compute(cv::Mat(J), w, cv::SVD::NO_UV);
   const double s1 = w.at<double>(0), s2 = w.at<double>(1);
   const double det = cv::determinant(J);
   double min_det = std::numeric_limits<double>::max(), max_det = 0;
   for (const auto& p : Corners(frame)) {
-    const double d = cv::determinant(Jacobian(H, p));
+    const double d = cv::determinant(HomographyJacobian(H, p));
     min_det = std::min(min_det, d);
     max_det = std::max(max_det, d);
   }

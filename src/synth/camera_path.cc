@@ -196,12 +196,15 @@ std::vector<CameraPose> PlanCameraPath(const SurveyOptions& o, const cv::Rect2d&
                                                   : RandomWalkPath(o, area, step, rng);
 
   Wobble alt(rng), roll(rng), pitch(rng);
+  // The approach: from descent_from times the altitude down to it at a steady vertical speed.
+  const int descent = o.descent_from > 1 ? (o.descent_frames > 0 ? o.descent_frames : o.frames / 3) : 0;
+  auto approach = [&](double t) { return t >= descent ? 1.0 : o.descent_from - (o.descent_from - 1) * t / descent; };
   std::normal_distribution<double> jitter(0.0, o.attitude_jitter_deg * CV_PI / 180);
   std::vector<CameraPose> poses;
   for (size_t i = 0; i < xy_yaw.size(); ++i) {
     CameraPose pose;
     const double t = double(i);
-    pose.position = cv::Vec3d(xy_yaw[i][0], xy_yaw[i][1], altitude * (1.0 + o.altitude_jitter * alt(t)));
+    pose.position = cv::Vec3d(xy_yaw[i][0], xy_yaw[i][1], altitude * approach(t) * (1.0 + o.altitude_jitter * alt(t)));
     pose.yaw = WrapAngle(xy_yaw[i][2]);
     pose.roll = o.tilt_deg * CV_PI / 180 * roll(t) + (o.attitude_jitter_deg > 0 ? jitter(rng) : 0.0);
     pose.pitch = o.tilt_deg * CV_PI / 180 * pitch(t) + (o.attitude_jitter_deg > 0 ? jitter(rng) : 0.0);

@@ -57,6 +57,10 @@ bool SurveyOptions::IsValid(std::string* error) const {
       return bad("video codec \"" + video_codec + "\" is not mpeg4 or h264 for .mp4, or mjpeg for .avi");
   }
   if (!(k1 >= -0.5 && k1 <= 0.5)) return bad("lens distortion k1 " + std::to_string(k1) + " is outside -0.5..0.5");
+  if (!(descent_from >= 1 && descent_from <= 5))
+    return bad("descent from " + std::to_string(descent_from) + " times the altitude is outside 1..5");
+  if (descent_frames < 0 || descent_frames > frames)
+    return bad("descent of " + std::to_string(descent_frames) + " frames is outside 0.." + std::to_string(frames));
   if (!(motion_blur >= 0 && motion_blur <= 1))
     return bad("motion blur " + std::to_string(motion_blur) + " is outside 0..1 (the shutter's share of the frame interval)");
   if (!(light_cone >= 0 && light_cone <= 1) || !(exposure_jitter >= 0 && exposure_jitter <= 0.5))
@@ -375,7 +379,8 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
   for (const auto& p : lens)
     reach = std::max(reach, std::hypot(p.x - K(0, 2), p.y - K(1, 2)) / std::hypot(K(0, 2), K(1, 2)));
   const double half_diag = reach * 0.5 * std::hypot(o.frame_width, o.frame_height) * o.gsd *
-                               (1.0 + o.altitude_jitter) * 1.1 + altitude * std::tan(jitter_tilt);
+                               (1.0 + o.altitude_jitter) * o.descent_from * 1.1 +
+                           altitude * o.descent_from * std::tan(jitter_tilt);
   cv::Rect2d area(half_diag, half_diag, texture.size().width - 2 * half_diag,
                   texture.size().height - 2 * half_diag);
   if (area.width < 1 || area.height < 1)
@@ -455,7 +460,8 @@ Survey WriteSurvey(const SurveyOptions& o, const std::string& dir,
                      {"attitude_jitter_deg", o.attitude_jitter_deg}, {"lane_turns", o.lane_turns},
                      {"lanes", o.lanes}, {"max_turn_deg", o.max_turn_deg}, {"overlay", o.overlay},
                      {"repeat", o.repeat},
-                     {"focal_px", o.Focal()}, {"k1", o.k1}, {"motion_blur", o.motion_blur}}},
+                     {"focal_px", o.Focal()}, {"k1", o.k1}, {"motion_blur", o.motion_blur},
+                     {"descent_from", o.descent_from}, {"descent_frames", o.descent_frames}}},
                    {"frames", frames}};
   WriteFileAtomic((fs::path(dir) / "ground_truth.json").string(), j.dump(1) + "\n");
   return survey;

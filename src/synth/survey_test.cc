@@ -80,6 +80,26 @@ TEST(Synth, ALensDistortsTheFramesAndTheGroundTruthStaysThePinholes) {
   }
 }
 
+// An ROV's approach: the first frames come down from three times the altitude at a steady speed;
+// the ground is drawn three times smaller in the first frame than after the descent, and the
+// water takes more of its red.
+TEST(Synth, ADescentComesDownToTheAltitudeAndDimsTheRedFromHigher) {
+  test::ScratchDir dir;
+  SurveyOptions o = Clean("lawnmower");
+  o.frames = 12;
+  o.descent_from = 3;
+  o.descent_frames = 6;
+  const Survey s = WriteSurvey(o, dir.path());
+  auto scale = [&](int i) { return CentreScale(ToMatx(s.frames[size_t(i)].frame_to_world), s.frame_size); };
+  EXPECT_NEAR(scale(0) / scale(11), 3.0, 0.2);  // texture pixels per frame pixel
+  EXPECT_NEAR(scale(3) / scale(11), 2.0, 0.15);  // half way down
+  EXPECT_NEAR(scale(6) / scale(11), 1.0, 0.1);
+  const cv::Scalar high = cv::mean(cv::imread(dir / s.frames[0].file)), low = cv::mean(cv::imread(dir / s.frames[11].file));
+  EXPECT_LT(high[2] / high[0], low[2] / low[0]) << "red over blue";
+  o.descent_from = 6;
+  EXPECT_THROW(WriteSurvey(o, dir.path()), Error);
+}
+
 // Motion blur smears a frame along the camera's motion, not across it, and leaves its pose (the
 // ground truth, the exposure's middle) where it was: the blurred frames still meet each other
 // through it as sharp ones do.

@@ -1,7 +1,7 @@
 #include "util/homography.h"
 
 #include <algorithm>
-
+#include <cmath>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -19,6 +19,18 @@ std::array<double, 9> ToArray9(const cv::Matx33d& m) {
   std::array<double, 9> h;
   for (int i = 0; i < 9; ++i) h[static_cast<size_t>(i)] = m.val[i] / m(2, 2);
   return h;
+}
+
+cv::Matx22d HomographyJacobian(const cv::Matx33d& H, cv::Point2d p) {
+  const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1);
+  const double w = q[2], u = q[0] / w, v = q[1] / w;
+  return cv::Matx22d((H(0, 0) - u * H(2, 0)) / w, (H(0, 1) - u * H(2, 1)) / w,
+                     (H(1, 0) - v * H(2, 0)) / w, (H(1, 1) - v * H(2, 1)) / w);
+}
+
+double CentreScale(const cv::Matx33d& H, cv::Size size) {
+  const double det = cv::determinant(HomographyJacobian(H, {(size.width - 1) / 2.0, (size.height - 1) / 2.0}));
+  return std::sqrt(std::abs(det));
 }
 
 cv::Rect2d WarpedBounds(const cv::Matx33d& H, cv::Size size) {

@@ -13,6 +13,11 @@ cv::Matx33d ToMatx(const std::array<double, 9>& h);
 std::array<double, 9> ToArray9(const cv::Matx33d& m);
 // Where H takes the point p.
 cv::Point2d ApplyHomography(const cv::Matx33d& H, cv::Point2d p);
+// How H stretches the plane around p (its Jacobian there).
+cv::Matx22d HomographyJacobian(const cv::Matx33d& H, cv::Point2d p);
+// How many times larger H draws the centre of an image of `size` (the square root of the area
+// ratio there): below 1, the image is drawn smaller than it was taken.
+double CentreScale(const cv::Matx33d& H, cv::Size size);
 // Bounding box of an image of `size` (pixel edges, -0.5 .. size - 0.5) mapped by H.
 cv::Rect2d WarpedBounds(const cv::Matx33d& H, cv::Size size);
 // The largest distance between where `a` and `b` put the corners of an image of `size`.
