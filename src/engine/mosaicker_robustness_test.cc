@@ -475,6 +475,31 @@ TEST(MosaickerRobustness, OpenWaterWithMarineSnowLeavesNoPatchOfWater) {
   EXPECT_EQ(static_cast<int>(sum.rejected_frames.size()), 24);
 }
 
+// An ROV coming down onto the seafloor from three times the altitude: a patch was drawn at its
+// first frame's resolution, so the frames that see the ground best (the lowest) were drawn at a
+// third of their size. The adjusted patch is scaled so that its lowest frame is at its own.
+TEST(MosaickerRobustness, ADescentOntoTheSeafloorKeepsTheResolutionOfTheLowestFrames) {
+  test::ScratchDir dir;
+  SurveyOptions so = test::SmallSurvey(60);
+  so.forward_overlap = 0.9;
+  so.descent_from = 3;
+  so.descent_frames = 24;
+  const Survey survey = WriteSurvey(so, dir / "survey");
+  const cv::Size frame(so.frame_width, so.frame_height);
+  Store store = Store::Create(dir / "s.rolamos");
+  const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, Options());
+  EXPECT_EQ(sum.stitched, 60);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  double lowest = 0;  // the largest scale a frame after the descent is drawn at
+  for (const auto& p : reopened.patches()) {
+    const PatchSidecar s = reopened.ReadSidecar(p.id);
+    EXPECT_LT(PatchRms(s, survey), 1.0) << "patch " << p.id;
+    for (const auto& f : s.frames)
+      if (f.index >= 30) lowest = std::max(lowest, CentreScale(ToMatx(f.frame_to_patch), frame));
+  }
+  EXPECT_GT(lowest, 0.9) << "the lowest frames drawn at their own resolution (a third before)";
+}
+
 // Frames followed between two keyframes (video) are placed where the keyframe before and the one
 // after put them (MosaickerOptions::follow_back): the keyframes stay where they were, the
 // followed frames move, and they are no further from the truth than from the one before alone.

@@ -130,17 +130,19 @@ class TextureSource {
       // itself turned 180 degrees; and a mirrored view does not match the original in SIFT.
       const cv::Size2d extent = o.PathExtent();
       if (extent.width > 0) {
-        const double margin = 2 * std::max(o.frame_width, o.frame_height) * o.gsd +
-                              2 * o.Focal() * o.gsd * std::tan(3 * o.attitude_jitter_deg * CV_PI / 180);
+        const double margin = (2 * std::max(o.frame_width, o.frame_height) * o.gsd +
+                               2 * o.Focal() * o.gsd * std::tan(3 * o.attitude_jitter_deg * CV_PI / 180)) *
+                              o.descent_from;  // from higher up a frame sees more ground
         size_.width = std::max(size_.width, static_cast<int>(std::ceil(extent.width + margin)));
         size_.height = std::max(size_.height, static_cast<int>(std::ceil(extent.height + margin)));
       }
     } else {
       // The procedural seafloor is endless: give it room for the path.
-      const double foot = std::max(o.frame_width, o.frame_height) * o.gsd;
+      const double foot = std::max(o.frame_width, o.frame_height) * o.gsd * o.descent_from;
       const cv::Size2d extent = o.PathExtent();
       if (extent.width > 0) {  // the path fixes its size: the margin holds the tilted footprint
-        const double margin = 2 * foot + 2 * o.Focal() * o.gsd * std::tan(3 * o.attitude_jitter_deg * CV_PI / 180);
+        const double margin =
+            2 * foot + 2 * o.Focal() * o.gsd * o.descent_from * std::tan(3 * o.attitude_jitter_deg * CV_PI / 180);
         size_ = cv::Size(static_cast<int>(std::ceil(extent.width + margin)),
                          static_cast<int>(std::ceil(extent.height + margin)));
         return;
