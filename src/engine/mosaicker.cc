@@ -928,8 +928,10 @@ bool Mosaicker::Impl::Blends(const Candidate& c, const cv::Matx33d& to_patch) co
 // A keyframe into the working canvas and the lighting model.
 void Mosaicker::Impl::AddToCanvas(const PreparedFrame& p, const cv::Matx33d& to_patch) {
   canvas->Add(p.image, *weights, to_patch);
-  if (options.flat_field || options.water_colour)
-    if (const cv::Mat u = Usable(); true) colour->Add(p.image, u.size() == p.image.size() ? u : cv::Mat());
+  if (options.flat_field || options.water_colour) {
+    const cv::Mat u = Usable();
+    colour->Add(p.image, u.size() == p.image.size() ? u : cv::Mat());
+  }
 }
 
 void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch,
