@@ -172,7 +172,10 @@ class HeldSource : public FrameSource {
     // at as it is read, so that a mask found in a window reaches every frame of that window.
     while (look_ahead > 0 && static_cast<int>(first_.size()) <= look_ahead) {
       const InputFrame* held = HoldNext();
-      if (!held) break;
+      if (!held) {
+        look_ahead = 0;  // the input ended (or was stopped): the frames held go on without waiting again
+        break;
+      }
       look(*held);
     }
     if (!first_.empty()) {
