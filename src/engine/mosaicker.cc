@@ -355,6 +355,9 @@ struct Mosaicker::Impl {
   // then listed in the patch that closes.
   void ClosePatch(const std::string& why, const std::optional<ClosingFrame>& closing = std::nullopt);
   void DropWaiting() { pending.clear(); }
+  // The open patch's canvas, frames, keyframes and links gone (written, or dropped); its
+  // rejections and the frames waiting stay.
+  void ForgetPatch();
   // A patch of one frame that nothing joined, opened right after a rejected frame and followed
   // by rejected ones (or by the end of the run): open water or nothing in view (an ROV's descent
   // and ascent, a burst of black frames).
@@ -820,14 +823,17 @@ void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Clo
   job.exposure = options.exposure;
   writer.Submit(std::move(job));
   ++summary.patches;
+  ForgetPatch();
+  pending = std::move(waiting);
+  rejected = std::move(carried);
+}
+
+void Mosaicker::Impl::ForgetPatch() {
   canvas.reset();
   frames.clear();
-  rejected.clear();
   keys.clear();
   links.clear();
   followed_since_key.Clear();
-  pending = std::move(waiting);
-  rejected = std::move(carried);
   keyframe_bytes = 0;
 }
 
@@ -853,12 +859,7 @@ void Mosaicker::Impl::DropIsolatedPatch() {
   rejected.push_back({f.index, f.source, "isolated"});
   std::sort(rejected.begin(), rejected.end(), [](const RejectedFrame& a, const RejectedFrame& b) { return a.index < b.index; });
   for (auto& w : pending) w.thin_overlap.reset();
-  canvas.reset();
-  frames.clear();
-  keys.clear();
-  links.clear();
-  followed_since_key.Clear();
-  keyframe_bytes = 0;
+  ForgetPatch();
   last = Placed{};
   next_patch_id = patch_id--;  // the next patch takes its number; patch_id: the last one written
 }

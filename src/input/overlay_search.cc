@@ -63,8 +63,8 @@ bool OverlayWindows::Add(int index, const cv::Mat& image) {
   return true;
 }
 
-std::string OverlayWindows::FinalNote() const {
-  return result_.note + "; searched " + std::to_string(seen_) + " frames";
+std::string OverlayWindows::FinalNote(int read) const {
+  return result_.note + "; searched " + std::to_string(read < 0 ? seen_ : read) + " frames";
 }
 
 StaticMask SearchOverlayFurther(const std::string& input, int skip, const MosaickerOptions& options,
@@ -80,7 +80,7 @@ StaticMask SearchOverlayFurther(const std::string& input, int skip, const Mosaic
     if (windows.Add(f.index, f.image) && windows.conclusive()) return windows.result();
   }
   StaticMask result = windows.result();
-  result.note = result.note + "; searched " + std::to_string(read) + " frames";
+  result.note = windows.FinalNote(read);
   return result;
 }
 

@@ -50,8 +50,8 @@ class OverlayWindows {
   // Frames added so far; the search is over at the options' max_frames.
   int seen() const { return seen_; }
   bool exhausted() const { return seen_ >= search_.max_frames; }
-  // The last finding's note, with how many frames were looked at.
-  std::string FinalNote() const;
+  // The last finding's note, with how many frames were read (by default those added).
+  std::string FinalNote(int read = -1) const;
 
  private:
   StaticMaskOptions mask_options_;
