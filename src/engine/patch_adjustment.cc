@@ -6,6 +6,8 @@
 #include <limits>
 #include <map>
 
+#include "util/homography.h"
+
 namespace rolamos {
 
 bool PatchAdjustmentOptions::IsValid(std::string* error) const {
@@ -49,6 +51,9 @@ namespace {
 // (altitude jitter and tilt stay under 1.1).
 constexpr double kFinerGain = 1.25;
 constexpr double kMaxFinerGain = 3.0;
+// The adjusted frames' bounding box, at most this many times the online one's area (before the
+// lowest frame's gain): a larger one is no flat ground seen through a pinhole camera.
+constexpr double kMaxGrowth = 16.0;
 
 int Root(std::vector<int>& parent, int i) {
   while (parent[size_t(i)] != i) i = parent[size_t(i)] = parent[size_t(parent[size_t(i)])];
@@ -165,6 +170,28 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
   // centres and the plane alike: every frame sees the same), so the first frame is at its own
   // resolution again.
   for (auto& p : poses) p.centre *= f / focal;
+  // Frames held still by a burned-in overlay alone (open water in a live run, before its mask was
+  // found) fit a plane seen through a far shorter lens, and were drawn over 3 Gpx (59,729 x
+  // 51,010 for 30 frames of 1292 x 964). Ground the online chain drew on a few frames' area does
+  // not grow a hundredfold in the adjustment.
+  const cv::Matx33d Kf = CameraMatrix(f, frame);
+  double drawn = 0, online_drawn = 0;
+  {
+    cv::Rect2d a, b;
+    for (size_t i = 0; i < indices.size(); ++i) {
+      a |= WarpedBounds(FrameToPlane(poses[i], Kf), frame);
+      b |= WarpedBounds(online[i], frame);
+    }
+    drawn = a.area();
+    online_drawn = b.area();
+  }
+  if (!(drawn <= kMaxGrowth * online_drawn)) {
+    char note[128];
+    std::snprintf(note, sizeof note, "the adjusted frames cover %.0f times the online ones' area", drawn / online_drawn);
+    out.miss = PatchAdjustment::Miss::kMisfit;
+    out.note = note;
+    return out;
+  }
   // A frame is drawn at its altitude over f: the first one at its own resolution, a lower one
   // smaller. A vehicle coming down onto the seafloor sees it best in its lowest frames, which
   // were drawn at a third of their size from three times the altitude. Where the lowest frame
@@ -177,7 +204,6 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
     for (auto& p : poses) p.centre *= std::min(finer, kMaxFinerGain);
   out.poses = poses;
   out.focal = f;
-  const cv::Matx33d Kf = CameraMatrix(f, frame);
   for (size_t i = 0; i < indices.size(); ++i) out.frame_to_patch[i] = FrameToPlane(poses[i], Kf);
   out.used = true;
   return out;
