@@ -380,6 +380,17 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
                   "global map and loop closures) when it overlaps the last described keyframe less than this; 1 = "
                   "every keyframe; 0.5: faster on stills, at some cost in accuracy")
       ->capture_default_str();
+  cmd->add_option("--still-track-points", o.still_track_points,
+                  "points a keyframe taken right after another (stills) hands on to the next")
+      ->capture_default_str();
+  cmd->add_option("--still-describe-overlap", o.still_describe_overlap,
+                  "a keyframe taken right after another (stills) is described when it overlaps the last described "
+                  "keyframe less than this; 1 = every still")
+      ->capture_default_str();
+  cmd->add_option("--still-blend-overlap", o.still_blend_overlap,
+                  "a keyframe taken right after another (stills) is blended when it overlaps the last blended "
+                  "keyframe less than this; 1 = every still")
+      ->capture_default_str();
   cmd->add_option("--features", o.features, "sift, orb or akaze")->capture_default_str();
   cmd->add_option("--max-features", o.max_features, "features per frame")->capture_default_str();
   cmd->add_option("--followed-max-features", o.followed_max_features,

@@ -76,6 +76,16 @@ bool MosaickerOptions::IsValid(std::string* error) const {
     *error = "describe overlap " + std::to_string(describe_overlap) + " must be in (0, 1]";
     return false;
   }
+  if (!(still_describe_overlap > 0 && still_describe_overlap <= 1.0) ||
+      !(still_blend_overlap > 0 && still_blend_overlap <= 1.0)) {
+    *error = "describe and blend overlaps of stills " + std::to_string(still_describe_overlap) + ", " +
+             std::to_string(still_blend_overlap) + " must be in (0, 1]";
+    return false;
+  }
+  if (still_track_points < 0 || still_track_points > 5000) {
+    *error = "points a still hands on " + std::to_string(still_track_points) + " must be in [0, 5000]";
+    return false;
+  }
   if (!(feather_sigma >= 0 && feather_sigma <= 10)) {
     *error = "feather sigma must be in [0, 10] (0 = plain averaging)";
     return false;
@@ -178,6 +188,7 @@ struct Mosaicker::Impl {
     bool keyframe = false;
     std::vector<FrameLink> links;  // a followed frame's tracks with its keyframe
     bool blended = false;
+    bool still = false;  // a keyframe taken right after another (MosaickerOptions::still_*)
   };
 
   // The frames followed from the current keyframe (MosaickerOptions::follow_back): the next
@@ -339,13 +350,22 @@ struct Mosaicker::Impl {
   bool Usable(const Candidate& c) const;
   const Candidate* Pick(const std::vector<Candidate>& all) const;
   bool WantsKeyframe(const Candidate& c, const cv::Matx33d& to_patch) const;
-  // Whether a new keyframe is described (MosaickerOptions::describe_overlap).
-  bool Describes(const PreparedFrame& p, const cv::Matx33d& to_patch, const Candidate* c) const;
-  // Whether a new keyframe is blended (MosaickerOptions::blend_overlap).
+  // Whether a new keyframe is described (MosaickerOptions::describe_overlap, still_describe_overlap).
+  bool Describes(const PreparedFrame& p, const cv::Matx33d& to_patch, const Candidate* c, bool still) const;
+  // Whether a new keyframe is blended (MosaickerOptions::blend_overlap, still_blend_overlap).
   bool Blends(const Candidate& c, const cv::Matx33d& to_patch) const;
-  bool WouldOnlyLink(const cv::Matx33d& to_patch) const;
+  // It overlaps the last blended keyframe by `overlap` or more.
+  bool WouldOnlyLink(const cv::Matx33d& to_patch, double overlap) const;
   // Frames were followed (placed between keyframes) since the last keyframe: video, not stills.
   bool FollowedSinceKeyframe() const { return !last.keyframe; }
+  // The frame being placed at `to_patch` becomes a keyframe right after another that it overlaps
+  // less than keyframe_overlap (MosaickerOptions::still_*): stills, too far apart to be followed
+  // between keyframes. Not a video's keyframes taken one after another where its points thinned
+  // out or its registration was doubtful (roll and pitch jittered, turns), 95 % apart.
+  bool StillKeyframe(const cv::Matx33d& to_patch) const {
+    return last.frame && !FollowedSinceKeyframe() &&
+           FootprintOverlap(to_patch, last.to_patch, frame_size) < options.keyframe_overlap;
+  }
   cv::Matx33d FitToKeyframes(const PreparedFrame& p, const Candidate& c, std::vector<FrameLink>* fitted, int* frames);
 
   void StartPatch(const std::shared_ptr<PreparedFrame>& p, FrameReport& r, const std::optional<PatchLink>& join);
@@ -377,6 +397,12 @@ struct Mosaicker::Impl {
   // measurements over longer baselines, so error does not add up along a lane), and the older
   // ones under it (an earlier lane: loop closures).
   std::vector<OlderKeyframe> LinkCandidates(const cv::Matx33d& to_patch, bool current) const;
+  // The first of the recent keyframes (PatchFitOptions::recent_frames) a new keyframe is fitted
+  // against; those before it are linked by loop closures only.
+  size_t FirstRecentKey(bool current) const;
+  // A described keyframe before the recent ones lies under it (the lane before): a loop closure
+  // to make, which only SIFT's features make.
+  bool OverOlderKeyframe(const cv::Matx33d& to_patch, bool current) const;
   // A rejected frame stitched after all: out of the rejected list, counted as recovered.
   void AddFollowed(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, FrameRecord rec,
                    std::vector<FrameLink> links);
@@ -384,6 +410,10 @@ struct Mosaicker::Impl {
   // of input): the patch reaches as far as the frames it placed, and its features are stored.
   void PromoteLast();
   void BlendLastKeyframe();
+  // The last frame is a still not blended that the blended keyframes before it and `next` (the
+  // frame placed after it, when blended) leave part of uncovered: a lane's last still, a turn.
+  // It is blended after all, or the patch image would have a hole there.
+  bool LastStillUncovered(const cv::Matx33d* next) const;
   void AddToCanvas(const PreparedFrame& p, const cv::Matx33d& to_patch);
   FrameReport Reject(FrameReport r, const std::string& reason);
   FrameReport Lost(const std::shared_ptr<PreparedFrame>& p, FrameReport r, const std::string& reason);
@@ -678,7 +708,7 @@ bool Mosaicker::Impl::WantsKeyframe(const Candidate& c, const cv::Matx33d& to_pa
   // is taken only with frames followed since the last keyframe: on video, not on stills at
   // 80 % overlap, where every other frame would be one for little gain (paper: 7 % slower).
   if (overlap < options.keyframe_overlap &&
-      (options.keyframe_overlap >= 1.0 || FollowedSinceKeyframe() || !WouldOnlyLink(to_patch)))
+      (options.keyframe_overlap >= 1.0 || FollowedSinceKeyframe() || !WouldOnlyLink(to_patch, options.blend_overlap)))
     return true;
   if (c.at.size() < std::max<size_t>(size_t(2 * support_options.strong_inliers), key.points.size() / 3)) return true;
   // The next frame, if the motion from the last one repeats.
@@ -792,6 +822,7 @@ void Mosaicker::Impl::ClosePatch(const std::string& why, const std::optional<Clo
   }
   if (IsolatedPatch(why)) return DropIsolatedPatch();
   if (!closing) PromoteLast();
+  else if (LastStillUncovered(nullptr)) BlendLastKeyframe();  // the closing frame is the next patch's
   auto waiting = std::move(pending);
   for (auto& w : waiting) w.thin_overlap.reset();  // placements in the patch that closes
   std::vector<RejectedFrame> carried;
@@ -875,12 +906,28 @@ void Mosaicker::Impl::ListLateRejections() {
   rejected.clear();
 }
 
+// An older keyframe is a loop closure's candidate when it overlaps the new one by this many times
+// the overlap the recent ones need (PatchFitOptions::min_overlap).
+constexpr double kLoopOverlap = 2.0;
+
+size_t Mosaicker::Impl::FirstRecentKey(bool current) const {
+  const size_t end = current ? keys.size() - 1 : keys.size();
+  return end > size_t(fit_options.recent_frames) ? end - size_t(fit_options.recent_frames) : 0;
+}
+
+bool Mosaicker::Impl::OverOlderKeyframe(const cv::Matx33d& to_patch, bool current) const {
+  for (size_t k = 0; k < FirstRecentKey(current); ++k)
+    if (keys[k].described && FootprintOverlap(to_patch, keys[k].to_patch, frame_size) >= kLoopOverlap * fit_options.min_overlap)
+      return true;
+  return false;
+}
+
 std::vector<OlderKeyframe> Mosaicker::Impl::LinkCandidates(const cv::Matx33d& to_patch, bool current) const {
   std::vector<OlderKeyframe> out;
   if (keys.empty()) return out;
   // The keyframe followed from is linked by the tracks already.
   const size_t end = current ? keys.size() - 1 : keys.size();
-  const size_t recent = end > size_t(fit_options.recent_frames) ? end - size_t(fit_options.recent_frames) : 0;
+  const size_t recent = FirstRecentKey(current);
   for (size_t k = end; k-- > recent;) {
     if (static_cast<int>(out.size()) >= fit_options.max_frames) break;
     if (keys[k].described && FootprintOverlap(to_patch, keys[k].to_patch, frame_size) >= fit_options.min_overlap)
@@ -890,7 +937,7 @@ std::vector<OlderKeyframe> Mosaicker::Impl::LinkCandidates(const cv::Matx33d& to
   for (size_t k = 0; k < recent; ++k) {
     if (!keys[k].described) continue;
     const double overlap = FootprintOverlap(to_patch, keys[k].to_patch, frame_size);
-    if (overlap >= 2 * fit_options.min_overlap) under.emplace_back(overlap, &keys[k]);
+    if (overlap >= kLoopOverlap * fit_options.min_overlap) under.emplace_back(overlap, &keys[k]);
   }
   std::sort(under.begin(), under.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
   for (size_t k = 0; k < under.size() && k < size_t(fit_options.max_loop_frames); ++k)
@@ -903,18 +950,25 @@ std::vector<OlderKeyframe> Mosaicker::Impl::LinkCandidates(const cv::Matx33d& to
 // followed with strong support is described when it has moved far enough from the last one that
 // was; one placed any other way (the first of a patch, recovered, doubtful, the last) always is,
 // as is one whose features were found already, or that rejected frames wait to be tried against.
-bool Mosaicker::Impl::Describes(const PreparedFrame& p, const cv::Matx33d& to_patch, const Candidate* c) const {
+bool Mosaicker::Impl::Describes(const PreparedFrame& p, const cv::Matx33d& to_patch, const Candidate* c,
+                                bool still) const {
   if (!c || !c->tracked() || !c->support.strong || p.features || !pending.empty()) return true;
-  const double overlap = shedding ? std::min(options.describe_overlap, shed_describe_overlap) : options.describe_overlap;
+  double overlap = options.describe_overlap;
+  if (still) {
+    // The lane before under it: its loop links hold the lanes of a patch together.
+    if (options.still_describe_overlap < 1.0 && OverOlderKeyframe(to_patch, true)) return true;
+    overlap = std::min(overlap, options.still_describe_overlap);
+  }
+  if (shedding) overlap = std::min(overlap, shed_describe_overlap);
   if (overlap >= 1.0) return true;
   for (auto it = keys.rbegin(); it != keys.rend(); ++it)
     if (it->described) return FootprintOverlap(to_patch, it->to_patch, frame_size) < overlap;
   return true;
 }
 
-bool Mosaicker::Impl::WouldOnlyLink(const cv::Matx33d& to_patch) const {
+bool Mosaicker::Impl::WouldOnlyLink(const cv::Matx33d& to_patch, double overlap) const {
   for (auto it = keys.rbegin(); it != keys.rend(); ++it)
-    if (it->blended) return FootprintOverlap(to_patch, it->to_patch, frame_size) >= options.blend_overlap;
+    if (it->blended) return FootprintOverlap(to_patch, it->to_patch, frame_size) >= overlap;
   return false;
 }
 
@@ -923,7 +977,8 @@ bool Mosaicker::Impl::WouldOnlyLink(const cv::Matx33d& to_patch) const {
 // strong support, that the last blended one still covers enough of links and places only.
 bool Mosaicker::Impl::Blends(const Candidate& c, const cv::Matx33d& to_patch) const {
   if (!c.tracked() || !c.support.strong || !pending.empty()) return true;
-  return !WouldOnlyLink(to_patch);
+  return !WouldOnlyLink(to_patch, StillKeyframe(to_patch) ? std::min(options.blend_overlap, options.still_blend_overlap)
+                                                          : options.blend_overlap);
 }
 
 // A keyframe into the working canvas and the lighting model.
@@ -939,7 +994,8 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
                                   const Candidate* c, std::vector<FrameLink> found, FrameRecord rec, bool current,
                                   bool blend) {
   Laps lap{this, {}};
-  const bool described = Describes(*p, to_patch, c);
+  const bool still = current && StillKeyframe(to_patch);
+  const bool described = Describes(*p, to_patch, c, still);
   if (!described) rec.described = false;
   if (blend) AddToCanvas(*p, to_patch);
   else rec.blended = false;
@@ -958,8 +1014,9 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
     key.points = c->at;
     key.ids = c->ids;
   }
-  const int wanted = track_points - static_cast<int>(key.points.size());
-  if (wanted > track_points / 8)
+  const int points = still ? std::max(track_points, options.still_track_points) : track_points;
+  const int wanted = points - static_cast<int>(key.points.size());
+  if (wanted > points / 8)
     for (const auto& q : tracker.Corners(*p->track, key.points, wanted)) {
       key.points.push_back(q);
       key.ids.push_back(next_track++);
@@ -1023,7 +1080,7 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
     keys.insert(keys.end() - 1, std::move(key));
   } else {
     keys.push_back(std::move(key));
-    last = Placed{keys.back().index, to_patch, p, true, {}, blend};
+    last = Placed{keys.back().index, to_patch, p, true, {}, blend, still};
   }
   // Keyframes behind the recent ones are not followed from again: their pyramids go, also from
   // the frame their job may still hold (it reads the image and features, never the pyramid).
@@ -1089,6 +1146,38 @@ void Mosaicker::Impl::BlendLastKeyframe() {
   });
   key.products = task->get_future().share();
   keyframe_pool.Submit([task] { (*task)(); });
+}
+
+// The share of a still's width (height) along its edges that may be left to its neighbours'
+// edges when it is not blended.
+constexpr double kStillMargin = 0.04;
+
+bool Mosaicker::Impl::LastStillUncovered(const cv::Matx33d* next) const {
+  if (!last.keyframe || last.blended || !last.still || keys.empty() || keys.back().index != last.index) return false;
+  std::vector<cv::Matx33d> to_blended;  // patch -> each covering frame
+  if (next) to_blended.push_back(next->inv());
+  for (auto it = keys.rbegin() + 1; it != keys.rend() && to_blended.size() < 4; ++it)
+    if (it->blended) to_blended.push_back(it->to_patch.inv());
+  // A grid over the frame but for a margin along its edges (kStillMargin): with the vehicle's
+  // roll and sway, the stills before and after a still are offset from it sideways by a few
+  // pixels, which no blended frame covers however many are blended along a lane's edge.
+  const double w = frame_size.width - 1.0, h = frame_size.height - 1.0;
+  const double mx = kStillMargin * w, my = kStillMargin * h;
+  for (int gy = 0; gy <= 6; ++gy)
+    for (int gx = 0; gx <= 6; ++gx) {
+      const cv::Vec3d p = last.to_patch * cv::Vec3d(mx + (w - 2 * mx) * gx / 6, my + (h - 2 * my) * gy / 6, 1);
+      bool covered = false;
+      for (const auto& inv : to_blended) {
+        const cv::Vec3d q = inv * p;
+        const double x = q[0] / q[2], y = q[1] / q[2];
+        if (q[2] > 0 && x >= 0 && y >= 0 && x <= w && y <= h) {
+          covered = true;
+          break;
+        }
+      }
+      if (!covered) return true;
+    }
+  return false;
 }
 
 // A frame that cannot be registered: kept for a second chance against the frames after it and
@@ -1279,7 +1368,11 @@ FrameReport Mosaicker::Impl::Place(const std::shared_ptr<PreparedFrame>& p, Cand
   }
   // ECC aligns a keyframe with the patch image it is blended into; the others are placed by the
   // adjustment.
-  const bool blend = Blends(best, to_patch);
+  bool blend = Blends(best, to_patch);
+  if (LastStillUncovered(blend ? &to_patch : nullptr)) {
+    BlendLastKeyframe();
+    blend = Blends(best, to_patch);
+  }
   if (options.ecc && blend) {
     cv::Mat gray;
     cv::cvtColor(p->image, gray, cv::COLOR_BGR2GRAY);

@@ -782,13 +782,15 @@ TEST(MosaickerRobustness, KeyframesBetweenDescribedOnesAreMarkedAndNeverDescribe
 }
 
 // A live run behind its feed sheds load: while ShedLoad is on, keyframes are described as with
-// describe_overlap 0.5; before and after it, every keyframe is (the options' 1). The placements
-// stay within a pixel of the truth throughout.
+// describe_overlap 0.5; before and after it, every keyframe is (the options' 1, stills' too).
+// The placements stay within a pixel of the truth throughout.
 TEST(MosaickerRobustness, ShedLoadDescribesFewerKeyframesOnlyWhileOn) {
   test::ScratchDir dir;
   const Survey survey = WriteSurvey(JitteredSurvey(36, 1), dir / "survey");
   Store store = Store::Create(dir / "s.rolamos");
-  Mosaicker m(store, Options());
+  MosaickerOptions o = Options();
+  o.still_describe_overlap = 1.0;
+  Mosaicker m(store, o);
   EXPECT_THROW(m.ShedLoad(true, 0.0), Error);
   for (size_t i = 0; i < survey.frames.size(); ++i) {
     if (i == 12) m.ShedLoad(true, 0.5);
@@ -870,6 +872,57 @@ TEST(MosaickerRobustness, KeyframesThatOnlyLinkAreMarkedAndTheImageStillShowsEve
     }
     EXPECT_EQ(blended, sum.blended);
   }
+}
+
+// Stills at 70 % overlap: every frame is a keyframe, taken right after another. About every other
+// one is described and blended (still_describe_overlap, still_blend_overlap); the others are
+// linked by the tracks they hand on (still_track_points). Every frame is placed as well as when
+// each still is described and blended, and the patch image still covers every frame's ground.
+TEST(MosaickerRobustness, StillsAreDescribedAndBlendedEveryOtherAndPlacedAsWell) {
+  test::ScratchDir dir;
+  const Survey survey = WriteSurvey(JitteredSurvey(36, 2), dir / "survey");
+  double rms[2] = {0, 0};
+  for (const bool every : {false, true}) {
+    MosaickerOptions o = Options();
+    if (every) {  // as before session 29: each still described and blended, 300 points handed on
+      o.still_describe_overlap = o.still_blend_overlap = 1.0;
+      o.still_track_points = o.track_points;
+    }
+    const fs::path out = dir / (every ? "every.rolamos" : "stills.rolamos");
+    Store store = Store::Create(out);
+    const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, o);
+    ASSERT_EQ(sum.stitched, 36);
+    EXPECT_GE(sum.keyframes, 32);
+    if (every) {
+      EXPECT_EQ(sum.described, sum.keyframes);
+      EXPECT_EQ(sum.blended, sum.keyframes);
+    } else {
+      EXPECT_GT(sum.described, sum.keyframes / 3);
+      EXPECT_LT(sum.described, sum.keyframes * 3 / 4);
+      EXPECT_GT(sum.blended, sum.keyframes / 3);
+      EXPECT_LT(sum.blended, sum.keyframes * 3 / 4);
+    }
+    Store reopened = Store::Open(out);
+    double sum2 = 0;
+    int patches = 0;
+    for (const auto& p : reopened.patches()) {
+      const PatchSidecar s = reopened.ReadSidecar(p.id);
+      TiledImage image = TiledImage::Open(reopened.PatchImagePath(p.id), std::make_shared<TileCache>());
+      for (const auto& f : s.frames)
+        for (const cv::Point2d q : {cv::Point2d(240, 180), cv::Point2d(48, 36), cv::Point2d(432, 36),
+                                    cv::Point2d(48, 324), cv::Point2d(432, 324)}) {
+          const cv::Vec3d c = ToMatx(f.frame_to_patch) * cv::Vec3d(q.x, q.y, 1);
+          const cv::Mat px = image.ReadRegion(0, cv::Rect(int(c[0] / c[2]) - 1, int(c[1] / c[2]) - 1, 2, 2));
+          EXPECT_EQ(cv::mean(px)[3], 255.0) << "frame " << f.index << " at " << q;
+        }
+      const double r = PatchRms(s, survey);
+      EXPECT_LT(r, 0.5) << "patch " << p.id;
+      sum2 += r * r;
+      ++patches;
+    }
+    rms[every] = std::sqrt(sum2 / std::max(1, patches));
+  }
+  EXPECT_LT(rms[0], 1.2 * rms[1]) << "every other still described: " << rms[0] << " px, each still: " << rms[1];
 }
 
 }  // namespace
