@@ -96,22 +96,22 @@ struct MosaickerOptions {
   // the patch adjustment are SIFT's); on video twice the error (bench/RESULTS.md).
   double describe_overlap = 1.0;
   // Stills: keyframes taken one after another, no frame followed between them, that overlap less
-  // than keyframe_overlap (stills at 70-80 % overlap; video only where it moves that fast). Every
-  // such frame is a keyframe, adjusted with the others; these make them better placed and cheaper:
-  // - the points each hands on to the next: more tracks link it to the frames around it;
+  // than keyframe_overlap (stills at 70-80 % overlap; video only where it moves that fast). Each
+  // is a keyframe, adjusted with the others. Off by default (as any keyframe); a faster mode:
+  // - the points each hands on to the next (600: more tracks link it to the frames around it);
   // - described and blended only when it overlaps the last described (blended) keyframe less
-  //   than these: every other one at 70 % overlap, the others linked by their tracks, their
-  //   ground blended from their neighbours. A still over a keyframe of the lane before is
-  //   described all the same (its loop links hold the lanes of a patch together), and one whose
-  //   neighbours leave part of its ground out is blended after all (a lane's last still).
-  // On the spread's stills: 800 x 600 at 70 % overlap 25.6 -> 34.6 frames/s, 1292 x 964 20.3 ->
-  // 26.5; per-patch error lower on 9 of 13 kinds (0.32 -> 0.18 px), higher on two (strong
-  // degradations 0.74 -> 0.83, a random walk 0.24 -> 0.25); 48 other draws of the stills kinds:
-  // 17 % less error (geometric mean), 40 better, 8 worse (bench/RESULTS.md, session 29).
-  // 1 (the overlaps) or track_points: stills as any keyframe.
-  int still_track_points = 600;
-  double still_describe_overlap = 0.5;
-  double still_blend_overlap = 0.5;
+  //   than these (0.5: every other one at 70 % overlap, the others linked by their tracks, their
+  //   ground blended from their neighbours). A still over a keyframe of the lane before is
+  //   described all the same (its loop links), and one whose neighbours leave part of its ground
+  //   out is blended after all (a lane's last still).
+  // With 600, 0.5, 0.5 on the spread's stills: 800 x 600 at 70 % overlap 25.6 -> 34.6 frames/s,
+  // 1292 x 964 20.3 -> 26.5, per-patch error lower on 9 of 13 kinds (0.32 -> 0.18 px) and on 40
+  // of 48 other draws. But the global map after `align` is much worse: 0.40 -> 0.89 px on 984
+  // stills (the undescribed ones give it no links; 0.58 describing every still and blending
+  // every other), which is why it is not the default (bench/RESULTS.md, session 29).
+  int still_track_points = 300;
+  double still_describe_overlap = 1.0;
+  double still_blend_overlap = 1.0;
   std::string features = "sift";  // sift | orb | akaze
   int max_features = 1000;
   // Features of a keyframe that frames were followed into before it (video): its links to the

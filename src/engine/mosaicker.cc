@@ -414,6 +414,8 @@ struct Mosaicker::Impl {
   // frame placed after it, when blended) leave part of uncovered: a lane's last still, a turn.
   // It is blended after all, or the patch image would have a hole there.
   bool LastStillUncovered(const cv::Matx33d* next) const;
+  // Stills are blended more sparsely than other keyframes (still_blend_overlap below blend_overlap).
+  bool StillBlendRule() const { return options.still_blend_overlap < options.blend_overlap; }
   void AddToCanvas(const PreparedFrame& p, const cv::Matx33d& to_patch);
   FrameReport Reject(FrameReport r, const std::string& reason);
   FrameReport Lost(const std::shared_ptr<PreparedFrame>& p, FrameReport r, const std::string& reason);
@@ -1153,7 +1155,9 @@ void Mosaicker::Impl::BlendLastKeyframe() {
 constexpr double kStillMargin = 0.04;
 
 bool Mosaicker::Impl::LastStillUncovered(const cv::Matx33d* next) const {
-  if (!last.keyframe || last.blended || !last.still || keys.empty() || keys.back().index != last.index) return false;
+  if (!StillBlendRule() || !last.keyframe || last.blended || !last.still || keys.empty() ||
+      keys.back().index != last.index)
+    return false;
   std::vector<cv::Matx33d> to_blended;  // patch -> each covering frame
   if (next) to_blended.push_back(next->inv());
   for (auto it = keys.rbegin() + 1; it != keys.rend() && to_blended.size() < 4; ++it)

@@ -874,19 +874,21 @@ TEST(MosaickerRobustness, KeyframesThatOnlyLinkAreMarkedAndTheImageStillShowsEve
   }
 }
 
-// Stills at 70 % overlap: every frame is a keyframe, taken right after another. About every other
-// one is described and blended (still_describe_overlap, still_blend_overlap); the others are
-// linked by the tracks they hand on (still_track_points). Every frame is placed as well as when
-// each still is described and blended, and the patch image still covers every frame's ground.
+// Stills at 70 % overlap: every frame is a keyframe, taken right after another. With the stills'
+// faster mode about every other one is described and blended (still_describe_overlap,
+// still_blend_overlap); the others are linked by the tracks they hand on (still_track_points).
+// Every frame is placed as well as when each still is described and blended (the default), a
+// still over the lane before is described (its loop links), and the patch image still covers
+// every frame's ground (a lane's last still is blended).
 TEST(MosaickerRobustness, StillsAreDescribedAndBlendedEveryOtherAndPlacedAsWell) {
   test::ScratchDir dir;
   const Survey survey = WriteSurvey(JitteredSurvey(36, 2), dir / "survey");
   double rms[2] = {0, 0};
   for (const bool every : {false, true}) {
     MosaickerOptions o = Options();
-    if (every) {  // as before session 29: each still described and blended, 300 points handed on
-      o.still_describe_overlap = o.still_blend_overlap = 1.0;
-      o.still_track_points = o.track_points;
+    if (!every) {
+      o.still_describe_overlap = o.still_blend_overlap = 0.5;
+      o.still_track_points = 600;
     }
     const fs::path out = dir / (every ? "every.rolamos" : "stills.rolamos");
     Store store = Store::Create(out);
