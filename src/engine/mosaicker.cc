@@ -361,10 +361,16 @@ struct Mosaicker::Impl {
   // The frame being placed at `to_patch` becomes a keyframe right after another that it overlaps
   // less than keyframe_overlap (MosaickerOptions::still_*): stills, too far apart to be followed
   // between keyframes. Not a video's keyframes taken one after another where its points thinned
-  // out or its registration was doubtful (roll and pitch jittered, turns), 95 % apart.
+  // out or its registration was doubtful (roll and pitch jittered, turns), 95 % apart. Always
+  // false while the still_* options treat stills as any keyframe (the default): no overlap is
+  // measured for them then.
   bool StillKeyframe(const cv::Matx33d& to_patch) const {
-    return last.frame && !FollowedSinceKeyframe() &&
+    return StillsDiffer() && last.frame && !FollowedSinceKeyframe() &&
            FootprintOverlap(to_patch, last.to_patch, frame_size) < options.keyframe_overlap;
+  }
+  bool StillsDiffer() const {
+    return options.still_track_points > track_points || options.still_describe_overlap < 1.0 ||
+           StillBlendRule();
   }
   cv::Matx33d FitToKeyframes(const PreparedFrame& p, const Candidate& c, std::vector<FrameLink>* fitted, int* frames);
 
