@@ -6,6 +6,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "engine/bilateral_filter.h"
 #include "rolamos/error.hpp"
 
 namespace rolamos {
@@ -90,8 +91,8 @@ cv::Mat Preprocessor::Spatial(const cv::Mat& frame) { return Bilateral(Undistort
 cv::Mat Preprocessor::Bilateral(const cv::Mat& frame) const {
   if (!options_.bilateral) return frame;
   cv::Mat smoothed;
-  cv::bilateralFilter(frame, smoothed, options_.bilateral_diameter, options_.bilateral_sigma_color,
-                      options_.bilateral_sigma_space);
+  BilateralFilter(frame, smoothed, options_.bilateral_diameter, options_.bilateral_sigma_color,
+                  options_.bilateral_sigma_space);
   return smoothed;
 }
 
