@@ -96,5 +96,44 @@ TEST(Preprocess, TemporalTermRemovesParticlesWithoutSmearingTexture) {
   EXPECT_EQ(out.at<cv::Vec3b>(200, 300), cv::Vec3b(255, 255, 255));
 }
 
+// The temporal term's arithmetic, pixel by pixel, against which the filter (vectorised where the
+// weights allow) is checked to the grey level.
+cv::Mat TemporalByThePixel(const cv::Mat& current, const cv::Mat& previous, double weight, double tolerance) {
+  cv::Mat out(current.size(), CV_8UC3);
+  for (int y = 0; y < current.rows; ++y)
+    for (int x = 0; x < current.cols; ++x) {
+      const cv::Vec3b c = current.at<cv::Vec3b>(y, x), p = previous.at<cv::Vec3b>(y, x);
+      int d = 0;
+      for (int k = 0; k < 3; ++k) d = std::max(d, std::abs(int(c[k]) - int(p[k])));
+      const int w = int(std::lround(256.0 * weight * std::max(0.0, 1.0 - d / tolerance)));
+      for (int k = 0; k < 3; ++k) out.at<cv::Vec3b>(y, x)[k] = uchar(c[k] + (((int(p[k]) - int(c[k])) * w + 128) >> 8));
+    }
+  return out;
+}
+
+TEST(Preprocess, TemporalTermIsTheSameArithmeticAtAnyWidthAndSetting) {
+  cv::RNG rng(3);
+  for (const int width : {2, 6, 7, 8, 17, 18, 642}) {
+    cv::Mat current(9, width, CV_8UC3), previous(9, width, CV_8UC3), step(9, width, CV_8UC3);
+    rng.fill(current, cv::RNG::UNIFORM, 0, 256);
+    // Differences from 0 to past the tolerance, both ways, and a few far past it.
+    rng.fill(step, cv::RNG::UNIFORM, 0, 24);
+    cv::add(current, step, previous);
+    previous.row(4).setTo(cv::Scalar(0, 255, 7));
+    for (const auto& [weight, tolerance] : {std::pair{0.5, 16.0}, {0.9, 16.0}, {0.3, 9.0}, {0.5, 40.0}}) {
+      PreprocessOptions o;
+      o.temporal_weight = weight;
+      o.temporal_tolerance = tolerance;
+      // The warp leaves the last row and column alone (their bilinear taps pass the edge).
+      const cv::Rect inner(0, 0, width - 1, 8);
+      const cv::Mat out = Preprocessor(o).Temporal(current, previous, cv::Matx33d::eye());
+      EXPECT_EQ(cv::norm(out(inner), TemporalByThePixel(current, previous, weight, tolerance)(inner), cv::NORM_INF), 0)
+          << "width " << width << ", weight " << weight << ", tolerance " << tolerance;
+      const cv::Mat back = Preprocessor(o).Temporal(previous, current, cv::Matx33d::eye());
+      EXPECT_EQ(cv::norm(back(inner), TemporalByThePixel(previous, current, weight, tolerance)(inner), cv::NORM_INF), 0);
+    }
+  }
+}
+
 }  // namespace
 }  // namespace rolamos
