@@ -8,6 +8,9 @@
 
 #include <immintrin.h>
 
+#include <opencv2/core/utility.hpp>
+#include <opencv2/imgproc.hpp>
+
 #include "rolamos/error.hpp"
 
 namespace rolamos {
@@ -173,6 +176,89 @@ struct AccumulateSink {
   }
 };
 
+// One pixel of WarpInside at source position (fx, fy), as the vector path computes it.
+void InsidePixel(const cv::Mat& src, float fx, float fy, uchar* out) {
+  const float flx = std::floor(fx), fly = std::floor(fy);
+  if (!(flx >= 0 && flx < src.cols - 1 && fly >= 0 && fly < src.rows - 1)) return;
+  const int x0 = static_cast<int>(flx), y0 = static_cast<int>(fly);
+  const float ax = fx - flx, ay = fy - fly;
+  const uchar* r0 = src.ptr(y0) + 3 * x0;
+  const uchar* r1 = src.ptr(y0 + 1) + 3 * x0;
+  for (int c = 0; c < 3; ++c) {
+    const float top = std::fma(ax, float(r0[3 + c]) - float(r0[c]), float(r0[c]));
+    const float bottom = std::fma(ax, float(r1[3 + c]) - float(r1[c]), float(r1[c]));
+    out[c] = cv::saturate_cast<uchar>(std::nearbyint(std::fma(ay, bottom - top, top)));
+  }
+}
+
+// WarpInside's rows [y_begin, y_end), sixteen pixels at a time. The four taps of a pixel are
+// gathered as 32-bit words (B, G, R and the next byte); the pixel whose last tap is the image's
+// last pixel is done by InsidePixel, whose reads end inside the image.
+__attribute__((target("avx512f"))) void WarpInsideRows(const cv::Mat& src, const cv::Matx33d& m, cv::Mat& dst,
+                                                       int y_begin, int y_end) {
+  const int step = static_cast<int>(src.step);
+  const __m512 lanes = _mm512_setr_ps(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  const __m512i zero = _mm512_setzero_si512(), three = _mm512_set1_epi32(3), rows = _mm512_set1_epi32(step);
+  const __m512i last_x = _mm512_set1_epi32(src.cols - 1), last_y = _mm512_set1_epi32(src.rows - 1);
+  const __m512i corner_x = _mm512_set1_epi32(src.cols - 2), corner_y = _mm512_set1_epi32(src.rows - 2);
+  const __m512i byte = _mm512_set1_epi32(0xFF);
+  const __m512 m00 = _mm512_set1_ps(float(m(0, 0))), m10 = _mm512_set1_ps(float(m(1, 0))),
+               m20 = _mm512_set1_ps(float(m(2, 0)));
+  for (int y = y_begin; y < y_end; ++y) {
+    uchar* out = dst.ptr(y);
+    const __m512 bx = _mm512_set1_ps(float(m(0, 1) * y + m(0, 2))), by = _mm512_set1_ps(float(m(1, 1) * y + m(1, 2))),
+                 bw = _mm512_set1_ps(float(m(2, 1) * y + m(2, 2)));
+    for (int x = 0; x < dst.cols; x += 16) {
+      const __m512 xs = _mm512_add_ps(_mm512_set1_ps(float(x)), lanes);
+      const __m512 iw = _mm512_div_ps(_mm512_set1_ps(1.f), _mm512_fmadd_ps(m20, xs, bw));
+      const __m512 fx = _mm512_mul_ps(_mm512_fmadd_ps(m00, xs, bx), iw);
+      const __m512 fy = _mm512_mul_ps(_mm512_fmadd_ps(m10, xs, by), iw);
+      const __m512 flx = _mm512_roundscale_ps(fx, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
+      const __m512 fly = _mm512_roundscale_ps(fy, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC);
+      // Not a number or past the int range: INT_MIN, outside.
+      const __m512i ix = _mm512_cvttps_epi32(flx), iy = _mm512_cvttps_epi32(fly);
+      __mmask16 inside = _mm512_cmpge_epi32_mask(ix, zero) & _mm512_cmplt_epi32_mask(ix, last_x) &
+                         _mm512_cmpge_epi32_mask(iy, zero) & _mm512_cmplt_epi32_mask(iy, last_y);
+      if (dst.cols - x < 16) inside &= static_cast<__mmask16>((1u << (dst.cols - x)) - 1);
+      if (!inside) continue;
+      const __mmask16 corner = _mm512_cmpeq_epi32_mask(ix, corner_x) & _mm512_cmpeq_epi32_mask(iy, corner_y);
+      const __mmask16 gathered = inside & static_cast<__mmask16>(~corner);
+      const __m512i at = _mm512_add_epi32(_mm512_mullo_epi32(iy, rows), _mm512_mullo_epi32(ix, three));
+      const __m512i below = _mm512_add_epi32(at, rows);
+      const __m512i taps[4] = {_mm512_mask_i32gather_epi32(zero, gathered, at, src.data, 1),
+                               _mm512_mask_i32gather_epi32(zero, gathered, _mm512_add_epi32(at, three), src.data, 1),
+                               _mm512_mask_i32gather_epi32(zero, gathered, below, src.data, 1),
+                               _mm512_mask_i32gather_epi32(zero, gathered, _mm512_add_epi32(below, three), src.data, 1)};
+      const __m512 ax = _mm512_sub_ps(fx, flx), ay = _mm512_sub_ps(fy, fly);
+      alignas(64) int32_t value[3][16];
+      for (int c = 0; c < 3; ++c) {
+        const __m512i shift = _mm512_set1_epi32(8 * c);
+        __m512 v[4];
+        for (int k = 0; k < 4; ++k) v[k] = _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srlv_epi32(taps[k], shift), byte));
+        const __m512 top = _mm512_fmadd_ps(ax, _mm512_sub_ps(v[1], v[0]), v[0]);
+        const __m512 bottom = _mm512_fmadd_ps(ax, _mm512_sub_ps(v[3], v[2]), v[2]);
+        _mm512_store_si512(value[c], _mm512_cvtps_epi32(_mm512_fmadd_ps(ay, _mm512_sub_ps(bottom, top), top)));
+      }
+      alignas(64) float px[16], py[16];
+      if (corner) {
+        _mm512_store_ps(px, fx);
+        _mm512_store_ps(py, fy);
+      }
+      for (int i = 0; i < 16; ++i) {
+        if (!((inside >> i) & 1)) continue;
+        uchar* o = out + 3 * (x + i);
+        if ((corner >> i) & 1) {
+          InsidePixel(src, px[i], py[i], o);
+          continue;
+        }
+        o[0] = static_cast<uchar>(value[0][i]);
+        o[1] = static_cast<uchar>(value[1][i]);
+        o[2] = static_cast<uchar>(value[2][i]);
+      }
+    }
+  }
+}
+
 void CheckType(const cv::Mat& src, const char* what) {
   if (src.type() != CV_8UC4 && src.type() != CV_16UC4)
     Fail(what, "image type " + cv::typeToString(src.type()) + " is not 8- or 16-bit BGRW");
@@ -197,6 +283,23 @@ void WarpAccumulate(const cv::Mat& src, const cv::Matx33d& src_to_dst, const std
     else
       Row<uint16_t>(src, dst_to_src, y, 0, sum.cols, sink);
   }
+}
+
+}  // namespace rolamos
+
+namespace rolamos {
+
+void WarpInside(const cv::Mat& src, const cv::Matx33d& dst_to_src, cv::Mat& dst) {
+  static const bool avx512 = __builtin_cpu_supports("avx512f");
+  // Taps are 32-bit byte offsets from the image's first pixel.
+  const bool fits = static_cast<double>(src.step) * src.rows < 2147483647.0;
+  if (!avx512 || src.type() != CV_8UC3 || dst.type() != CV_8UC3 || src.rows < 2 || src.cols < 2 || !fits) {
+    cv::warpPerspective(src, dst, cv::Mat(dst_to_src), dst.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
+                        cv::BORDER_TRANSPARENT);
+    return;
+  }
+  cv::parallel_for_(cv::Range(0, dst.rows),
+                    [&](const cv::Range& r) { WarpInsideRows(src, dst_to_src, dst, r.start, r.end); });
 }
 
 }  // namespace rolamos

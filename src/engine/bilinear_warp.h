@@ -24,4 +24,14 @@ namespace rolamos {
 void WarpAccumulate(const cv::Mat& src, const cv::Matx33d& src_to_dst, const std::array<float, 256>& weight,
                     float unit, cv::Mat& sum, cv::Mat& weight_sum);
 
+// The temporal filter's warp: each pixel of `dst` (CV_8UC3) whose source position, through
+// `dst_to_src`, has its four bilinear taps inside `src` (CV_8UC3) gets the interpolated colour;
+// the others keep theirs: cv::warpPerspective(src, dst, dst_to_src, dst.size(), INTER_LINEAR |
+// WARP_INVERSE_MAP, BORDER_TRANSPARENT). OpenCV's takes 5 ms a 1292 x 964 frame on one core;
+// with AVX-512, sixteen pixels at a time (positions in float, taps gathered): 3 ms. Values differ
+// from OpenCV's by its positions' rounding to 1/32 px (a grey level or two on sharp edges), and
+// the pixels at the footprint's very edge may be taken or left the other way. Without AVX-512,
+// OpenCV's own.
+void WarpInside(const cv::Mat& src, const cv::Matx33d& dst_to_src, cv::Mat& dst);
+
 }  // namespace rolamos

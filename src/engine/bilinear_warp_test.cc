@@ -206,5 +206,74 @@ TEST(BilinearWarp, SaysWhichImageItCannotWarp) {
   }
 }
 
+// The temporal filter's warp: cv::warpPerspective with a transparent border, bilinear.
+TEST(WarpInside, IsOpenCvsTransparentWarp) {
+  const cv::Mat bgrw = SmoothImage(cv::Size(403, 301), CV_8UC4, 255);
+  cv::Mat src;
+  cv::cvtColor(bgrw, src, cv::COLOR_BGRA2BGR);
+  const cv::Mat background(src.size(), CV_8UC3, cv::Scalar(1, 2, 3));
+  // Turned, scaled, in perspective and moved by 40 px: part of the frame falls outside `src`.
+  const cv::Matx33d dst_to_src(0.998, 0.03, 40.3, -0.02, 1.004, -3.7, 2e-5, -1e-5, 1);
+  cv::Mat ours = background.clone(), theirs = background.clone();
+  WarpInside(src, dst_to_src, ours);
+  cv::warpPerspective(src, theirs, cv::Mat(dst_to_src), src.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
+                      cv::BORDER_TRANSPARENT);
+  int inner = 0, edge_differs = 0;
+  double worst = 0;
+  for (int y = 0; y < src.rows; ++y)
+    for (int x = 0; x < src.cols; ++x) {
+      const cv::Vec3d q = dst_to_src * cv::Vec3d(x, y, 1);
+      const double sx = q[0] / q[2], sy = q[1] / q[2];
+      const cv::Vec3b a = ours.at<cv::Vec3b>(y, x), b = theirs.at<cv::Vec3b>(y, x);
+      if (sx < -0.1 || sy < -0.1 || sx > src.cols - 0.9 || sy > src.rows - 0.9) {
+        EXPECT_EQ(a, background.at<cv::Vec3b>(y, x)) << x << ", " << y;  // its taps are not all inside
+      } else if (sx > 0.1 && sy > 0.1 && sx < src.cols - 1.1 && sy < src.rows - 1.1) {
+        ++inner;
+        for (int c = 0; c < 3; ++c) worst = std::max(worst, std::abs(double(a[c]) - double(b[c])));
+      } else {
+        edge_differs += a != b;  // OpenCV rounds the position to 1/32 px first: either may take it
+      }
+    }
+  EXPECT_GT(inner, 100000);
+  EXPECT_LE(worst, 1);  // positions rounded to 1/32 px apart, on a smooth image
+  EXPECT_LT(edge_differs, 2 * (src.cols + src.rows));
+}
+
+// Every pixel the identity reaches (all but the last row and column, whose taps pass the edge),
+// exactly; the image's last pixel (read apart from the others) included.
+TEST(WarpInside, IdentityCopiesWhatItReaches) {
+  for (const cv::Size size : {cv::Size(17, 5), cv::Size(64, 3), cv::Size(2, 2)}) {
+    cv::Mat src(size, CV_8UC3);
+    cv::RNG(5).fill(src, cv::RNG::UNIFORM, 0, 256);
+    cv::Mat dst(size, CV_8UC3, cv::Scalar(9, 9, 9));
+    WarpInside(src, cv::Matx33d::eye(), dst);
+    const cv::Rect reached(0, 0, size.width - 1, size.height - 1);
+    EXPECT_EQ(cv::norm(dst(reached), src(reached), cv::NORM_INF), 0) << size;
+    EXPECT_EQ(cv::norm(dst.col(size.width - 1), cv::Mat(size.height, 1, CV_8UC3, cv::Scalar(9, 9, 9)), cv::NORM_INF), 0);
+    // Shifted by a third of a pixel: the image's last pixel is a tap of the last pixel reached.
+    // Against bilinear at the exact position (OpenCV's 1/32 px would be 3 grey levels off on noise).
+    cv::Mat shifted(size, CV_8UC3, cv::Scalar(9, 9, 9));
+    WarpInside(src, cv::Matx33d(1, 0, 1.0 / 3, 0, 1, 1.0 / 3, 0, 0, 1), shifted);
+    for (int y = 0; y + 1 < size.height; ++y)
+      for (int x = 0; x + 1 < size.width; ++x)
+        for (int c = 0; c < 3; ++c) {
+          auto at = [&](int yy, int xx) { return double(src.at<cv::Vec3b>(yy, xx)[c]); };
+          const double top = at(y, x) + (at(y, x + 1) - at(y, x)) / 3, bottom = at(y + 1, x) + (at(y + 1, x + 1) - at(y + 1, x)) / 3;
+          EXPECT_LE(std::abs(shifted.at<cv::Vec3b>(y, x)[c] - (top + (bottom - top) / 3)), 0.5 + 1e-3) << size << x << "," << y;
+        }
+  }
+}
+
+// What the vector path does not take (grey frames here) is OpenCV's own, value for value.
+TEST(WarpInside, GreyFramesAreOpenCvs) {
+  cv::Mat src(60, 80, CV_8UC1), ours(60, 80, CV_8UC1, cv::Scalar(7)), theirs = ours.clone();
+  cv::RNG(2).fill(src, cv::RNG::UNIFORM, 0, 256);
+  const cv::Matx33d m(1, 0.1, 3.3, 0, 1, -2.2, 0, 0, 1);
+  WarpInside(src, m, ours);
+  cv::warpPerspective(src, theirs, cv::Mat(m), src.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
+                      cv::BORDER_TRANSPARENT);
+  EXPECT_EQ(cv::norm(ours, theirs, cv::NORM_INF), 0);
+}
+
 }  // namespace
 }  // namespace rolamos

@@ -10,6 +10,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "engine/bilateral_filter.h"
+#include "engine/bilinear_warp.h"
 #include "rolamos/error.hpp"
 
 namespace rolamos {
@@ -238,8 +239,7 @@ cv::Mat Preprocessor::Temporal(const cv::Mat& current, const cv::Mat& previous,
   // Where the previous frame does not reach, the current pixel stays as it is: warping onto a
   // copy of the current frame with a transparent border makes those pixels agree with it.
   cv::Mat prev_here = current.clone();
-  cv::warpPerspective(previous, prev_here, cv::Mat(current_to_previous), current.size(),
-                      cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_TRANSPARENT);
+  WarpInside(previous, current_to_previous, prev_here);
   // Robust weight: full where the frames agree, none where they differ by more than the
   // tolerance (a particle, a fish, a misregistration). One 8-bit pass with a weight table.
   TemporalWeights lut;
