@@ -285,10 +285,6 @@ void WarpAccumulate(const cv::Mat& src, const cv::Matx33d& src_to_dst, const std
   }
 }
 
-}  // namespace rolamos
-
-namespace rolamos {
-
 void WarpInside(const cv::Mat& src, const cv::Matx33d& dst_to_src, cv::Mat& dst) {
   static const bool avx512 = __builtin_cpu_supports("avx512f");
   // Taps are 32-bit byte offsets from the image's first pixel.

