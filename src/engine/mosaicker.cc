@@ -406,9 +406,9 @@ struct Mosaicker::Impl {
   // The first of the recent keyframes (PatchFitOptions::recent_frames) a new keyframe is fitted
   // against; those before it are linked by loop closures only.
   size_t FirstRecentKey(bool current) const;
-  // A described keyframe before the recent ones lies under it (the lane before): a loop closure
-  // to make, which only SIFT's features make.
-  bool OverOlderKeyframe(const cv::Matx33d& to_patch, bool current) const;
+  // The described keyframes before the recent ones that lie under a new keyframe (the lane
+  // before), most overlapped first: its loop closures' candidates, which only SIFT's features link.
+  std::vector<std::pair<double, const Key*>> OlderUnder(const cv::Matx33d& to_patch, bool current) const;
   // A rejected frame stitched after all: out of the rejected list, counted as recovered.
   void AddFollowed(const std::shared_ptr<PreparedFrame>& p, const cv::Matx33d& to_patch, FrameRecord rec,
                    std::vector<FrameLink> links);
@@ -923,11 +923,16 @@ size_t Mosaicker::Impl::FirstRecentKey(bool current) const {
   return end > size_t(fit_options.recent_frames) ? end - size_t(fit_options.recent_frames) : 0;
 }
 
-bool Mosaicker::Impl::OverOlderKeyframe(const cv::Matx33d& to_patch, bool current) const {
-  for (size_t k = 0; k < FirstRecentKey(current); ++k)
-    if (keys[k].described && FootprintOverlap(to_patch, keys[k].to_patch, frame_size) >= kLoopOverlap * fit_options.min_overlap)
-      return true;
-  return false;
+std::vector<std::pair<double, const Mosaicker::Impl::Key*>> Mosaicker::Impl::OlderUnder(const cv::Matx33d& to_patch,
+                                                                                          bool current) const {
+  std::vector<std::pair<double, const Key*>> under;
+  for (size_t k = 0; k < FirstRecentKey(current); ++k) {
+    if (!keys[k].described) continue;
+    const double overlap = FootprintOverlap(to_patch, keys[k].to_patch, frame_size);
+    if (overlap >= kLoopOverlap * fit_options.min_overlap) under.emplace_back(overlap, &keys[k]);
+  }
+  std::sort(under.begin(), under.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
+  return under;
 }
 
 std::vector<OlderKeyframe> Mosaicker::Impl::LinkCandidates(const cv::Matx33d& to_patch, bool current) const {
@@ -941,13 +946,7 @@ std::vector<OlderKeyframe> Mosaicker::Impl::LinkCandidates(const cv::Matx33d& to
     if (keys[k].described && FootprintOverlap(to_patch, keys[k].to_patch, frame_size) >= fit_options.min_overlap)
       out.push_back({keys[k].index, keys[k].to_patch, keys[k].products});
   }
-  std::vector<std::pair<double, const Key*>> under;
-  for (size_t k = 0; k < recent; ++k) {
-    if (!keys[k].described) continue;
-    const double overlap = FootprintOverlap(to_patch, keys[k].to_patch, frame_size);
-    if (overlap >= kLoopOverlap * fit_options.min_overlap) under.emplace_back(overlap, &keys[k]);
-  }
-  std::sort(under.begin(), under.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
+  const auto under = OlderUnder(to_patch, current);
   for (size_t k = 0; k < under.size() && k < size_t(fit_options.max_loop_frames); ++k)
     out.push_back({under[k].second->index, under[k].second->to_patch, under[k].second->products});
   return out;
@@ -964,7 +963,7 @@ bool Mosaicker::Impl::Describes(const PreparedFrame& p, const cv::Matx33d& to_pa
   double overlap = options.describe_overlap;
   if (still) {
     // The lane before under it: its loop links hold the lanes of a patch together.
-    if (options.still_describe_overlap < 1.0 && OverOlderKeyframe(to_patch, true)) return true;
+    if (options.still_describe_overlap < 1.0 && !OlderUnder(to_patch, true).empty()) return true;
     overlap = std::min(overlap, options.still_describe_overlap);
   }
   if (shedding) overlap = std::min(overlap, shed_describe_overlap);
