@@ -28,7 +28,9 @@
 #include "engine/feather.h"
 #include "engine/features.h"
 #include "engine/patch_canvas.h"
+#include "engine/sift_descriptor.h"
 #include "engine/preprocess.h"
+#include "engine/sift_descriptor.h"
 #include "engine/tracker.h"
 
 namespace fs = std::filesystem;
@@ -216,6 +218,23 @@ int main(int argc, char** argv) {
         Time([&] { feats = extractor.ExtractScaled(detect, detect_scale); }));
     row("  same, found on the detection image halved (--no-sift-upsample)").push_back(
         Time([&] { feats = halved.ExtractScaled(detect, detect_scale); }));
+    {
+      // Describing what SIFT found, pyramid included: OpenCV's compute, and DescribeSift.
+      auto sift = cv::SIFT::create(1000, 3, 0.005);
+      std::vector<cv::KeyPoint> found;
+      sift->detect(detect, found);
+      cv::Mat described;
+      row("  finding keypoints only, OpenCV (SIFT::detect)").push_back(Time([&] {
+        std::vector<cv::KeyPoint> again;
+        sift->detect(detect, again);
+      }));
+      row("  describing its keypoints, OpenCV (SIFT::compute)").push_back(Time([&] {
+        std::vector<cv::KeyPoint> copy = found;
+        sift->compute(detect, copy, described);
+      }));
+      row("  describing its keypoints, DescribeSift").push_back(
+          Time([&] { DescribeSift(detect, found, 3, 1.6, &described); }));
+    }
     const cv::Matx33d at(1, 0, 40.0 * double(i), 0, 1, 0, 0, 0, 1);
     row("blend into the half-size working canvas (keyframes)").push_back(Time([&] { half.Add(colour, weights, at); }));
     row("blend at full resolution (keyframes, writer)").push_back(Time([&] { full.Add(colour, weights, at); }));

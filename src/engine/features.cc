@@ -7,6 +7,8 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "engine/sift_descriptor.h"
+#include "engine/sift_detector.h"
 #include "rolamos/error.hpp"
 
 namespace rolamos {
@@ -52,11 +54,15 @@ FeatureExtractor::FeatureExtractor(const FeatureOptions& options) : options_(opt
 
 namespace {
 
+// SIFT's layers per octave and base blur (OpenCV's defaults, Lowe's values).
+constexpr int kSiftLayers = 3;
+constexpr double kSiftSigma = 1.6;
+
 // A detector per call: OpenCV does not promise that one detector may run on several threads at
 // once, and creating one costs microseconds.
 cv::Ptr<cv::Feature2D> CreateDetector(const FeatureOptions& options) {
   // SIFT's float descriptors: OpenCV's brute-force L2 is vectorised for float, not for 8-bit.
-  if (options.type == "sift") return cv::SIFT::create(options.max_features, 3, options.contrast_threshold);
+  if (options.type == "sift") return cv::SIFT::create(options.max_features, kSiftLayers, options.contrast_threshold, 10, kSiftSigma);
   if (options.type == "orb")
     return cv::ORB::create(options.max_features, 1.2f, 8, 31, 0, 2, cv::ORB::HARRIS_SCORE, 31, 10);
   return cv::AKAZE::create(cv::AKAZE::DESCRIPTOR_MLDB, 0, 3, 0.0008f);
@@ -89,7 +95,7 @@ std::vector<cv::KeyPoint> DescribeFromHalf(const FeatureOptions& options, const 
     k.pt.y = (k.pt.y - kSiftUpscaleBias + 0.5f) * sy - 0.5f;
     k.size *= 0.5f * (sx + sy);
   }
-  if (!keypoints.empty()) sift->compute(image, keypoints, *descriptors);
+  if (!keypoints.empty()) DescribeSift(image, keypoints, kSiftLayers, kSiftSigma, descriptors);
   return keypoints;
 }
 
@@ -100,8 +106,12 @@ std::vector<cv::KeyPoint> RunSift(FeatureOptions options, double contrast, const
   descriptors->release();
   if (!options.double_first_octave) return DescribeFromHalf(options, image, mask, descriptors);
   std::vector<cv::KeyPoint> keypoints;
-  if (mask.empty()) CreateDetector(options)->detectAndCompute(image, cv::noArray(), keypoints, *descriptors);
-  else CreateDetector(options)->detectAndCompute(image, mask, keypoints, *descriptors);
+  SiftOptions sift;
+  sift.features = options.max_features;
+  sift.layers = kSiftLayers;
+  sift.contrast_threshold = contrast;
+  sift.sigma = kSiftSigma;
+  keypoints = FindSift(image, mask, sift, descriptors);
   for (auto& k : keypoints) k.pt -= cv::Point2f(kSiftUpscaleBias, kSiftUpscaleBias);
   return keypoints;
 }

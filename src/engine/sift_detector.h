@@ -1,0 +1,43 @@
+// Stage 2's keypoints: SIFT (Lowe 2004, sections 3-5) as OpenCV 4.6's cv::SIFT finds and
+// describes them, on one scale space for both.
+//
+// cv::SIFT::detectAndCompute builds its pyramid once, but describes slowly (see
+// sift_descriptor.h); detecting with OpenCV and describing here built the pyramid twice and
+// gained nothing. So the search is here too: the difference-of-Gaussian extrema sixteen pixels
+// at a time, each refined to sub-pixel and sub-scale (section 4), its orientations from a
+// histogram of the gradients around it (section 5), then OpenCV's own filters (duplicates, the
+// strongest `features`, the mask).
+//
+// The keypoints are OpenCV's up to float rounding: the last bits of a position, response or
+// angle can differ (OpenCV's build contracts its arithmetic into fused multiply-adds its own
+// way), and so, rarely, can a candidate on the edge of a threshold.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+namespace rolamos {
+
+struct SiftOptions {
+  int features = 1000;              // the strongest kept (0 = all)
+  int layers = 3;                   // layers per octave
+  double contrast_threshold = 0.04;  // of the DoG extrema, after refinement (divided among the layers)
+  double edge_threshold = 10;       // the ratio of principal curvatures above which an extremum is an edge
+  double sigma = 1.6;               // the base blur of each octave; the first octave is at twice the
+                                    // image's size (octave -1), as OpenCV 4.6 always searches
+
+  bool IsValid(std::string* error) const;
+};
+
+// Whether FindSift has its fast path on this CPU (else it is cv::SIFT::detectAndCompute).
+bool FastSiftApplies();
+
+// Keypoints of `image` (CV_8UC1) outside `mask` (CV_8UC1, 0 = left out; empty = none), with their
+// descriptors (CV_32F, 128 per keypoint, in order), as cv::SIFT::create(features, layers,
+// contrast_threshold, edge_threshold, sigma)->detectAndCompute(image, mask, ...) gives them.
+std::vector<cv::KeyPoint> FindSift(const cv::Mat& image, const cv::Mat& mask, const SiftOptions& options,
+                                   cv::Mat* descriptors);
+
+}  // namespace rolamos

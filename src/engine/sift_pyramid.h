@@ -1,0 +1,25 @@
+// SIFT's scale space (Lowe 2004, section 3) as OpenCV 4.6 builds it: the same calls in the same
+// order, so the same images. Shared by the keypoint search and the descriptors.
+#pragma once
+
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+namespace rolamos {
+
+// SIFT's first image: `gray` (CV_8UC1) as float, doubled with INTER_LINEAR when `doubled` (the
+// first octave, -1), blurred up to `sigma` from the 0.5 the input is assumed to have.
+cv::Mat SiftBaseImage(const cv::Mat& gray, bool doubled, float sigma);
+
+// OpenCV's Gaussian pyramid from `base`: octave by octave, each layer blurred from the one before,
+// the next octave's base layer `layers` of this one halved (nearest neighbour). pyramid[o][i] up
+// to layer `top` of the last octave (every octave before it to at least layer `layers`).
+std::vector<std::vector<cv::Mat>> SiftGaussianPyramid(const cv::Mat& base, int octaves, int layers, int top,
+                                                      double sigma);
+
+// OpenCV's octave and layer packed in a keypoint, and the scale from the octave's pixels to the
+// image's.
+void UnpackSiftOctave(const cv::KeyPoint& k, int* octave, int* layer, float* scale);
+
+}  // namespace rolamos
