@@ -151,6 +151,12 @@ Features FeatureExtractor::Extract(const cv::Mat& gray) const {
 std::vector<cv::KeyPoint> FeatureExtractor::DetectSift(const cv::Mat& image, const cv::Mat& mask,
                                                        cv::Mat* descriptors) const {
   const double base = options_.contrast_threshold;
+  if (options_.double_first_octave && FastSiftApplies()) {
+    // FindSift orients and describes only the strongest: nothing to gain from a higher threshold.
+    std::vector<cv::KeyPoint> keypoints = RunSift(options_, base, image, mask, descriptors);
+    SortCanonically(&keypoints, descriptors);
+    return keypoints;
+  }
   const double start = std::max(base, double(start_contrast_->load(std::memory_order_relaxed)));
   std::vector<cv::KeyPoint> keypoints = RunSift(options_, start, image, mask, descriptors);
   const bool full = static_cast<int>(keypoints.size()) >= options_.max_features;

@@ -65,7 +65,8 @@ class FeatureExtractor {
   // keeps the strongest `max_features`; orienting the candidates it drops costs a third of its
   // time. Each extraction starts from a threshold under the weakest response the last one kept,
   // and goes down to the options' threshold when that leaves too few: the same features, found
-  // once on steady ground, twice where the texture drops.
+  // once on steady ground, twice where the texture drops. (Where FindSift has its fast path, it
+  // orients only the strongest candidates itself, and one extraction at the threshold suffices.)
   std::vector<cv::KeyPoint> DetectSift(const cv::Mat& image, const cv::Mat& mask, cv::Mat* descriptors) const;
   static constexpr float kStartMargin = 0.6f;
 

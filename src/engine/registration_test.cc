@@ -24,7 +24,7 @@ TEST(Registration, AttitudeChangesAVehicleMakesBetweenFramesArePlausible) {
   // A 1292 x 964 video at 90 degrees across, rolled and pitched by 2 degrees anew at every frame:
   // two frames in a row differ by up to 8 degrees (bench/RESULTS.md, session 21).
   for (double fov : {50.0, 70.0, 90.0}) {
-    for (const cv::Vec2d turn : {cv::Vec2d(2, 0), cv::Vec2d(5, 0), cv::Vec2d(8, 0), cv::Vec2d(-8, 0),
+    for (const cv::Vec2d& turn : {cv::Vec2d(2, 0), cv::Vec2d(5, 0), cv::Vec2d(8, 0), cv::Vec2d(-8, 0),
                                  cv::Vec2d(0, 8), cv::Vec2d(5, 5), cv::Vec2d(-5, 5)})
       EXPECT_TRUE(IsPlausibleMotion(Turned(frame, fov, turn[0], turn[1]), frame, o))
           << fov << " degrees across, pitched " << turn[0] << ", rolled " << turn[1];

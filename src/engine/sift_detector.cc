@@ -4,6 +4,7 @@
 #include <cfloat>
 #include <climits>
 #include <cmath>
+#include <tuple>
 
 #include <immintrin.h>
 
@@ -185,10 +186,17 @@ void Orient(const Search& s, int o, int layer, int r, int c, cv::KeyPoint k, std
   }
 }
 
+// A refined extremum: its keypoint (no orientation yet) and where the refinement ended.
+struct Extremum {
+  cv::KeyPoint k;
+  int octave, layer, r, c;
+  auto Place() const { return std::make_tuple(octave, layer, r, c); }
+};
+
 // Rows [begin, end) of DoG layer `layer` of octave o: its extrema against their 26 neighbours in
-// scale and space, sixteen pixels at a time, refined and oriented.
+// scale and space, sixteen pixels at a time, refined.
 __attribute__((target("avx512f"))) void SearchRows(const Search& s, int o, int layer, float threshold, int begin,
-                                                    int end, std::vector<cv::KeyPoint>* out) {
+                                                    int end, std::vector<Extremum>* out) {
   const cv::Mat& img = s.dog[size_t(o)][size_t(layer)];
   const cv::Mat& prev = s.dog[size_t(o)][size_t(layer - 1)];
   const cv::Mat& next = s.dog[size_t(o)][size_t(layer + 1)];
@@ -226,10 +234,66 @@ __attribute__((target("avx512f"))) void SearchRows(const Search& s, int o, int l
       for (unsigned m = cand; m; m &= m - 1) {
         int r1 = r, c1 = c + __builtin_ctz(m), l1 = layer;
         cv::KeyPoint k;
-        if (Refine(s, o, &l1, &r1, &c1, &k)) Orient(s, o, l1, r1, c1, k, out);
+        if (Refine(s, o, &l1, &r1, &c1, &k)) out->push_back({k, o, l1, r1, c1});
       }
     }
   }
+}
+
+// The keypoints of the strongest extrema, as OpenCV's removeDuplicatedSorted and retainBest would
+// leave them of all the extrema oriented, orienting only those: keypoints of one extremum share its
+// response, so the `features` strongest keypoints (with all those as strong as the last of them)
+// come from the strongest extrema. An extremum reached from two pixels is one (its copies'
+// keypoints would be duplicates). Orienting every extremum above the threshold cost as much as
+// finding them.
+std::vector<cv::KeyPoint> OrientStrongest(const Search& s, std::vector<Extremum> extrema, int features) {
+  std::sort(extrema.begin(), extrema.end(), [](const Extremum& a, const Extremum& b) { return a.Place() < b.Place(); });
+  extrema.erase(std::unique(extrema.begin(), extrema.end(),
+                            [](const Extremum& a, const Extremum& b) { return a.Place() == b.Place(); }),
+                extrema.end());
+  std::sort(extrema.begin(), extrema.end(), [](const Extremum& a, const Extremum& b) {
+    return a.k.response != b.k.response ? a.k.response > b.k.response : a.Place() < b.Place();
+  });
+  std::vector<std::vector<cv::KeyPoint>> oriented(extrema.size());
+  size_t done = 0;  // extrema oriented: [0, done)
+  auto orient_to = [&](size_t end) {
+    end = std::min(end, extrema.size());
+    if (end <= done) return;
+    cv::parallel_for_(cv::Range(static_cast<int>(done), static_cast<int>(end)), [&](const cv::Range& range) {
+      for (int i = range.start; i < range.end; ++i) {
+        const Extremum& e = extrema[size_t(i)];
+        Orient(s, e.octave, e.layer, e.r, e.c, e.k, &oriented[size_t(i)]);
+      }
+    });
+    done = end;
+  };
+  size_t kept = extrema.size();  // extrema whose keypoints are kept: [0, kept)
+  if (features <= 0) {
+    orient_to(extrema.size());
+  } else {
+    size_t count = 0, i = 0;
+    bool full = false;
+    while (!full && i < extrema.size()) {
+      orient_to(i + std::max<size_t>(1, size_t(features) - count));
+      for (; i < done; ++i) {
+        count += oriented[i].size();
+        if (count >= size_t(features)) {
+          full = true;
+          break;
+        }
+      }
+    }
+    if (full) {
+      // retainBest keeps every keypoint as strong as the last one it needs.
+      const float last = extrema[i].k.response;
+      kept = i + 1;
+      // (When there are exactly `features`, retainBest keeps them all: the extrema left give none.)
+      while (kept < extrema.size() && extrema[kept].k.response == last) orient_to(++kept);
+    }
+  }
+  std::vector<cv::KeyPoint> keypoints;
+  for (size_t i = 0; i < kept; ++i) keypoints.insert(keypoints.end(), oriented[i].begin(), oriented[i].end());
+  return keypoints;
 }
 
 }  // namespace
@@ -273,16 +337,16 @@ std::vector<cv::KeyPoint> FindSift(const cv::Mat& image, const cv::Mat& mask, co
   const Search search{gauss, dog, options.layers, float(options.contrast_threshold), float(options.edge_threshold),
                       float(options.sigma)};
   const float threshold = float(cvFloor(0.5 * options.contrast_threshold / options.layers * 255));
-  std::vector<std::vector<cv::KeyPoint>> found(bands.size());
+  std::vector<std::vector<Extremum>> found(bands.size());
   cv::parallel_for_(cv::Range(0, static_cast<int>(bands.size())), [&](const cv::Range& range) {
     for (int b = range.start; b < range.end; ++b) {
       const Band& band = bands[size_t(b)];
       SearchRows(search, band.octave, band.layer, threshold, band.begin, band.end, &found[size_t(b)]);
     }
   });
-  for (const auto& f : found) keypoints.insert(keypoints.end(), f.begin(), f.end());
-  cv::KeyPointsFilter::removeDuplicatedSorted(keypoints);
-  if (options.features > 0) cv::KeyPointsFilter::retainBest(keypoints, options.features);
+  std::vector<Extremum> extrema;
+  for (const auto& f : found) extrema.insert(extrema.end(), f.begin(), f.end());
+  keypoints = OrientStrongest(search, std::move(extrema), options.features);
   for (auto& k : keypoints) {
     k.octave = (k.octave & ~255) | ((k.octave + first) & 255);
     k.pt *= 0.5f;
