@@ -36,6 +36,13 @@ void Within(float a, float low, float high, float* lo, float* hi) {
   *hi = std::min(*hi, y);
 }
 
+// h[0] += p[0], h[1] += p[1], as one 64-bit addition.
+__attribute__((target("avx512f"))) inline void AddPair(float* h, const float* p) {
+  const __m128 sum = _mm_add_ps(_mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(h))),
+                                _mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(p))));
+  _mm_store_sd(reinterpret_cast<double*>(h), _mm_castps_pd(sum));
+}
+
 // One keypoint's descriptor (OpenCV's calcSIFTDescriptor): `img` its octave layer, `ptf` its
 // position there, `ori` its orientation (degrees, clockwise as OpenCV measures it), `scl` its
 // scale in the layer's pixels. Writes 128 floats.
@@ -110,29 +117,27 @@ __attribute__((target("avx512f,fma"))) void DescribeOne(const cv::Mat& img, cv::
       const __m512 r1 = _mm512_mul_ps(mag, rbin), r0 = _mm512_sub_ps(mag, r1);
       const __m512 rc11 = _mm512_mul_ps(r1, cbin), rc10 = _mm512_sub_ps(r1, rc11);
       const __m512 rc01 = _mm512_mul_ps(r0, cbin), rc00 = _mm512_sub_ps(r0, rc01);
-      alignas(64) float w[4][16], frac[16];
-      alignas(64) int32_t cells[16], bins[16];
-      _mm512_store_ps(w[0], rc00);
-      _mm512_store_ps(w[1], rc01);
-      _mm512_store_ps(w[2], rc10);
-      _mm512_store_ps(w[3], rc11);
-      _mm512_store_ps(frac, obin);
-      _mm512_store_si512(cells, cell);
-      _mm512_store_si512(bins, o0);
+      // Each cell's two bins (o0, o0 + 1) as a pair, OpenCV's (w - w o, w o): lane l's pair of
+      // cell q at pairs[q][l & 2 ? 1 : 0][(l >> 2) * 4 + (l & 1) * 2].
+      alignas(64) float pairs[4][2][16];
+      const __m512 part[4] = {rc00, rc01, rc10, rc11};
+      for (int q = 0; q < 4; ++q) {
+        const __m512 upper = _mm512_mul_ps(part[q], obin), lower = _mm512_sub_ps(part[q], upper);
+        _mm512_store_ps(pairs[q][0], _mm512_unpacklo_ps(lower, upper));
+        _mm512_store_ps(pairs[q][1], _mm512_unpackhi_ps(lower, upper));
+      }
+      alignas(64) int32_t at[16];
+      _mm512_store_si512(at, _mm512_add_epi32(_mm512_slli_epi32(cell, 4), o0));
+      float* const base = &hist[0][0];
       for (unsigned m = valid; m; m &= m - 1) {
         const int l = __builtin_ctz(m);
-        float* h = hist[cells[l]] + bins[l];
-        const float o = frac[l];
-        // Cells (r, c), (r, c + 1), (r + 1, c), (r + 1, c + 1); bins o0 and o0 + 1.
-        const float v00 = w[0][l] * o, v01 = w[1][l] * o, v10 = w[2][l] * o, v11 = w[3][l] * o;
-        h[0] += w[0][l] - v00;
-        h[1] += v00;
-        h[16] += w[1][l] - v01;
-        h[17] += v01;
-        h[16 * kRow] += w[2][l] - v10;
-        h[16 * kRow + 1] += v10;
-        h[16 * kRow + 16] += w[3][l] - v11;
-        h[16 * kRow + 17] += v11;
+        const int half_index = (l >> 1) & 1, slot = (l >> 2) * 4 + (l & 1) * 2;
+        float* h = base + at[l];
+        // Cells (r, c), (r, c + 1), (r + 1, c), (r + 1, c + 1).
+        AddPair(h, pairs[0][half_index] + slot);
+        AddPair(h + 16, pairs[1][half_index] + slot);
+        AddPair(h + 16 * kRow, pairs[2][half_index] + slot);
+        AddPair(h + 16 * kRow + 16, pairs[3][half_index] + slot);
       }
     }
   }
