@@ -63,19 +63,28 @@ void Blur(const cv::Mat& src, cv::Mat& dst, double sigma) {
   const float* kernel = kernel_mat.ptr<float>();
   std::vector<int> index(size_t(src.cols + 2 * r));
   for (int x = -r; x < src.cols + r; ++x) index[size_t(x + r)] = cv::borderInterpolate(x, src.cols, cv::BORDER_REFLECT_101);
-  cv::Mat across(src.size(), CV_32F);
-  cv::parallel_for_(cv::Range(0, src.rows), [&](const cv::Range& range) {
-    std::vector<float> ext(size_t(src.cols + 2 * r + 16));
-    for (int y = range.start; y < range.end; ++y)
-      BlurRow(src.ptr<float>(y), src.cols, kernel, ksize, index.data(), ext.data(), across.ptr<float>(y));
-  });
+  // Rows filtered across into a ring of the last ksize (in cache), then down, band by band.
   cv::Mat out(src.size(), CV_32F);
-  cv::parallel_for_(cv::Range(0, src.rows), [&](const cv::Range& range) {
+  const int bands = std::max(1, std::min(cv::getNumThreads(), src.rows / (4 * ksize)));
+  cv::parallel_for_(cv::Range(0, bands), [&](const cv::Range& range) {
+    std::vector<float> ext(size_t(src.cols + 2 * r + 16));
+    cv::Mat ring(ksize, src.cols, CV_32F);
+    std::vector<int> held(size_t(ksize), -1);  // the source row each ring row holds
     std::vector<const float*> rows(static_cast<size_t>(ksize), nullptr);
-    for (int y = range.start; y < range.end; ++y) {
-      for (int k = 0; k < ksize; ++k)
-        rows[size_t(k)] = across.ptr<float>(cv::borderInterpolate(y + k - r, src.rows, cv::BORDER_REFLECT_101));
-      BlurColumn(rows.data(), src.cols, kernel, r, out.ptr<float>(y));
+    for (int band = range.start; band < range.end; ++band) {
+      const int y0 = src.rows * band / bands, y1 = src.rows * (band + 1) / bands;
+      for (int y = y0; y < y1; ++y) {
+        for (int k = 0; k < ksize; ++k) {
+          const int from = cv::borderInterpolate(y + k - r, src.rows, cv::BORDER_REFLECT_101);
+          const int slot = from % ksize;
+          if (held[size_t(slot)] != from) {
+            BlurRow(src.ptr<float>(from), src.cols, kernel, ksize, index.data(), ext.data(), ring.ptr<float>(slot));
+            held[size_t(slot)] = from;
+          }
+          rows[size_t(k)] = ring.ptr<float>(slot);
+        }
+        BlurColumn(rows.data(), src.cols, kernel, r, out.ptr<float>(y));
+      }
     }
   });
   dst = out;
