@@ -219,11 +219,16 @@ int main(int argc, char** argv) {
     row("  same, found on the detection image halved (--no-sift-upsample)").push_back(
         Time([&] { feats = halved.ExtractScaled(detect, detect_scale); }));
     {
-      // Describing what SIFT found, pyramid included: OpenCV's compute, and DescribeSift.
+      // The peer, and describing what SIFT found, pyramid included: OpenCV's compute, and DescribeSift.
       auto sift = cv::SIFT::create(1000, 3, 0.005);
       std::vector<cv::KeyPoint> found;
       sift->detect(detect, found);
       cv::Mat described;
+      row("  OpenCV's cv::SIFT instead (detectAndCompute)").push_back(Time([&] {
+        std::vector<cv::KeyPoint> again;
+        cv::Mat d;
+        sift->detectAndCompute(detect, cv::noArray(), again, d);
+      }));
       row("  finding keypoints only, OpenCV (SIFT::detect)").push_back(Time([&] {
         std::vector<cv::KeyPoint> again;
         sift->detect(detect, again);
