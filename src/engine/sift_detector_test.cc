@@ -9,19 +9,15 @@
 #include <opencv2/features2d.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "synth/seafloor_texture.h"
+#include "test_support.h"
 
 #include "rolamos/error.hpp"
 
 namespace rolamos {
 namespace {
 
-// The procedural seafloor at `size`, grey, from a place of its own for each `seed`.
-cv::Mat Texture(cv::Size size, int seed) {
-  cv::Mat grey;
-  cv::cvtColor(RenderSeafloor(1000LL * seed, 0, size.width, size.height), grey, cv::COLOR_BGR2GRAY);
-  return grey;
-}
+// The procedural seafloor, grey, a texture of its own for each seed.
+cv::Mat Texture(cv::Size size, int seed) { return test::MakeImage(size.width, size.height, 1, 8, static_cast<uint32_t>(seed)); }
 
 struct Agreement {
   size_t theirs = 0, ours = 0, same = 0;  // keypoints, and those in both
