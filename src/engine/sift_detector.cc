@@ -45,33 +45,48 @@ struct Search {
   float contrast, edge, sigma;
 };
 
+// The DoG's value, gradient and Hessian at (layer, y, x) of octave o, by central differences, in
+// units of the image's range (OpenCV's scales and order of operations).
+struct Local {
+  float value;
+  cv::Vec3f gradient;  // x, y, scale
+  float dxx, dyy, dss, dxy, dxs, dys;
+};
+
+Local At(const Search& s, int o, int layer, int y, int x) {
+  constexpr float img_scale = 1.f / 255;
+  constexpr float deriv = img_scale * 0.5f, second = img_scale, cross = img_scale * 0.25f;
+  const cv::Mat& img = s.dog[size_t(o)][size_t(layer)];
+  const cv::Mat& prev = s.dog[size_t(o)][size_t(layer - 1)];
+  const cv::Mat& next = s.dog[size_t(o)][size_t(layer + 1)];
+  Local l;
+  l.value = img.at<float>(y, x);
+  l.gradient = cv::Vec3f((img.at<float>(y, x + 1) - img.at<float>(y, x - 1)) * deriv,
+                         (img.at<float>(y + 1, x) - img.at<float>(y - 1, x)) * deriv,
+                         (next.at<float>(y, x) - prev.at<float>(y, x)) * deriv);
+  const float v2 = l.value * 2;
+  l.dxx = (img.at<float>(y, x + 1) + img.at<float>(y, x - 1) - v2) * second;
+  l.dyy = (img.at<float>(y + 1, x) + img.at<float>(y - 1, x) - v2) * second;
+  l.dss = (next.at<float>(y, x) + prev.at<float>(y, x) - v2) * second;
+  l.dxy = (img.at<float>(y + 1, x + 1) - img.at<float>(y + 1, x - 1) - img.at<float>(y - 1, x + 1) +
+           img.at<float>(y - 1, x - 1)) * cross;
+  l.dxs = (next.at<float>(y, x + 1) - next.at<float>(y, x - 1) - prev.at<float>(y, x + 1) + prev.at<float>(y, x - 1)) *
+          cross;
+  l.dys = (next.at<float>(y + 1, x) - next.at<float>(y - 1, x) - prev.at<float>(y + 1, x) + prev.at<float>(y - 1, x)) *
+          cross;
+  return l;
+}
+
 // Section 4: the extremum at (layer, r, c) of octave o moved to where the quadratic through its
 // neighbours peaks; false when it wanders off, is too weak or lies on an edge.
 bool Refine(const Search& s, int o, int* layer, int* r, int* c, cv::KeyPoint* k) {
-  constexpr float img_scale = 1.f / 255;
-  constexpr float deriv = img_scale * 0.5f, second = img_scale, cross = img_scale * 0.25f;
+  const cv::Size size = s.dog[size_t(o)][0].size();
   float xi = 0, xr = 0, xc = 0;
   int step = 0;
   for (; step < kMaxSteps; ++step) {
-    const cv::Mat& img = s.dog[size_t(o)][size_t(*layer)];
-    const cv::Mat& prev = s.dog[size_t(o)][size_t(*layer - 1)];
-    const cv::Mat& next = s.dog[size_t(o)][size_t(*layer + 1)];
-    const int y = *r, x = *c;
-    const cv::Vec3f dD((img.at<float>(y, x + 1) - img.at<float>(y, x - 1)) * deriv,
-                       (img.at<float>(y + 1, x) - img.at<float>(y - 1, x)) * deriv,
-                       (next.at<float>(y, x) - prev.at<float>(y, x)) * deriv);
-    const float v2 = img.at<float>(y, x) * 2;
-    const float dxx = (img.at<float>(y, x + 1) + img.at<float>(y, x - 1) - v2) * second;
-    const float dyy = (img.at<float>(y + 1, x) + img.at<float>(y - 1, x) - v2) * second;
-    const float dss = (next.at<float>(y, x) + prev.at<float>(y, x) - v2) * second;
-    const float dxy = (img.at<float>(y + 1, x + 1) - img.at<float>(y + 1, x - 1) - img.at<float>(y - 1, x + 1) +
-                       img.at<float>(y - 1, x - 1)) * cross;
-    const float dxs = (next.at<float>(y, x + 1) - next.at<float>(y, x - 1) - prev.at<float>(y, x + 1) +
-                       prev.at<float>(y, x - 1)) * cross;
-    const float dys = (next.at<float>(y + 1, x) - next.at<float>(y - 1, x) - prev.at<float>(y + 1, x) +
-                       prev.at<float>(y - 1, x)) * cross;
-    const cv::Matx33f H(dxx, dxy, dxs, dxy, dyy, dys, dxs, dys, dss);
-    const cv::Vec3f X = H.solve(dD, cv::DECOMP_LU);
+    const Local l = At(s, o, *layer, *r, *c);
+    const cv::Matx33f H(l.dxx, l.dxy, l.dxs, l.dxy, l.dyy, l.dys, l.dxs, l.dys, l.dss);
+    const cv::Vec3f X = H.solve(l.gradient, cv::DECOMP_LU);
     xi = -X[2];
     xr = -X[1];
     xc = -X[0];
@@ -81,28 +96,18 @@ bool Refine(const Search& s, int o, int* layer, int* r, int* c, cv::KeyPoint* k)
     *c += cvRound(xc);
     *r += cvRound(xr);
     *layer += cvRound(xi);
-    if (*layer < 1 || *layer > s.layers || *c < kBorder || *c >= img.cols - kBorder || *r < kBorder ||
-        *r >= img.rows - kBorder)
+    if (*layer < 1 || *layer > s.layers || *c < kBorder || *c >= size.width - kBorder || *r < kBorder ||
+        *r >= size.height - kBorder)
       return false;
   }
   if (step >= kMaxSteps) return false;
-  const cv::Mat& img = s.dog[size_t(o)][size_t(*layer)];
-  const cv::Mat& prev = s.dog[size_t(o)][size_t(*layer - 1)];
-  const cv::Mat& next = s.dog[size_t(o)][size_t(*layer + 1)];
   const int y = *r, x = *c;
-  const cv::Matx31f dD((img.at<float>(y, x + 1) - img.at<float>(y, x - 1)) * deriv,
-                       (img.at<float>(y + 1, x) - img.at<float>(y - 1, x)) * deriv,
-                       (next.at<float>(y, x) - prev.at<float>(y, x)) * deriv);
-  const float t = dD.dot(cv::Matx31f(xc, xr, xi));
-  const float contrast = img.at<float>(y, x) * img_scale + t * 0.5f;
+  const Local l = At(s, o, *layer, y, x);
+  const float t = cv::Matx31f(l.gradient).dot(cv::Matx31f(xc, xr, xi));
+  const float contrast = l.value * (1.f / 255) + t * 0.5f;
   if (std::abs(contrast) * s.layers < s.contrast) return false;
   // Edges: the principal curvatures' ratio from the Hessian's trace and determinant.
-  const float v2 = img.at<float>(y, x) * 2.f;
-  const float dxx = (img.at<float>(y, x + 1) + img.at<float>(y, x - 1) - v2) * second;
-  const float dyy = (img.at<float>(y + 1, x) + img.at<float>(y - 1, x) - v2) * second;
-  const float dxy = (img.at<float>(y + 1, x + 1) - img.at<float>(y + 1, x - 1) - img.at<float>(y - 1, x + 1) +
-                     img.at<float>(y - 1, x - 1)) * cross;
-  const float tr = dxx + dyy, det = dxx * dyy - dxy * dxy;
+  const float tr = l.dxx + l.dyy, det = l.dxx * l.dyy - l.dxy * l.dxy;
   if (det <= 0 || tr * tr * s.edge >= (s.edge + 1) * (s.edge + 1) * det) return false;
   k->pt.x = (float(x) + xc) * float(1 << o);
   k->pt.y = (float(y) + xr) * float(1 << o);
