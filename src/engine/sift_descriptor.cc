@@ -74,6 +74,7 @@ __attribute__((target("avx512f,fma"))) void DescribeOne(const cv::Mat& img, cv::
     const float* here = img.ptr<float>(r);
     const float* above = img.ptr<float>(r - 1);
     const float* below = img.ptr<float>(r + 1);
+    PrefetchRow(img, r + 1 + kPrefetchRows, pt.x + j_first - 1, pt.x + j_last + 1);
     const __m512 isin = _mm512_set1_ps(float(i) * sin_t), icos = _mm512_set1_ps(float(i) * cos_t);
     const __m512 row_weight = _mm512_set1_ps(factors[size_t(i + radius)]);
     // The columns whose rotated position falls in the grid lie in one interval of the row (half

@@ -137,6 +137,7 @@ __attribute__((target("avx512f,fma"))) float OrientationHistogram(const cv::Mat&
     const float* here = img.ptr<float>(y);
     const float* above = img.ptr<float>(y - 1);
     const float* below = img.ptr<float>(y + 1);
+    PrefetchRow(img, y + 1 + kPrefetchRows, pt.x + j_first - 1, pt.x + j_last + 1);
     const __m512 row_weight = _mm512_set1_ps(f[i + radius]);
     for (int j0 = j_first; j0 <= j_last; j0 += 16) {
       const __mmask16 valid =
