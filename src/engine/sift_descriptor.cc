@@ -43,6 +43,32 @@ __attribute__((target("avx512f"))) inline void AddPair(float* h, const float* p)
   _mm_store_sd(reinterpret_cast<double*>(h), _mm_castps_pd(sum));
 }
 
+// The histograms as OpenCV finishes them: the orientation bins wrapped, the border cells dropped,
+// clipped at 0.2 of the norm, scaled to 512 over the norm and rounded to 0..255 (compiled for the
+// same instructions as DescribeOne, where it was: the same fused sums, the same values).
+__attribute__((target("avx512f,fma"))) void Finish(float (&hist)[kCells][16], float* dst) {
+  // The orientation bins wrap; the border cells are dropped.
+  float raw[kWidth * kWidth * kBins];
+  for (int i = 0; i < kWidth; ++i)
+    for (int j = 0; j < kWidth; ++j) {
+      float* h = hist[(i + 1) * kRow + (j + 1)];
+      h[0] += h[kBins];
+      h[1] += h[kBins + 1];
+      for (int k = 0; k < kBins; ++k) raw[(i * kWidth + j) * kBins + k] = h[k];
+    }
+  constexpr int kLen = kWidth * kWidth * kBins;
+  float norm2 = 0;
+  for (int k = 0; k < kLen; ++k) norm2 += raw[k] * raw[k];
+  const float clip = std::sqrt(norm2) * 0.2f;
+  norm2 = 0;
+  for (int k = 0; k < kLen; ++k) {
+    raw[k] = std::min(raw[k], clip);
+    norm2 += raw[k] * raw[k];
+  }
+  const float scale = 512.f / std::max(std::sqrt(norm2), FLT_EPSILON);
+  for (int k = 0; k < kLen; ++k) dst[k] = static_cast<float>(cv::saturate_cast<uchar>(raw[k] * scale));
+}
+
 // One keypoint's descriptor (OpenCV's calcSIFTDescriptor): `img` its octave layer, `ptf` its
 // position there, `ori` its orientation (degrees, clockwise as OpenCV measures it), `scl` its
 // scale in the layer's pixels. Writes 128 floats.
@@ -142,26 +168,7 @@ __attribute__((target("avx512f,fma"))) void DescribeOne(const cv::Mat& img, cv::
       }
     }
   }
-  // The orientation bins wrap; the border cells are dropped.
-  float raw[kWidth * kWidth * kBins];
-  for (int i = 0; i < kWidth; ++i)
-    for (int j = 0; j < kWidth; ++j) {
-      float* h = hist[(i + 1) * kRow + (j + 1)];
-      h[0] += h[kBins];
-      h[1] += h[kBins + 1];
-      for (int k = 0; k < kBins; ++k) raw[(i * kWidth + j) * kBins + k] = h[k];
-    }
-  constexpr int kLen = kWidth * kWidth * kBins;
-  float norm2 = 0;
-  for (int k = 0; k < kLen; ++k) norm2 += raw[k] * raw[k];
-  const float clip = std::sqrt(norm2) * 0.2f;
-  norm2 = 0;
-  for (int k = 0; k < kLen; ++k) {
-    raw[k] = std::min(raw[k], clip);
-    norm2 += raw[k] * raw[k];
-  }
-  const float scale = 512.f / std::max(std::sqrt(norm2), FLT_EPSILON);
-  for (int k = 0; k < kLen; ++k) dst[k] = static_cast<float>(cv::saturate_cast<uchar>(raw[k] * scale));
+  Finish(hist, dst);
 }
 
 }  // namespace
