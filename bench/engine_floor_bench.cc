@@ -28,7 +28,6 @@
 #include "engine/feather.h"
 #include "engine/features.h"
 #include "engine/patch_canvas.h"
-#include "engine/sift_descriptor.h"
 #include "engine/preprocess.h"
 #include "engine/sift_descriptor.h"
 #include "engine/tracker.h"

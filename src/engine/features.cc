@@ -9,6 +9,7 @@
 
 #include "engine/sift_descriptor.h"
 #include "engine/sift_detector.h"
+#include "engine/sift_pyramid.h"
 #include "rolamos/error.hpp"
 
 namespace rolamos {

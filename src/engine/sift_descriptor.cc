@@ -24,18 +24,6 @@ constexpr int kRow = kWidth + 2;
 constexpr int kCells = kRow * kRow;
 
 
-// Narrows [lo, hi] to the j with a j in (low, high).
-void Within(float a, float low, float high, float* lo, float* hi) {
-  if (std::abs(a) < 1e-12f) {
-    if (!(low < 0 && 0 < high)) *hi = *lo - 1;  // none
-    return;
-  }
-  float x = low / a, y = high / a;
-  if (a < 0) std::swap(x, y);
-  *lo = std::max(*lo, x);
-  *hi = std::min(*hi, y);
-}
-
 // h[0] += p[0], h[1] += p[1], as one 64-bit addition.
 __attribute__((target("avx512f"))) inline void AddPair(float* h, const float* p) {
   const __m128 sum = _mm_add_ps(_mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(h))),
@@ -97,23 +85,10 @@ __attribute__((target("avx512f,fma"))) void DescribeOne(const cv::Mat& img, cv::
   for (int i = -radius; i <= radius; ++i) {
     const int r = pt.y + i;
     if (r <= 0 || r >= img.rows - 1 || j_first > j_last) continue;
-    const float* here = img.ptr<float>(r);
-    const float* above = img.ptr<float>(r - 1);
-    const float* below = img.ptr<float>(r + 1);
     PrefetchRow(img, r + 1 + kPrefetchRows, pt.x + j_first - 1, pt.x + j_last + 1);
     const __m512 isin = _mm512_set1_ps(float(i) * sin_t), icos = _mm512_set1_ps(float(i) * cos_t);
     const __m512 row_weight = _mm512_set1_ps(factors[size_t(i + radius)]);
-    // The columns whose rotated position falls in the grid lie in one interval of the row (half
-    // the window's square, the grid being turned in it): the lanes outside it would all be
-    // masked off. Widened by a column each way; the masks decide.
-    float lo = float(j_first), hi = float(j_last);
-    const float edge = kWidth / 2 + 0.5f;  // the grid's half-width plus the bins' half-cell
-    Within(sin_t, -edge - float(i) * cos_t, edge - float(i) * cos_t, &lo, &hi);
-    Within(cos_t, -edge + float(i) * sin_t, edge + float(i) * sin_t, &lo, &hi);
-    if (!(lo <= hi)) continue;
-    const int from = std::max(j_first, static_cast<int>(std::floor(lo)) - 1);
-    const int to = std::min(j_last, static_cast<int>(std::ceil(hi)) + 1);
-    for (int j0 = from; j0 <= to; j0 += 16) {
+    for (int j0 = j_first; j0 <= j_last; j0 += 16) {
       const __m512 j = _mm512_add_ps(_mm512_set1_ps(float(j0)), lanes);
       const __m512 c_rot = _mm512_sub_ps(_mm512_mul_ps(j, vcos), isin);
       const __m512 r_rot = _mm512_add_ps(_mm512_mul_ps(j, vsin), icos);
@@ -121,11 +96,10 @@ __attribute__((target("avx512f,fma"))) void DescribeOne(const cv::Mat& img, cv::
       __m512 cbin = _mm512_sub_ps(_mm512_add_ps(c_rot, half_grid), half);
       __mmask16 valid = _mm512_cmp_ps_mask(rbin, low, _CMP_GT_OQ) & _mm512_cmp_ps_mask(rbin, high, _CMP_LT_OQ) &
                         _mm512_cmp_ps_mask(cbin, low, _CMP_GT_OQ) & _mm512_cmp_ps_mask(cbin, high, _CMP_LT_OQ);
-      if (to - j0 < 15) valid &= static_cast<__mmask16>((1u << (to - j0 + 1)) - 1);
+      if (j_last - j0 < 15) valid &= static_cast<__mmask16>((1u << (j_last - j0 + 1)) - 1);
       if (!valid) continue;
-      const int c = pt.x + j0;
-      const __m512 dx = _mm512_sub_ps(_mm512_maskz_loadu_ps(valid, here + c + 1), _mm512_maskz_loadu_ps(valid, here + c - 1));
-      const __m512 dy = _mm512_sub_ps(_mm512_maskz_loadu_ps(valid, above + c), _mm512_maskz_loadu_ps(valid, below + c));
+      __m512 dx, dy;
+      Gradients(img, r, pt.x + j0, valid, &dx, &dy);
       const __m512 weight = _mm512_mul_ps(row_weight, _mm512_loadu_ps(factors.data() + (j0 + radius)));
       const __m512 mag = _mm512_mul_ps(_mm512_sqrt_ps(_mm512_fmadd_ps(dx, dx, _mm512_mul_ps(dy, dy))), weight);
       __m512 obin = _mm512_mul_ps(_mm512_sub_ps(Atan2Degrees(dy, dx), vori), vbins);
@@ -173,15 +147,10 @@ __attribute__((target("avx512f,fma"))) void DescribeOne(const cv::Mat& img, cv::
 
 }  // namespace
 
-bool FastSiftDescriptorApplies() {
-  static const bool fast = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("fma");
-  return fast;
-}
-
 void DescribeSift(const cv::Mat& image, const std::vector<cv::KeyPoint>& keypoints, int layers, double sigma,
                   cv::Mat* descriptors) {
   if (image.type() != CV_8UC1) Fail("SIFT descriptors", "image type " + cv::typeToString(image.type()) + " is not 8-bit grey");
-  if (!FastSiftDescriptorApplies()) {
+  if (!FastSiftApplies()) {
     std::vector<cv::KeyPoint> copy = keypoints;
     cv::SIFT::create(0, layers, 0.04, 10, sigma)->compute(image, copy, *descriptors);
     return;
@@ -206,7 +175,7 @@ void DescribeSift(const cv::Mat& image, const std::vector<cv::KeyPoint>& keypoin
 
 void DescribeSiftOn(const std::vector<std::vector<cv::Mat>>& pyramid, int first_octave,
                     const std::vector<cv::KeyPoint>& keypoints, cv::Mat* descriptors) {
-  CV_Assert(FastSiftDescriptorApplies());
+  CV_Assert(FastSiftApplies());
   descriptors->create(static_cast<int>(keypoints.size()), kWidth * kWidth * kBins, CV_32F);
   // Keypoints in the order of their layers' rows: the windows of one overlap the next's, in cache.
   std::vector<int> order(keypoints.size());

@@ -23,19 +23,16 @@
 
 namespace rolamos {
 
-// Whether DescribeSift has its fast path on this CPU (else it is cv::SIFT::compute).
-bool FastSiftDescriptorApplies();
-
 // Descriptors (CV_32F, one row of 128 per keypoint, in order) of `keypoints` found by
 // cv::SIFT on `image` (CV_8UC1) with `layers` layers per octave and base sigma `sigma`: their
 // `octave` packed as OpenCV packs it (octave -1: the doubled first octave), their positions in
 // `image`'s pixels. As cv::SIFT::compute(image, keypoints, descriptors) would give, which it is
-// without AVX-512.
+// where FastSiftApplies (sift_pyramid.h) is false.
 void DescribeSift(const cv::Mat& image, const std::vector<cv::KeyPoint>& keypoints, int layers, double sigma,
                   cv::Mat* descriptors);
 
 // The same on a Gaussian pyramid already built (SiftGaussianPyramid; pyramid[0] is octave
-// `first_octave`), where FastSiftDescriptorApplies.
+// `first_octave`), where FastSiftApplies (sift_pyramid.h).
 void DescribeSiftOn(const std::vector<std::vector<cv::Mat>>& pyramid, int first_octave,
                     const std::vector<cv::KeyPoint>& keypoints, cv::Mat* descriptors);
 

@@ -1,4 +1,5 @@
 #include "engine/sift_descriptor.h"
+#include "engine/sift_pyramid.h"
 
 #include <cmath>
 #include <cstdio>
@@ -37,7 +38,7 @@ Agreement Compare(const cv::Mat& ours, const cv::Mat& theirs) {
 // What OpenCV's SIFT finds on `image` (first octave doubled, as the engine runs it), described
 // by OpenCV and by DescribeSift.
 TEST(SiftDescriptor, IsOpenCvsDescriptor) {
-  if (!FastSiftDescriptorApplies()) GTEST_SKIP() << "no AVX-512 here: DescribeSift is OpenCV's own";
+  if (!FastSiftApplies()) GTEST_SKIP() << "no AVX-512 here: DescribeSift is OpenCV's own";
   for (const cv::Size size : {cv::Size(463, 345), cv::Size(320, 240)}) {
     const cv::Mat image = Texture(size, size.width);
     auto sift = cv::SIFT::create(1000, 3, 0.005);
@@ -60,7 +61,7 @@ TEST(SiftDescriptor, IsOpenCvsDescriptor) {
 // Keypoints of the octaves above the first, described on the image itself (no doubled octave), as
 // cv::SIFT::compute describes them.
 TEST(SiftDescriptor, DescribesWithoutTheDoubledOctave) {
-  if (!FastSiftDescriptorApplies()) GTEST_SKIP() << "no AVX-512 here: DescribeSift is OpenCV's own";
+  if (!FastSiftApplies()) GTEST_SKIP() << "no AVX-512 here: DescribeSift is OpenCV's own";
   const cv::Mat image = Texture({400, 300}, 5);
   auto sift = cv::SIFT::create(600, 3, 0.005);
   std::vector<cv::KeyPoint> keypoints;

@@ -134,17 +134,13 @@ __attribute__((target("avx512f,fma"))) float OrientationHistogram(const cv::Mat&
   for (int i = -radius; i <= radius; ++i) {
     const int y = pt.y + i;
     if (y <= 0 || y >= img.rows - 1 || j_first > j_last) continue;
-    const float* here = img.ptr<float>(y);
-    const float* above = img.ptr<float>(y - 1);
-    const float* below = img.ptr<float>(y + 1);
     PrefetchRow(img, y + 1 + kPrefetchRows, pt.x + j_first - 1, pt.x + j_last + 1);
     const __m512 row_weight = _mm512_set1_ps(f[i + radius]);
     for (int j0 = j_first; j0 <= j_last; j0 += 16) {
       const __mmask16 valid =
           j_last - j0 >= 15 ? __mmask16(0xFFFF) : static_cast<__mmask16>((1u << (j_last - j0 + 1)) - 1);
-      const int x = pt.x + j0;
-      const __m512 dx = _mm512_sub_ps(_mm512_maskz_loadu_ps(valid, here + x + 1), _mm512_maskz_loadu_ps(valid, here + x - 1));
-      const __m512 dy = _mm512_sub_ps(_mm512_maskz_loadu_ps(valid, above + x), _mm512_maskz_loadu_ps(valid, below + x));
+      __m512 dx, dy;
+      Gradients(img, y, pt.x + j0, valid, &dx, &dy);
       const __m512 weight = _mm512_mul_ps(row_weight, _mm512_loadu_ps(f + j0 + radius));
       const __m512 mag = _mm512_sqrt_ps(_mm512_fmadd_ps(dx, dx, _mm512_mul_ps(dy, dy)));
       __m512i bin = _mm512_cvtps_epi32(_mm512_mul_ps(per_degree, Atan2Degrees(dy, dx)));
@@ -304,8 +300,6 @@ std::vector<cv::KeyPoint> OrientStrongest(const Search& s, std::vector<Extremum>
 }
 
 }  // namespace
-
-bool FastSiftApplies() { return FastSiftDescriptorApplies(); }
 
 std::vector<cv::KeyPoint> FindSift(const cv::Mat& image, const cv::Mat& mask, const SiftOptions& options,
                                    cv::Mat* descriptors) {

@@ -34,9 +34,6 @@ struct SiftOptions {
   bool IsValid(std::string* error) const;
 };
 
-// Whether FindSift has its fast path on this CPU (else it is cv::SIFT::detectAndCompute).
-bool FastSiftApplies();
-
 // Keypoints of `image` (CV_8UC1) outside `mask` (CV_8UC1, 0 = left out; empty = none), with their
 // descriptors (CV_32F, 128 per keypoint, in order), as cv::SIFT::create(features, layers,
 // contrast_threshold, edge_threshold, sigma)->detectAndCompute(image, mask, ...) gives them.

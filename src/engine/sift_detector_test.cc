@@ -1,4 +1,5 @@
 #include "engine/sift_detector.h"
+#include "engine/sift_pyramid.h"
 
 #include <cmath>
 #include <cstdio>

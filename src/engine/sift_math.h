@@ -45,6 +45,16 @@ inline void PrefetchRow(const cv::Mat& img, int y, int first, int last) {
 // Rows ahead of the one a window's loop is on that PrefetchRow asks for.
 inline constexpr int kPrefetchRows = 4;
 
+// The gradients SIFT's orientations and descriptors take at columns x .. x + 15 of row y (the
+// lanes in `valid`; the others 0): dx = I(y, x + 1) - I(y, x - 1), dy = I(y - 1, x) - I(y + 1, x).
+__attribute__((target("avx512f"))) inline void Gradients(const cv::Mat& img, int y, int x, __mmask16 valid, __m512* dx,
+                                                         __m512* dy) {
+  const float* here = img.ptr<float>(y);
+  *dx = _mm512_sub_ps(_mm512_maskz_loadu_ps(valid, here + x + 1), _mm512_maskz_loadu_ps(valid, here + x - 1));
+  *dy = _mm512_sub_ps(_mm512_maskz_loadu_ps(valid, img.ptr<float>(y - 1) + x),
+                      _mm512_maskz_loadu_ps(valid, img.ptr<float>(y + 1) + x));
+}
+
 // exp(scale j^2) for j in [-radius, radius] at table[j + radius], then 16 zeros (a vector read
 // from the last column stays inside): a window's Gaussian weight is the product of its row's and
 // its column's.

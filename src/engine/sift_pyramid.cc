@@ -52,10 +52,9 @@ __attribute__((target("avx512f"))) void BlurColumn(const float* const* rows, int
 // cv::GaussianBlur(src, dst, Size(), sigma, sigma) of a float image (its kernel, its borders,
 // its order of operations), sixteen pixels at a time and on every core.
 void Blur(const cv::Mat& src, cv::Mat& dst, double sigma) {
-  static const bool avx512 = __builtin_cpu_supports("avx512f");
   const int ksize = cvRound(sigma * 4 * 2 + 1) | 1;
   const int r = ksize / 2;
-  if (!avx512 || src.type() != CV_32FC1 || ksize < 7 || src.cols < 2 || src.rows < 2) {
+  if (!FastSiftApplies() || src.type() != CV_32FC1 || ksize < 7 || src.cols < 2 || src.rows < 2) {
     cv::GaussianBlur(src, dst, cv::Size(), sigma, sigma);
     return;
   }
@@ -91,6 +90,11 @@ void Blur(const cv::Mat& src, cv::Mat& dst, double sigma) {
 }
 
 }  // namespace
+
+bool FastSiftApplies() {
+  static const bool fast = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("fma");
+  return fast;
+}
 
 cv::Mat SiftBaseImage(const cv::Mat& gray, bool doubled, float sigma) {
   cv::Mat f, out;

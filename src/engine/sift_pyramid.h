@@ -21,6 +21,10 @@ cv::Mat SiftBaseImage(const cv::Mat& gray, bool doubled, float sigma);
 std::vector<std::vector<cv::Mat>> SiftGaussianPyramid(const cv::Mat& base, int octaves, int layers, int top,
                                                       double sigma);
 
+// Whether SIFT's own paths (this pyramid's blur, FindSift, DescribeSift) run on this CPU: they need
+// AVX-512 and FMA; elsewhere each is OpenCV's.
+bool FastSiftApplies();
+
 // OpenCV's octave and layer packed in a keypoint, and the scale from the octave's pixels to the
 // image's.
 void UnpackSiftOctave(const cv::KeyPoint& k, int* octave, int* layer, float* scale);
