@@ -7,6 +7,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
+#include "engine/corner_peaks.h"
 #include "engine/lucas_kanade.h"
 #include "engine/motion_gate.h"
 #include "rolamos/error.hpp"
@@ -147,20 +148,13 @@ std::vector<cv::Point2f> FrameTracker::Corners(const TrackFrame& frame, const st
   const cv::Mat& gray = frame.pyramid[0];
   const double s = frame.scale;
   // Shi-Tomasi's smaller eigenvalue, local maxima only, a window's half from the border.
-  cv::Mat eig, peaks;
-  cv::cornerMinEigenVal(gray, eig, 3, 3);
-  cv::dilate(eig, peaks, cv::Mat(), cv::Point(-1, -1), 2);
   const int border = options_.WindowFor(frame.size) / 2 + 1;
+  const std::vector<CornerPeak> peaks = CornerPeaks(gray, border, 1e-7f);
   // The scale: the 30th strongest local maximum.
-  std::vector<float> tops;
-  for (int y = border; y < gray.rows - border; ++y) {
-    const float* e = eig.ptr<float>(y);
-    const float* d = peaks.ptr<float>(y);
-    for (int x = border; x < gray.cols - border; ++x)
-      if (e[x] > 1e-7f && e[x] >= d[x]) tops.push_back(e[x]);
-  }
   float reference = 0;
-  if (!tops.empty()) {
+  if (!peaks.empty()) {
+    std::vector<float> tops(peaks.size());
+    for (size_t i = 0; i < peaks.size(); ++i) tops[i] = peaks[i].response;
     const size_t k = std::min<size_t>(29, tops.size() - 1);
     std::nth_element(tops.begin(), tops.begin() + long(k), tops.end(), std::greater<float>());
     reference = tops[k];
@@ -173,16 +167,10 @@ std::vector<cv::Point2f> FrameTracker::Corners(const TrackFrame& frame, const st
   for (const auto& p : existing) cv::circle(taken, ToTrack(p, s), int(std::ceil(min_distance)), 255, -1);
   if (!frame.usable.empty()) taken.setTo(255, frame.usable == 0);
   std::vector<std::vector<std::pair<float, cv::Point>>> cells(size_t(cols * rows));
-  for (int y = border; y < gray.rows - border; ++y) {
-    const float* e = eig.ptr<float>(y);
-    const float* d = peaks.ptr<float>(y);
-    const uchar* t = taken.ptr<uchar>(y);
-    for (int x = border; x < gray.cols - border; ++x) {
-      if (e[x] < floor || e[x] < d[x]) continue;
-      if (t[x]) continue;
-      const int cx = std::min(cols - 1, x * cols / gray.cols), cy = std::min(rows - 1, y * rows / gray.rows);
-      cells[size_t(cy * cols + cx)].emplace_back(e[x], cv::Point(x, y));
-    }
+  for (const CornerPeak& p : peaks) {
+    if (p.response < floor || taken.at<uchar>(p.y, p.x)) continue;
+    const int cx = std::min(cols - 1, p.x * cols / gray.cols), cy = std::min(rows - 1, p.y * rows / gray.rows);
+    cells[size_t(cy * cols + cx)].emplace_back(p.response, cv::Point(p.x, p.y));
   }
   for (auto& c : cells)
     std::sort(c.begin(), c.end(), [](const auto& a, const auto& b) { return a.first > b.first; });
