@@ -5,6 +5,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
+#include "engine/ecc_translation.h"
 #include "engine/patch_canvas.h"
 
 namespace rolamos {
@@ -94,6 +95,15 @@ EccResult RefineWithEcc(const cv::Mat& frame_gray, const cv::Matx33d& frame_to_p
         W.at<float>(2, 0) /= 2;
         W.at<float>(2, 1) /= 2;
       }
+    }
+    if (motion == cv::MOTION_TRANSLATION) {  // the engine's: ours, a tenth of OpenCV's time
+      const EccTranslation t = FindEccTranslation(templ_hp, input_hp, mask,
+                                                  {W.at<float>(0, 2), W.at<float>(1, 2)}, o.iterations, o.epsilon);
+      if (!t.ok) return r;  // did not converge: keep the feature estimate
+      W.at<float>(0, 2) = static_cast<float>(t.shift.x);
+      W.at<float>(1, 2) = static_cast<float>(t.shift.y);
+      correlation = t.correlation;
+      continue;
     }
     try {
       correlation = cv::findTransformECC(
