@@ -63,13 +63,27 @@ struct Sums {
   double xi = 0, yi = 0, xm = 0, ym = 0, xmt = 0, ymt = 0;
 };
 
-// Where a step samples: the bilinear taps' offset and weights, the nearest pixel's offset.
+// Where a step samples: the bilinear taps' offset and weights, the nearest pixel's offset, where
+// OpenCV's warpAffine takes them for a shift t: positions in 1/1024 pixel, rounded to 1/32 for
+// the bilinear taps and to whole pixels for the nearest. Exact positions find the same optimum
+// within that 1/32 (tests), but each step then differs a little from OpenCV's, and on chain-bound
+// surveys (small-degraded) any such difference, even OpenCV's own ECC at a 0.04 % different
+// scale, moves a draw's per-patch error by up to several pixels either way; sampled where OpenCV
+// samples, the steps are OpenCV's up to the rounding of the sums.
 struct Sampling {
   int fx, fy, rx, ry;
   float ax, ay;
-  explicit Sampling(cv::Point2d s)
-      : fx(int(std::floor(s.x))), fy(int(std::floor(s.y))), rx(int(std::floor(s.x + 0.5))),
-        ry(int(std::floor(s.y + 0.5))), ax(float(s.x - std::floor(s.x))), ay(float(s.y - std::floor(s.y))) {}
+  explicit Sampling(cv::Point2f s) {
+    Taps(s.x, &fx, &ax, &rx);
+    Taps(s.y, &fy, &ay, &ry);
+  }
+  static void Taps(float t, int* whole, float* fraction, int* nearest) {
+    const int fixed = static_cast<int>(std::lrint(double(t) * 1024));
+    const int q = (fixed + 16) >> 5;  // 1/32 pixel, rounded
+    *whole = q >> 5;
+    *fraction = float(q & 31) * (1.f / 32);
+    *nearest = (fixed + 512) >> 10;
+  }
   bool Inside() const {
     return std::max({std::abs(fx), std::abs(fy), std::abs(rx), std::abs(ry)}) <= kMaxShift;
   }
@@ -172,7 +186,7 @@ __attribute__((target("avx512f"))) Sums SumAvx512(const Planes& p, const Samplin
 
 // One Gauss-Newton step of ECC from the sums (the paper's eq. for a translation's two
 // parameters): sets the correlation, moves the shift, or says why it cannot.
-bool Step(const Sums& s, double* rho, cv::Point2d* shift, std::string* failure) {
+bool Step(const Sums& s, double* rho, cv::Point2f* shift, std::string* failure) {
   if (s.n < 1) {
     *failure = "no valid input pixel under the template";
     return false;
@@ -203,7 +217,7 @@ bool Step(const Sums& s, double* rho, cv::Point2d* shift, std::string* failure) 
     return false;
   }
   const cv::Vec2d delta = inverse * ((lambda_n / lambda_d) * templ - image);
-  *shift += cv::Point2d(delta[0], delta[1]);
+  *shift += cv::Point2f(float(delta[0]), float(delta[1]));  // OpenCV's warp matrix is float
   return true;
 }
 
@@ -216,18 +230,20 @@ EccTranslation Find(const cv::Mat& templ, const cv::Mat& input, const cv::Mat& i
                                 cv::typeToString(input.type()) + ", " + std::to_string(input.cols) + " x " +
                                 std::to_string(input.rows) + ") must be 32-bit float of one size, the mask 8-bit");
   EccTranslation r;
-  r.shift = start;
+  cv::Point2f shift(start);
+  r.shift = shift;
   const Planes planes = Prepare(templ, input, input_mask);
   double rho = -1, last = -epsilon;
   for (int k = 1; k <= iterations && std::abs(rho - last) >= epsilon; ++k) {
-    const Sampling s(r.shift);
+    const Sampling s(shift);
     if (!s.Inside()) {
       r.failure = "the shift left the images by more than " + std::to_string(kMaxShift) + " pixels";
       return r;
     }
     const Sums sums = vector ? SumAvx512(planes, s) : SumScalar(planes, s);
     last = rho;
-    if (!Step(sums, &rho, &r.shift, &r.failure)) return r;
+    if (!Step(sums, &rho, &shift, &r.failure)) return r;
+    r.shift = shift;
     r.iterations = k;
   }
   r.correlation = rho;

@@ -23,7 +23,7 @@ struct EccTranslation {
 // until the correlation changes by less than `epsilon`. OpenCV warps three images and a mask per
 // step and makes a dozen more passes over them; a translation's bilinear weights are the same at
 // every pixel, so here each step is one pass of sixteen pixels at a time (AVX-512; one at a time
-// elsewhere), its sums in double. Sampling is exact where OpenCV rounds positions to 1/32 pixel.
+// elsewhere), its sums in double, sampling where OpenCV samples (positions rounded to 1/32 pixel).
 // `templ` and `input`: CV_32F of one size; `input_mask`: CV_8U of that size, or empty. Fails
 // (ok = false) where OpenCV throws: the correlation is not a number, or the step would lower it;
 // and where the shift leaves the images by more than 16 pixels.
