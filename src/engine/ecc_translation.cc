@@ -95,15 +95,24 @@ inline float Bilinear(const float* top, const float* bottom, float ax, float ay)
   return upper + ay * (lower - upper);
 }
 
+// Template row y and the rows a step samples for it: each plane's two rows of bilinear taps from
+// the first one's column, the mask's nearest row.
+struct Row {
+  const float *t, *i0, *i1, *x0, *x1, *y0, *y1, *m;
+  Row(const Planes& p, const Sampling& s, int y) {
+    const int top = y + s.fy + kPad, left = s.fx + kPad;
+    t = p.templ.ptr<float>(y);
+    i0 = p.image.ptr<float>(top) + left, i1 = p.image.ptr<float>(top + 1) + left;
+    x0 = p.gx.ptr<float>(top) + left, x1 = p.gx.ptr<float>(top + 1) + left;
+    y0 = p.gy.ptr<float>(top) + left, y1 = p.gy.ptr<float>(top + 1) + left;
+    m = p.mask.ptr<float>(y + s.ry + kPad) + s.rx + kPad;
+  }
+};
+
 Sums SumScalar(const Planes& p, const Sampling& s) {
   Sums r;
   for (int y = 0; y < p.templ.rows; ++y) {
-    const float* t = p.templ.ptr<float>(y);
-    const int top = y + s.fy + kPad, left = s.fx + kPad;
-    const float *i0 = p.image.ptr<float>(top) + left, *i1 = p.image.ptr<float>(top + 1) + left;
-    const float *x0 = p.gx.ptr<float>(top) + left, *x1 = p.gx.ptr<float>(top + 1) + left;
-    const float *y0 = p.gy.ptr<float>(top) + left, *y1 = p.gy.ptr<float>(top + 1) + left;
-    const float* m = p.mask.ptr<float>(y + s.ry + kPad) + s.rx + kPad;
+    const auto [t, i0, i1, x0, x1, y0, y1, m] = Row(p, s, y);
     for (int x = 0; x < p.templ.cols; ++x) {
       const double i = Bilinear(i0 + x, i1 + x, s.ax, s.ay), gx = Bilinear(x0 + x, x1 + x, s.ax, s.ay),
                    gy = Bilinear(y0 + x, y1 + x, s.ax, s.ay), mm = m[x], mt = mm * t[x];
@@ -144,12 +153,7 @@ __attribute__((target("avx512f"))) Sums SumAvx512(const Planes& p, const Samplin
   const __m512 ax = _mm512_set1_ps(s.ax), ay = _mm512_set1_ps(s.ay);
   const int cols = p.templ.cols;
   for (int y = 0; y < p.templ.rows; ++y) {
-    const float* t = p.templ.ptr<float>(y);
-    const int top = y + s.fy + kPad, left = s.fx + kPad;
-    const float *i0 = p.image.ptr<float>(top) + left, *i1 = p.image.ptr<float>(top + 1) + left;
-    const float *x0 = p.gx.ptr<float>(top) + left, *x1 = p.gx.ptr<float>(top + 1) + left;
-    const float *y0 = p.gy.ptr<float>(top) + left, *y1 = p.gy.ptr<float>(top + 1) + left;
-    const float* m = p.mask.ptr<float>(y + s.ry + kPad) + s.rx + kPad;
+    const auto [t, i0, i1, x0, x1, y0, y1, m] = Row(p, s, y);
     __m512 acc[kCount];
     for (auto& a : acc) a = _mm512_setzero_ps();
     for (int x = 0; x < cols; x += 16) {
