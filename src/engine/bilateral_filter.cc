@@ -11,6 +11,8 @@
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "util/cpu_features.h"
+
 namespace rolamos {
 namespace {
 
@@ -107,16 +109,11 @@ __attribute__((target("avx512f"))) void FilterRows(const cv::Mat* planes, int ra
   }
 }
 
-bool HasAvx512() {
-  static const bool yes = __builtin_cpu_supports("avx512f");
-  return yes;
-}
-
 }  // namespace
 
 bool FastBilateralApplies(const cv::Mat& src, double sigma_color) {
   return src.type() == CV_8UC3 && !src.empty() && sigma_color > 0 && sigma_color <= kFastBilateralMaxSigmaColor &&
-         HasAvx512();
+         CpuHasAvx512();
 }
 
 void BilateralFilter(const cv::Mat& src, cv::Mat& dst, int diameter, double sigma_color, double sigma_space) {

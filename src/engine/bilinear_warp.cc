@@ -12,6 +12,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "rolamos/error.hpp"
+#include "util/cpu_features.h"
 
 namespace rolamos {
 namespace {
@@ -147,8 +148,7 @@ void RowScalar(const cv::Mat& src, const cv::Matx33d& m, int y, int begin, int e
 
 template <typename T, typename Sink>
 void Row(const cv::Mat& src, const cv::Matx33d& dst_to_src, int y, int begin, int end, Sink& sink) {
-  static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
-  if (avx2)
+  if (CpuHasAvx2Fma())
     RowAvx2<T>(src, dst_to_src, y, begin, end, sink);
   else
     RowScalar<T>(src, dst_to_src, y, begin, end, sink);
@@ -286,10 +286,9 @@ void WarpAccumulate(const cv::Mat& src, const cv::Matx33d& src_to_dst, const std
 }
 
 void WarpInside(const cv::Mat& src, const cv::Matx33d& dst_to_src, cv::Mat& dst) {
-  static const bool avx512 = __builtin_cpu_supports("avx512f");
   // Taps are 32-bit byte offsets from the image's first pixel.
   const bool fits = static_cast<double>(src.step) * src.rows < 2147483647.0;
-  if (!avx512 || src.type() != CV_8UC3 || dst.type() != CV_8UC3 || src.rows < 2 || src.cols < 2 || !fits) {
+  if (!CpuHasAvx512() || src.type() != CV_8UC3 || dst.type() != CV_8UC3 || src.rows < 2 || src.cols < 2 || !fits) {
     cv::warpPerspective(src, dst, cv::Mat(dst_to_src), dst.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
                         cv::BORDER_TRANSPARENT);
     return;

@@ -9,6 +9,7 @@
 #include <opencv2/core.hpp>
 
 #include "rolamos/error.hpp"
+#include "util/cpu_features.h"
 
 namespace rolamos {
 namespace {
@@ -195,8 +196,7 @@ std::vector<CornerPeak> Find(const cv::Mat& gray, int border, float least, bool 
 }  // namespace
 
 std::vector<CornerPeak> CornerPeaks(const cv::Mat& gray, int border, float least) {
-  static const bool avx512 = __builtin_cpu_supports("avx512f");
-  return Find(gray, border, least, avx512);
+  return Find(gray, border, least, CpuHasAvx512());
 }
 
 namespace internal {

@@ -8,6 +8,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "rolamos/error.hpp"
+#include "util/cpu_features.h"
 
 namespace rolamos {
 namespace {
@@ -259,8 +260,7 @@ EccTranslation Find(const cv::Mat& templ, const cv::Mat& input, const cv::Mat& i
 
 EccTranslation FindEccTranslation(const cv::Mat& templ, const cv::Mat& input, const cv::Mat& input_mask,
                                   cv::Point2d start, int iterations, double epsilon) {
-  static const bool avx512 = __builtin_cpu_supports("avx512f");
-  return Find(templ, input, input_mask, start, iterations, epsilon, avx512);
+  return Find(templ, input, input_mask, start, iterations, epsilon, CpuHasAvx512());
 }
 
 namespace internal {

@@ -83,4 +83,7 @@ struct Matches {
 // kNN (k = 2) both ways, ratio test, and (optionally) mutual-best check.
 Matches MatchFeatures(const Features& a, const Features& b, const FeatureOptions& options);
 
+// The distance of a's descriptor i from b's descriptor j, cv::norm(..., a.norm)'s value.
+double DescriptorDistance(const Features& a, int i, const Features& b, int j);
+
 }  // namespace rolamos

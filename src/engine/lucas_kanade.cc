@@ -9,6 +9,8 @@
 #include <immintrin.h>
 #include <opencv2/video/tracking.hpp>
 
+#include "util/cpu_features.h"
+
 namespace rolamos {
 namespace {
 
@@ -364,11 +366,6 @@ bool Bordered(const cv::Mat& m, int border, int* readable) {
   *readable = whole.width - ofs.x;
   return ofs.x >= border && ofs.y >= border && ofs.x + m.cols + border <= whole.width &&
          ofs.y + m.rows + border <= whole.height;
-}
-
-bool CpuHasAvx2() {
-  static const bool has = __builtin_cpu_supports("avx2");
-  return has;
 }
 
 int Border(cv::Size window) { return std::max(window.width, window.height); }

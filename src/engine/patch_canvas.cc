@@ -10,6 +10,7 @@
 
 #include "engine/bilinear_warp.h"
 #include "util/homography.h"
+#include "util/cpu_features.h"
 
 namespace rolamos {
 
@@ -124,7 +125,7 @@ __attribute__((target("avx2"))) void CorrectRowAvx2(const uchar* p, const float*
 cv::Mat PatchCanvas::InterleaveDeep(const cv::Mat& frame, const cv::Mat& colour, double scale, const cv::Mat& code) {
   CV_Assert(frame.type() == CV_8UC3 && code.type() == CV_8U && code.size() == frame.size());
   CV_Assert(colour.empty() || (colour.type() == CV_32FC3 && colour.size() == frame.size()));
-  static const bool avx2 = __builtin_cpu_supports("avx2");
+  const bool avx2 = CpuHasAvx2();
   cv::Mat bgrw(frame.size(), CV_16UC4);
   const float s = static_cast<float>(scale);
   cv::parallel_for_(cv::Range(0, frame.rows), [&](const cv::Range& range) {

@@ -6,8 +6,6 @@
 #include <map>
 #include <unordered_map>
 
-#include <immintrin.h>
-
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -85,40 +83,6 @@ bool IsPlausibleMotion(const cv::Matx33d& H, cv::Size frame, const SupportOption
   const bool finite = std::isfinite(s1) && std::isfinite(s2) && s2 > 1e-9;
   return finite && det > 0 && min_det > 0 && s1 < o.max_scale_change && s2 > 1.0 / o.max_scale_change &&
          s1 / s2 < o.max_anisotropy && std::sqrt(max_det / min_det) - 1.0 < o.max_perspective;
-}
-
-namespace {
-
-// cv::norm(a, b, NORM_L2) of two float descriptors without its dispatch and two Mat headers per
-// pair (a fifth of a guided match's time): differences in float, squares summed in double, as
-// OpenCV computes them. SIFT's entries are whole numbers 0..255, so every sum is exact and the
-// order of adding changes nothing: OpenCV's value to the bit.
-__attribute__((target("avx512f"))) double DistanceAvx512(const float* a, const float* b, int n) {
-  __m512d low = _mm512_setzero_pd(), high = _mm512_setzero_pd();
-  int i = 0;
-  for (; i + 16 <= n; i += 16) {
-    const __m512 d = _mm512_sub_ps(_mm512_loadu_ps(a + i), _mm512_loadu_ps(b + i));
-    const __m512d dl = _mm512_cvtps_pd(_mm512_castps512_ps256(d));
-    const __m512d dh = _mm512_cvtps_pd(_mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(d), 1)));
-    low = _mm512_fmadd_pd(dl, dl, low);
-    high = _mm512_fmadd_pd(dh, dh, high);
-  }
-  double sum = _mm512_reduce_add_pd(_mm512_add_pd(low, high));
-  for (; i < n; ++i) {
-    const double v = double(a[i] - b[i]);
-    sum += v * v;
-  }
-  return std::sqrt(sum);
-}
-
-}  // namespace
-
-double DescriptorDistance(const Features& a, int i, const Features& b, int j) {
-  static const bool avx512 = __builtin_cpu_supports("avx512f");
-  if (avx512 && a.norm == cv::NORM_L2 && a.descriptors.type() == CV_32F && b.descriptors.type() == CV_32F &&
-      a.descriptors.cols == b.descriptors.cols)
-    return DistanceAvx512(a.descriptors.ptr<float>(i), b.descriptors.ptr<float>(j), a.descriptors.cols);
-  return cv::norm(a.descriptors.row(i), b.descriptors.row(j), a.norm);
 }
 
 Matches MatchGuided(const Features& a, const Features& b, const cv::Matx33d& a_to_b, double radius,

@@ -46,9 +46,6 @@ Support AssessSupport(const EgomotionResult& r, cv::Size frame, const SupportOpt
 // Whether H (frame -> frame) is a motion a camera over a roughly flat seafloor can make.
 bool IsPlausibleMotion(const cv::Matx33d& H, cv::Size frame, const SupportOptions& options);
 
-// The distance of a's descriptor i from b's descriptor j, cv::norm(..., a.norm)'s value.
-double DescriptorDistance(const Features& a, int i, const Features& b, int j);
-
 // Matches of `a`'s features among `b`'s near where `a_to_b` puts them (within `radius` pixels),
 // with the ratio test among those candidates only. Far cheaper than a full match and finds more.
 Matches MatchGuided(const Features& a, const Features& b, const cv::Matx33d& a_to_b, double radius,

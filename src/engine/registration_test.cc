@@ -47,28 +47,5 @@ TEST(Registration, MirrorsFoldsAndWildPerspectiveAreNot) {
   EXPECT_FALSE(IsPlausibleMotion(cv::Matx33d(1, 0.8, 0, 0, 1, 0, 0, 0, 1), frame, o));
 }
 
-// SIFT's descriptors (whole numbers 0..255, as floats) and ORB's (bits): cv::norm's distance.
-TEST(DescriptorDistance, IsCvNormsToTheBit) {
-  cv::RNG rng(3);
-  Features a, b;
-  a.descriptors.create(40, 128, CV_32F);
-  b.descriptors.create(50, 128, CV_32F);
-  for (cv::Mat* d : {&a.descriptors, &b.descriptors}) {
-    cv::Mat bytes(d->size(), CV_8U);
-    rng.fill(bytes, cv::RNG::UNIFORM, 0, 256);
-    bytes.convertTo(*d, CV_32F);
-  }
-  a.norm = b.norm = cv::NORM_L2;
-  for (int i = 0; i < a.descriptors.rows; ++i)
-    for (int j = 0; j < b.descriptors.rows; ++j)
-      ASSERT_EQ(DescriptorDistance(a, i, b, j), cv::norm(a.descriptors.row(i), b.descriptors.row(j), cv::NORM_L2));
-  a.descriptors.create(10, 32, CV_8U);
-  b.descriptors.create(10, 32, CV_8U);
-  rng.fill(a.descriptors, cv::RNG::UNIFORM, 0, 256);
-  rng.fill(b.descriptors, cv::RNG::UNIFORM, 0, 256);
-  a.norm = b.norm = cv::NORM_HAMMING;
-  EXPECT_EQ(DescriptorDistance(a, 3, b, 7), cv::norm(a.descriptors.row(3), b.descriptors.row(7), cv::NORM_HAMMING));
-}
-
 }  // namespace
 }  // namespace rolamos

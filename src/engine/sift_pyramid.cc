@@ -1,4 +1,5 @@
 #include "engine/sift_pyramid.h"
+#include "util/cpu_features.h"
 
 #include <algorithm>
 #include <cmath>
@@ -123,10 +124,7 @@ void Blur(const cv::Mat& src, cv::Mat& dst, double sigma) {
 
 }  // namespace
 
-bool FastSiftApplies() {
-  static const bool fast = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("fma");
-  return fast;
-}
+bool FastSiftApplies() { return CpuHasAvx512(); }
 
 cv::Mat SiftBaseImage(const cv::Mat& gray, bool doubled, float sigma) {
   cv::Mat f, out;

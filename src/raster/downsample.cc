@@ -4,6 +4,8 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "util/cpu_features.h"
+
 namespace rolamos {
 namespace {
 
@@ -47,8 +49,7 @@ template <typename T>
 void AlphaWeighted(const cv::Mat& src, cv::Mat& dst) {
   const int cn = src.channels();
   const int ac = cn - 1;  // alpha is last
-  static const bool avx512 = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx2");
-  const bool vector = avx512 && sizeof(T) == 1 && cn == 4;
+  const bool vector = CpuHasAvx512() && sizeof(T) == 1 && cn == 4;
   cv::parallel_for_(cv::Range(0, dst.rows), [&](const cv::Range& range) {
     for (int y = range.start; y < range.end; ++y) {
       const T* r0 = src.ptr<T>(2 * y);

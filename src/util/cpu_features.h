@@ -1,0 +1,25 @@
+// What this CPU can run. The project's own vector kernels (SIFT, the filters, the warps, ECC,
+// corners, the store's halving) take AVX-512 where the CPU has it and OpenCV's call or a scalar
+// twin elsewhere; each asks here, once, instead of asking the CPU itself.
+#pragma once
+
+namespace rolamos {
+
+// AVX-512 (foundation), with the AVX2 and FMA every such CPU also has.
+inline bool CpuHasAvx512() {
+  static const bool has =
+      __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  return has;
+}
+
+// AVX2 (the Lucas-Kanade rows, the canvas's colour rows), and AVX2 with FMA (the warps).
+inline bool CpuHasAvx2() {
+  static const bool has = __builtin_cpu_supports("avx2");
+  return has;
+}
+inline bool CpuHasAvx2Fma() {
+  static const bool has = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+  return has;
+}
+
+}  // namespace rolamos
