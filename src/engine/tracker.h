@@ -62,6 +62,10 @@ struct TrackerOptions {
   // 0.17 -> 0.13 px per patch, MPEG-4 video at 800 x 600 0.79 -> 0.67; bench/RESULTS.md). It
   // costs a warp and a pyramid per such follow. 0 = never.
   double turn_deg = 2.0;
+  // CoarseTurn's search: turns of up to this many degrees each way, in steps of
+  // `turn_search_step_deg` (then half a step each side of the best). 0 = no turn searched.
+  double turn_search_deg = 84.0;
+  double turn_search_step_deg = 12.0;
   // Shi-Tomasi, relative to the frame's 30th strongest corner (a few bright specks, marine snow,
   // do not set the scale for the rest).
   double corner_quality = 0.01;
@@ -123,6 +127,14 @@ class FrameTracker {
   // the pyramids' coarsest levels, after `guess`: a start when there is no prediction.
   cv::Matx33d CoarseShift(const TrackFrame& from, const TrackFrame& to, const cv::Matx33d& guess,
                           double* response) const;
+  // The same with the frame also turned about its centre (not by `guess`'s turn: by up to
+  // turn_search_deg either way), the turn that correlates best: a start for a frame that turned
+  // more than anything foresaw (a random walk turns by up to 40 degrees from one still to the
+  // next). The correlation is on the coarsest level at least 96 pixels across, where a turned
+  // view is still told from a wrong one. Returns `guess` with *response 0 when no turn is
+  // searched or the levels are too small.
+  cv::Matx33d CoarseTurn(const TrackFrame& from, const TrackFrame& to, const cv::Matx33d& guess,
+                         double* response) const;
   const TrackerOptions& options() const { return options_; }
 
  private:

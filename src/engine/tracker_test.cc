@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
 
+#include "engine/motion_gate.h"
 #include "synth/seafloor_texture.h"
 
 namespace rolamos {
@@ -221,6 +222,49 @@ TEST(Tracker, CoarseShiftFindsALargeTranslation) {
   EXPECT_GT(response, 0.05);
   EXPECT_NEAR(found(0, 2), -150, 8);
   EXPECT_NEAR(found(1, 2), 95, 8);
+}
+
+// A still turned by 35 degrees and moved, with no idea of either: CoarseTurn tries turns and
+// finds this one, and the frame is followed from there; from CoarseShift's start it is not.
+TEST(Tracker, CoarseTurnFindsATurnNothingForesaw) {
+  const double turn = -35 * CV_PI / 180;
+  const cv::Matx33d about(1, 0, -400, 0, 1, -300, 0, 0, 1);
+  const cv::Matx33d H = about.inv() * cv::Matx33d(std::cos(turn), -std::sin(turn), 60, std::sin(turn),
+                                                  std::cos(turn), -45, 0, 0, 1) * about;
+  cv::Mat a, b;
+  FramePair({800, 600}, H, &a, &b);
+  const FrameTracker tracker(TrackerOptions{});
+  const auto ta = tracker.Prepare(a), tb = tracker.Prepare(b);
+  const std::vector<cv::Point2f> points = tracker.Corners(*ta, {}, 300);
+  auto right = [&](const cv::Matx33d& start) {
+    const TrackFlow flow = tracker.Follow(*ta, *tb, points, start);
+    int n = 0;
+    for (size_t i = 0; i < points.size(); ++i) n += flow.ok[i] && cv::norm(flow.to[i] - Apply(H, points[i])) < 0.3;
+    return n;
+  };
+  double turned = 0, square = 0;
+  const cv::Matx33d start = tracker.CoarseTurn(*ta, *tb, cv::Matx33d::eye(), &turned);
+  const cv::Matx33d shifted = tracker.CoarseShift(*ta, *tb, cv::Matx33d::eye(), &square);
+  EXPECT_GT(turned, 0.05);
+  EXPECT_NEAR(MotionOf(start, a.size()).rotation, MotionOf(H, a.size()).rotation, 3 * CV_PI / 180);
+  // Where the start puts the frame's centre, against the truth: within Lucas-Kanade's reach.
+  EXPECT_LT(cv::norm(Apply(start, {400, 300}) - Apply(H, {400, 300})), 12);
+  const int found = right(start), lost = right(shifted);
+  EXPECT_GT(found, 150);
+  EXPECT_LT(lost, found / 3);
+
+  // No turn searched: the guess, and no response.
+  TrackerOptions off;
+  off.turn_search_deg = 0;
+  double none = 1;
+  EXPECT_EQ(FrameTracker(off).CoarseTurn(*ta, *tb, shifted, &none), shifted);
+  EXPECT_EQ(none, 0);
+
+  TrackerOptions bad;
+  bad.turn_search_step_deg = 0;
+  std::string error;
+  EXPECT_FALSE(bad.IsValid(&error));
+  EXPECT_NE(error.find("turn search"), std::string::npos);
 }
 
 // The points followed both ways, paired with where they started, in order.
