@@ -8,6 +8,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/videoio.hpp>
 
+#include "input/jpeg_reader.h"
 #include "rolamos/error.hpp"
 #include "util/files.h"
 
@@ -78,6 +79,8 @@ cv::Mat ReadFrameImage(const std::string& path, std::atomic<int>* bits, std::str
     return {};
   }
   cv::Mat m;
+  const std::string ext = Extension(path);
+  if ((ext == ".jpg" || ext == ".jpeg") && ReadJpegBgr(path, &m)) return m;
   try {
     m = ToEightBit(cv::imread(path, cv::IMREAD_COLOR | cv::IMREAD_ANYDEPTH), bits);
   } catch (const cv::Exception& e) {
