@@ -319,12 +319,8 @@ std::vector<cv::KeyPoint> FindSift(const cv::Mat& image, const cv::Mat& mask, co
   constexpr int first = -1;  // the doubled first octave
   const cv::Mat base = SiftBaseImage(image, true, static_cast<float>(options.sigma));
   const int octaves = cvRound(std::log(double(std::min(base.cols, base.rows))) / std::log(2.) - 2) - first;
-  const Pyramid gauss = SiftGaussianPyramid(base, octaves, options.layers, options.layers + 2, options.sigma);
-  Pyramid dog(gauss.size());
-  for (size_t o = 0; o < gauss.size(); ++o) {
-    dog[o].resize(size_t(options.layers + 2));
-    for (size_t i = 0; i < dog[o].size(); ++i) cv::subtract(gauss[o][i + 1], gauss[o][i], dog[o][i], cv::noArray(), CV_32F);
-  }
+  Pyramid dog;
+  const Pyramid gauss = SiftGaussianPyramid(base, octaves, options.layers, options.layers + 2, options.sigma, &dog);
   // The scan in bands of rows, each its own list, joined in order.
   struct Band {
     int octave, layer, begin, end;

@@ -55,8 +55,10 @@ __attribute__((target("avx512f"))) void BlurRow(const float* row, int cols, cons
 // Row y of the column pass over the row-filtered `rows` (rows[k] is row y + k - r, reflected):
 // the centre times the middle tap, then each pair of rows about it summed and multiplied in, as
 // OpenCV's symmetric AVX2 column filter does it.
+// With `from` and `difference`, also difference = out - from (the source's row y): SIFT's
+// difference of Gaussians while the row is in registers, as cv::subtract computes it.
 __attribute__((target("avx512f"))) void BlurColumn(const float* const* rows, int cols, const float* kernel, int r,
-                                                   float* out) {
+                                                   float* out, const float* from, float* difference) {
   // Four vectors at once, as in BlurRow.
   int x = 0;
   for (; x + 64 <= cols; x += 64) {
@@ -70,6 +72,9 @@ __attribute__((target("avx512f"))) void BlurColumn(const float* const* rows, int
         s[v] = _mm512_fmadd_ps(_mm512_add_ps(_mm512_loadu_ps(below + 16 * v), _mm512_loadu_ps(above + 16 * v)), w, s[v]);
     }
     for (int v = 0; v < 4; ++v) _mm512_storeu_ps(out + x + 16 * v, s[v]);
+    if (difference)
+      for (int v = 0; v < 4; ++v)
+        _mm512_storeu_ps(difference + x + 16 * v, _mm512_sub_ps(s[v], _mm512_loadu_ps(from + x + 16 * v)));
   }
   for (; x < cols; x += 16) {
     const __mmask16 m = cols - x >= 16 ? __mmask16(0xFFFF) : static_cast<__mmask16>((1u << (cols - x)) - 1);
@@ -79,18 +84,22 @@ __attribute__((target("avx512f"))) void BlurColumn(const float* const* rows, int
       s = _mm512_fmadd_ps(pair, _mm512_set1_ps(kernel[r + k]), s);
     }
     _mm512_mask_storeu_ps(out + x, m, s);
+    if (difference) _mm512_mask_storeu_ps(difference + x, m, _mm512_sub_ps(s, _mm512_maskz_loadu_ps(m, from + x)));
   }
 }
 
 // cv::GaussianBlur(src, dst, Size(), sigma, sigma) of a float image (its kernel, its borders,
-// its order of operations), sixteen pixels at a time and on every core.
-void Blur(const cv::Mat& src, cv::Mat& dst, double sigma) {
+// its order of operations), sixteen pixels at a time and on every core; with `difference`, also
+// dst - src (cv::subtract's values) in the same pass.
+void Blur(const cv::Mat& src, cv::Mat& dst, double sigma, cv::Mat* difference = nullptr) {
   const int ksize = cvRound(sigma * 4 * 2 + 1) | 1;
   const int r = ksize / 2;
   if (!FastSiftApplies() || src.type() != CV_32FC1 || ksize < 7 || src.cols < 2 || src.rows < 2) {
     cv::GaussianBlur(src, dst, cv::Size(), sigma, sigma);
+    if (difference) cv::subtract(dst, src, *difference, cv::noArray(), CV_32F);
     return;
   }
+  if (difference) difference->create(src.size(), CV_32F);
   cv::Mat kernel_mat = cv::getGaussianKernel(ksize, sigma, CV_32F);
   const float* kernel = kernel_mat.ptr<float>();
   std::vector<int> index(size_t(src.cols + 2 * r));
@@ -115,7 +124,8 @@ void Blur(const cv::Mat& src, cv::Mat& dst, double sigma) {
           }
           rows[size_t(k)] = ring.ptr<float>(slot);
         }
-        BlurColumn(rows.data(), src.cols, kernel, r, out.ptr<float>(y));
+        BlurColumn(rows.data(), src.cols, kernel, r, out.ptr<float>(y), src.ptr<float>(y),
+                   difference ? difference->ptr<float>(y) : nullptr);
       }
     }
   });
@@ -142,7 +152,7 @@ cv::Mat SiftBaseImage(const cv::Mat& gray, bool doubled, float sigma) {
 }
 
 std::vector<std::vector<cv::Mat>> SiftGaussianPyramid(const cv::Mat& base, int octaves, int layers, int top,
-                                                      double sigma) {
+                                                      double sigma, std::vector<std::vector<cv::Mat>>* dog) {
   std::vector<double> sig(static_cast<size_t>(layers + 3));
   sig[0] = sigma;
   const double k = std::pow(2., 1. / layers);
@@ -151,6 +161,7 @@ std::vector<std::vector<cv::Mat>> SiftGaussianPyramid(const cv::Mat& base, int o
     sig[size_t(i)] = std::sqrt(total * total - prev * prev);
   }
   std::vector<std::vector<cv::Mat>> pyramid(static_cast<size_t>(octaves));
+  if (dog) dog->assign(static_cast<size_t>(octaves), {});
   for (int o = 0; o < octaves; ++o) {
     auto& level = pyramid[size_t(o)];
     const int last = o + 1 < octaves ? std::max(top, layers) : top;
@@ -161,8 +172,9 @@ std::vector<std::vector<cv::Mat>> SiftGaussianPyramid(const cv::Mat& base, int o
       const cv::Mat& src = pyramid[size_t(o - 1)][size_t(layers)];
       cv::resize(src, level[0], cv::Size(src.cols / 2, src.rows / 2), 0, 0, cv::INTER_NEAREST);
     }
+    if (dog) (*dog)[size_t(o)].resize(static_cast<size_t>(last));
     for (int i = 1; i <= last; ++i)
-      Blur(level[size_t(i - 1)], level[size_t(i)], sig[size_t(i)]);
+      Blur(level[size_t(i - 1)], level[size_t(i)], sig[size_t(i)], dog ? &(*dog)[size_t(o)][size_t(i - 1)] : nullptr);
   }
   return pyramid;
 }

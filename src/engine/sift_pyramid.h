@@ -17,9 +17,11 @@ cv::Mat SiftBaseImage(const cv::Mat& gray, bool doubled, float sigma);
 
 // OpenCV's Gaussian pyramid from `base`: octave by octave, each layer blurred from the one before,
 // the next octave's base layer `layers` of this one halved (nearest neighbour). pyramid[o][i] up
-// to layer `top` of the last octave (every octave before it to at least layer `layers`).
+// to layer `top` of the last octave (every octave before it to at least layer `layers`). With
+// `dog`, also the differences of Gaussians, (*dog)[o][i] = pyramid[o][i + 1] - pyramid[o][i]
+// (cv::subtract's values), made while each layer is blurred.
 std::vector<std::vector<cv::Mat>> SiftGaussianPyramid(const cv::Mat& base, int octaves, int layers, int top,
-                                                      double sigma);
+                                                      double sigma, std::vector<std::vector<cv::Mat>>* dog = nullptr);
 
 // Whether SIFT's own paths (this pyramid's blur, FindSift, DescribeSift) run on this CPU: they need
 // AVX-512 and FMA; elsewhere each is OpenCV's.
