@@ -31,6 +31,22 @@ __attribute__((target("avx512f"))) inline void AddPair(float* h, const float* p)
   _mm_store_sd(reinterpret_cast<double*>(h), _mm_castps_pd(sum));
 }
 
+// The samples of one vector (lanes in `valid`) added into the histograms, each lane's four cells'
+// bin pairs, lane after lane: `pairs` and `at` as DescribeOne lays them out.
+__attribute__((target("avx512f"))) inline void AddSamples(float* base, const float (&pairs)[4][2][16],
+                                                           const int32_t* at, unsigned valid) {
+  for (unsigned m = valid; m; m &= m - 1) {
+    const int l = __builtin_ctz(m);
+    const int half_index = (l >> 1) & 1, slot = (l >> 2) * 4 + (l & 1) * 2;
+    float* h = base + at[l];
+    // Cells (r, c), (r, c + 1), (r + 1, c), (r + 1, c + 1).
+    AddPair(h, pairs[0][half_index] + slot);
+    AddPair(h + 16, pairs[1][half_index] + slot);
+    AddPair(h + 16 * kRow, pairs[2][half_index] + slot);
+    AddPair(h + 16 * kRow + 16, pairs[3][half_index] + slot);
+  }
+}
+
 // The histograms as OpenCV finishes them: the orientation bins wrapped, the border cells dropped,
 // clipped at 0.2 of the norm, scaled to 512 over the norm and rounded to 0..255 (compiled for the
 // same instructions as DescribeOne, where it was: the same fused sums, the same values).
@@ -73,6 +89,13 @@ __attribute__((target("avx512f,fma"))) void DescribeOne(const cv::Mat& img, cv::
   // exp(-(i^2 + j^2) / (2 (d/2)^2)) in histogram widths.
   GaussianFactors(radius, -1.f / (kWidth * kWidth * 0.5f) / (hist_width * hist_width), &factors);
   alignas(64) float hist[kCells][16] = {};
+  // Each vector's samples are added one vector late, from the other of two buffers: read right
+  // after the vector stores that wrote them, they waited on those stores (a third of the time).
+  // The order of the additions is the same.
+  alignas(64) float pairs[2][4][2][16];
+  alignas(64) int32_t at[2][16];
+  unsigned pending = 0;
+  int cur = 0;
   const __m512 lanes = _mm512_setr_ps(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
   const __m512 vcos = _mm512_set1_ps(cos_t), vsin = _mm512_set1_ps(sin_t);
   const __m512 low = _mm512_set1_ps(-1.f), high = _mm512_set1_ps(float(kWidth));
@@ -120,28 +143,19 @@ __attribute__((target("avx512f,fma"))) void DescribeOne(const cv::Mat& img, cv::
       const __m512 rc01 = _mm512_mul_ps(r0, cbin), rc00 = _mm512_sub_ps(r0, rc01);
       // Each cell's two bins (o0, o0 + 1) as a pair, OpenCV's (w - w o, w o): lane l's pair of
       // cell q at pairs[q][l & 2 ? 1 : 0][(l >> 2) * 4 + (l & 1) * 2].
-      alignas(64) float pairs[4][2][16];
       const __m512 part[4] = {rc00, rc01, rc10, rc11};
       for (int q = 0; q < 4; ++q) {
         const __m512 upper = _mm512_mul_ps(part[q], obin), lower = _mm512_sub_ps(part[q], upper);
-        _mm512_store_ps(pairs[q][0], _mm512_unpacklo_ps(lower, upper));
-        _mm512_store_ps(pairs[q][1], _mm512_unpackhi_ps(lower, upper));
+        _mm512_store_ps(pairs[cur][q][0], _mm512_unpacklo_ps(lower, upper));
+        _mm512_store_ps(pairs[cur][q][1], _mm512_unpackhi_ps(lower, upper));
       }
-      alignas(64) int32_t at[16];
-      _mm512_store_si512(at, _mm512_add_epi32(_mm512_slli_epi32(cell, 4), o0));
-      float* const base = &hist[0][0];
-      for (unsigned m = valid; m; m &= m - 1) {
-        const int l = __builtin_ctz(m);
-        const int half_index = (l >> 1) & 1, slot = (l >> 2) * 4 + (l & 1) * 2;
-        float* h = base + at[l];
-        // Cells (r, c), (r, c + 1), (r + 1, c), (r + 1, c + 1).
-        AddPair(h, pairs[0][half_index] + slot);
-        AddPair(h + 16, pairs[1][half_index] + slot);
-        AddPair(h + 16 * kRow, pairs[2][half_index] + slot);
-        AddPair(h + 16 * kRow + 16, pairs[3][half_index] + slot);
-      }
+      _mm512_store_si512(at[cur], _mm512_add_epi32(_mm512_slli_epi32(cell, 4), o0));
+      AddSamples(&hist[0][0], pairs[cur ^ 1], at[cur ^ 1], pending);
+      pending = valid;
+      cur ^= 1;
     }
   }
+  AddSamples(&hist[0][0], pairs[cur ^ 1], at[cur ^ 1], pending);
   Finish(hist, dst);
 }
 
