@@ -364,6 +364,10 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
                   "a frame turned more than this many degrees from the one it is followed from is followed in a "
                   "copy turned back (0 = never)")
       ->capture_default_str();
+  cmd->add_option("--track-turn-search", o.track_turn_search_deg,
+                  "a frame no start could follow is tried once more, turned by what correlates best within this "
+                  "many degrees either way, before recovery by SIFT (0 = not tried)")
+      ->capture_default_str();
   cmd->add_option("--keyframe-overlap", o.keyframe_overlap,
                   "a frame that overlaps the last keyframe less than this becomes a keyframe (adjusted with the "
                   "patch's others, its features stored); 1 = every frame")

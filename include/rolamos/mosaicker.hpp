@@ -65,6 +65,12 @@ struct MosaickerOptions {
   // A frame turned more than this (degrees) from the frame it is followed from is followed in a
   // copy warped back by the predicted motion (Lucas-Kanade's windows do not turn). 0 = never.
   double track_turn_deg = 2.0;
+  // A frame no start above followed (the motion model's, a coarse correlation's, the last
+  // frame's place) is tried once more before SIFT recovery, turned by what correlates best
+  // within this many degrees either way of the last frame: a random walk's stills turn by up to
+  // 40 degrees, which nothing foresees (300 stills: 133 -> 56 recovered, 0.237 -> 0.218 px per
+  // patch; bench/RESULTS.md, session 33). 0 = not tried.
+  double track_turn_search_deg = 84.0;
   // A frame becomes a keyframe (adjusted with the patch's others, its features stored) when its
   // overlap with the last keyframe falls below this, when the next frame is predicted to fall
   // below keyframe_min_overlap, when the registration is doubtful or came from recovery, or when

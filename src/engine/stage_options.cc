@@ -67,6 +67,7 @@ TrackerOptions ToTrackerOptions(const MosaickerOptions& o) {
   t.codec_pixels = o.video_track_pixels;
   t.max_points = o.track_points;
   t.turn_deg = o.track_turn_deg;
+  t.turn_search_deg = o.track_turn_search_deg;
   // "auto" is decided by the input before the engine; frames pushed to it count as images.
   t.halve_once = o.track_halve == "always";
   return t;
