@@ -9,6 +9,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "engine/area_resize.h"
 #include "engine/sift_descriptor.h"
 #include "engine/sift_detector.h"
 #include "engine/sift_pyramid.h"
@@ -148,7 +149,7 @@ Features FeatureExtractor::Extract(const cv::Mat& gray) const {
   CV_Assert(gray.type() == CV_8UC1);
   const double scale = options_.ScaleFor(gray.size());
   cv::Mat small = gray;
-  if (scale < 1.0) cv::resize(gray, small, cv::Size(), scale, scale, cv::INTER_AREA);
+  if (scale < 1.0) ResizeArea(gray, small, scale);
   return ExtractScaled(small, scale);
 }
 

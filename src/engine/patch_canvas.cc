@@ -8,6 +8,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "engine/area_resize.h"
 #include "engine/bilinear_warp.h"
 #include "util/homography.h"
 #include "util/cpu_features.h"
@@ -148,8 +149,8 @@ void PatchCanvas::Add(const cv::Mat& frame, const FeatherCode& weights, const cv
   // goes channel by channel, so this is what reducing the interleaved frame gives, with a
   // quarter of the pixels to interleave.
   cv::Mat small, small_code;
-  cv::resize(frame, small, cv::Size(), scale_, scale_, cv::INTER_AREA);
-  cv::resize(weights.code, small_code, cv::Size(), scale_, scale_, cv::INTER_AREA);
+  ResizeArea(frame, small, scale_);
+  ResizeArea(weights.code, small_code, scale_);
   AddAtScale(Interleave(small, small_code), weights.weight, frame_to_patch, frame.size(), clip);
 }
 

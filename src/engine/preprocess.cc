@@ -9,6 +9,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "engine/area_resize.h"
 #include "engine/bilateral_filter.h"
 #include "engine/bilinear_warp.h"
 #include "rolamos/error.hpp"
@@ -208,7 +209,7 @@ cv::Mat Preprocessor::DetectionImage(const cv::Mat& frame, double scale, cv::Mat
   else gray = frame;
   if (scale < 1.0) {
     cv::Mat small;
-    cv::resize(gray, small, cv::Size(), scale, scale, cv::INTER_AREA);
+    ResizeArea(gray, small, scale);
     gray = small;
   }
   if (usable) {

@@ -1,0 +1,145 @@
+#include "engine/area_resize.h"
+
+#include <algorithm>
+#include <cfloat>
+#include <cmath>
+#include <vector>
+
+#include <immintrin.h>
+
+#include <opencv2/imgproc.hpp>
+
+#include "util/cpu_features.h"
+
+namespace rolamos {
+namespace {
+
+// One source pixel's share of one destination pixel, along one axis.
+struct Share {
+  int source, dest;
+  float weight;
+};
+
+// The shares along an axis of `ssize` pixels shrunk to `dsize` (`scale` source pixels to one), as
+// OpenCV's INTER_AREA weighs them: each destination cell's whole source pixels at 1 / width,
+// a partly covered pixel at either end by the part it covers, in the order of the source.
+std::vector<Share> Shares(int ssize, int dsize, double scale) {
+  std::vector<Share> out;
+  for (int d = 0; d < dsize; ++d) {
+    const double begin = d * scale, end = begin + scale;
+    const double width = std::min(scale, ssize - begin);
+    const int last = std::min(cvFloor(end), ssize - 1);
+    const int first = std::min(cvCeil(begin), last);
+    if (first - begin > 1e-3) out.push_back({first - 1, d, float((first - begin) / width)});
+    for (int s = first; s < last; ++s) out.push_back({s, d, float(1.0 / width)});
+    if (end - last > 1e-3) out.push_back({last, d, float(std::min(std::min(end - last, 1.), width) / width)});
+  }
+  return out;
+}
+
+// The horizontal shares laid out for sixteen destination pixels at a time: term m of pixel x at
+// [m * stride + x]. Pixels with fewer terms than the most get terms of weight 0 after theirs
+// (adding 0 to a sum of non-negative products leaves it as it was).
+struct Columns {
+  int stride = 0, terms = 0;
+  std::vector<int> source;
+  std::vector<float> weight;
+};
+
+// Interleaved channels: each share stands for `channels` values, a channel's to its own.
+Columns LayOut(const std::vector<Share>& shares, int dsize, int channels) {
+  Columns c;
+  const int values = dsize * channels;
+  c.stride = (values + 15) / 16 * 16;
+  std::vector<int> count(size_t(dsize), 0);
+  for (const Share& s : shares) c.terms = std::max(c.terms, ++count[size_t(s.dest)]);
+  c.source.assign(size_t(c.terms) * size_t(c.stride), 0);
+  c.weight.assign(size_t(c.terms) * size_t(c.stride), 0.f);
+  std::fill(count.begin(), count.end(), 0);
+  for (const Share& s : shares) {
+    const size_t term = size_t(count[size_t(s.dest)]++);
+    for (int ch = 0; ch < channels; ++ch) {
+      const size_t at = term * size_t(c.stride) + size_t(s.dest * channels + ch);
+      c.source[at] = s.source * channels + ch;
+      c.weight[at] = s.weight;
+    }
+  }
+  return c;
+}
+
+// Source row `row` (as floats) reduced across: out[x] = sum over its terms, in order, of the
+// source pixel times its weight (a product, then a sum: no fused multiply-add, as OpenCV).
+__attribute__((target("avx512f"))) void Across(const float* row, const Columns& c, float* out) {
+  for (int x = 0; x < c.stride; x += 16) {
+    __m512 sum = _mm512_setzero_ps();
+    for (int m = 0; m < c.terms; ++m) {
+      const size_t at = size_t(m) * size_t(c.stride) + size_t(x);
+      const __m512i index = _mm512_loadu_si512(c.source.data() + at);
+      const __m512 pixel = _mm512_i32gather_ps(index, row, 4);
+      sum = _mm512_add_ps(sum, _mm512_mul_ps(pixel, _mm512_loadu_ps(c.weight.data() + at)));
+    }
+    _mm512_storeu_ps(out + x, sum);
+  }
+}
+
+__attribute__((target("avx512f"))) void RowToFloat(const uchar* row, int n, float* out) {
+  int x = 0;
+  for (; x + 16 <= n; x += 16)
+    _mm512_storeu_ps(out + x, _mm512_cvtepi32_ps(_mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(row + x)))));
+  for (; x < n; ++x) out[x] = float(row[x]);
+}
+
+// sum = beta * across (first) or sum += beta * across, sixteen at a time.
+__attribute__((target("avx512f"))) void Down(const float* across, float beta, bool first, int n, float* sum) {
+  const __m512 b = _mm512_set1_ps(beta);
+  for (int x = 0; x < n; x += 16) {
+    const __m512 product = _mm512_mul_ps(b, _mm512_loadu_ps(across + x));
+    _mm512_storeu_ps(sum + x, first ? product : _mm512_add_ps(_mm512_loadu_ps(sum + x), product));
+  }
+}
+
+// The row of sums rounded (half to even, as cvRound) into 0..255.
+__attribute__((target("avx512f"))) void Store(const float* sum, int n, uchar* out) {
+  for (int x = 0; x < n; x += 16) {
+    const __mmask16 m = n - x >= 16 ? __mmask16(0xFFFF) : static_cast<__mmask16>((1u << (n - x)) - 1);
+    const __m512i v = _mm512_max_epi32(_mm512_cvtps_epi32(_mm512_loadu_ps(sum + x)), _mm512_setzero_si512());
+    _mm512_mask_cvtusepi32_storeu_epi8(out + x, m, v);
+  }
+}
+
+}  // namespace
+
+void ResizeArea(const cv::Mat& src, cv::Mat& dst, double scale) {
+  const cv::Size dsize(cv::saturate_cast<int>(src.cols * scale), cv::saturate_cast<int>(src.rows * scale));
+  // As cv::resize: the tables' scale is the inverse of the one asked for, not the sizes' ratio.
+  const double inverse = 1. / scale;
+  const bool whole = std::abs(inverse - cv::saturate_cast<int>(inverse)) < DBL_EPSILON;
+  const int channels = src.channels();
+  if (src.depth() != CV_8U || channels > 4 || !(scale > 0 && scale < 1) || whole || dsize.area() == 0 ||
+      dsize == src.size() || !CpuHasAvx512()) {
+    cv::resize(src, dst, cv::Size(), scale, scale, cv::INTER_AREA);
+    return;
+  }
+  const Columns columns = LayOut(Shares(src.cols, dsize.width, inverse), dsize.width, channels);
+  const std::vector<Share> rows = Shares(src.rows, dsize.height, inverse);
+  cv::Mat out(dsize, src.type());
+  const int values = src.cols * channels;
+  std::vector<float> row(static_cast<size_t>(values)), across(static_cast<size_t>(columns.stride)),
+      sum(static_cast<size_t>(columns.stride));
+  int held = -1;  // the source row `across` holds (a row under two destination rows is reduced once)
+  for (size_t j = 0; j < rows.size(); ++j) {
+    const Share& s = rows[j];
+    if (s.source != held) {
+      RowToFloat(src.ptr<uchar>(s.source), values, row.data());
+      Across(row.data(), columns, across.data());
+      held = s.source;
+    }
+    const bool first = j == 0 || rows[j - 1].dest != s.dest;
+    Down(across.data(), s.weight, first, columns.stride, sum.data());
+    if (j + 1 == rows.size() || rows[j + 1].dest != s.dest)
+      Store(sum.data(), dsize.width * channels, out.ptr<uchar>(s.dest));
+  }
+  dst = out;
+}
+
+}  // namespace rolamos
