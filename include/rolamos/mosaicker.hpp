@@ -67,10 +67,13 @@ struct MosaickerOptions {
   double track_turn_deg = 2.0;
   // A frame no start above followed (the motion model's, a coarse correlation's, the last
   // frame's place) is tried once more before SIFT recovery, turned by what correlates best
-  // within this many degrees either way of the last frame: a random walk's stills turn by up to
-  // 40 degrees, which nothing foresees (300 stills: 133 -> 56 recovered, 0.237 -> 0.218 px per
-  // patch; bench/RESULTS.md, session 33). 0 = not tried.
-  double track_turn_search_deg = 84.0;
+  // within this many degrees either way of the last frame (84 is enough for any turn a still
+  // makes). A random walk's stills turn by up to 40 degrees, which nothing foresees: 300 stills,
+  // 133 -> 56 recovered, 0.237 -> 0.218 px per patch, and the 1920 x 1080 turns better too; but
+  // the global map after `align` is worse (a lawnmower's turns 0.15 -> 0.18 px, a random walk
+  // 0.47 -> 0.49: the frames it follows are no longer recovered keyframes with SIFT's links).
+  // Off by default, for maps read patch by patch (bench/RESULTS.md, session 33). 0 = not tried.
+  double track_turn_search_deg = 0.0;
   // A frame becomes a keyframe (adjusted with the patch's others, its features stored) when its
   // overlap with the last keyframe falls below this, when the next frame is predicted to fall
   // below keyframe_min_overlap, when the registration is doubtful or came from recovery, or when

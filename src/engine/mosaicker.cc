@@ -1555,10 +1555,12 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
     Impl::Candidate again = m.Track(p, start);
     if (m.Usable(again) && (!m.Usable(best) || again.support.strong)) best = std::move(again);
   }
-  //    Last, turned by what correlates best, before SIFT is asked: a random walk's stills turn
-  //    by up to 40 degrees, which no start above foresees (random: 104 of 300 stills went to
-  //    recovery after three failed follows, 30 now; bench/RESULTS.md, session 33).
-  if (!m.Usable(best) || !best.support.strong || !best.verdict.consistent) {
+  //    Last, when asked (MosaickerOptions::track_turn_search_deg), turned by what correlates
+  //    best, before SIFT is: a random walk's stills turn by up to 40 degrees, which no start
+  //    above foresees (random: 104 of 300 stills went to recovery after three failed follows,
+  //    30 with it; bench/RESULTS.md, session 33).
+  if (m.options.track_turn_search_deg > 0 &&
+      (!m.Usable(best) || !best.support.strong || !best.verdict.consistent)) {
     Impl::Candidate again = m.Track(p, Start::kTurned);
     if (m.Usable(again) && again.support.strong && again.verdict.consistent) best = std::move(again);
   }

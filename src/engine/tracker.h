@@ -63,8 +63,9 @@ struct TrackerOptions {
   // costs a warp and a pyramid per such follow. 0 = never.
   double turn_deg = 2.0;
   // CoarseTurn's search: turns of up to this many degrees each way, in steps of
-  // `turn_search_step_deg` (then half a step each side of the best). 0 = no turn searched.
-  double turn_search_deg = 84.0;
+  // `turn_search_step_deg` (then half a step each side of the best). 0 = no turn searched (the
+  // engine's default: MosaickerOptions::track_turn_search_deg).
+  double turn_search_deg = 0.0;
   double turn_search_step_deg = 12.0;
   // Shi-Tomasi, relative to the frame's 30th strongest corner (a few bright specks, marine snow,
   // do not set the scale for the rest).

@@ -233,7 +233,9 @@ TEST(Tracker, CoarseTurnFindsATurnNothingForesaw) {
                                                   std::cos(turn), -45, 0, 0, 1) * about;
   cv::Mat a, b;
   FramePair({800, 600}, H, &a, &b);
-  const FrameTracker tracker(TrackerOptions{});
+  TrackerOptions searching;
+  searching.turn_search_deg = 84;
+  const FrameTracker tracker(searching);
   const auto ta = tracker.Prepare(a), tb = tracker.Prepare(b);
   const std::vector<cv::Point2f> points = tracker.Corners(*ta, {}, 300);
   auto right = [&](const cv::Matx33d& start) {
@@ -253,11 +255,9 @@ TEST(Tracker, CoarseTurnFindsATurnNothingForesaw) {
   EXPECT_GT(found, 150);
   EXPECT_LT(lost, found / 3);
 
-  // No turn searched: the guess, and no response.
-  TrackerOptions off;
-  off.turn_search_deg = 0;
+  // No turn searched (the default): the guess, and no response.
   double none = 1;
-  EXPECT_EQ(FrameTracker(off).CoarseTurn(*ta, *tb, shifted, &none), shifted);
+  EXPECT_EQ(FrameTracker(TrackerOptions{}).CoarseTurn(*ta, *tb, shifted, &none), shifted);
   EXPECT_EQ(none, 0);
 
   TrackerOptions bad;
