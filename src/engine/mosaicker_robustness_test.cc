@@ -1021,6 +1021,31 @@ TEST(MosaickerRobustness, KeyframesFollowedIntoAreDescribedByFewerFeatures) {
   }
 }
 
+// A random walk over the small survey's ground, 60 degrees across, rolled and pitched by half a
+// degree, turning by up to `max_turn_deg` a frame.
+SurveyOptions RandomWalk(int frames, double max_turn_deg, double overlap, int seed) {
+  SurveyOptions so = test::SmallSurvey(frames);
+  so.path = "random";
+  so.max_turn_deg = max_turn_deg;
+  so.forward_overlap = overlap;
+  so.fov_deg = 60;
+  so.attitude_jitter_deg = 0.5;
+  so.seed = seed;
+  return so;
+}
+
+// The frames of a store registered by SIFT recovery, and each patch's RMS against the survey.
+int Recovered(const std::string& store_dir, const Survey& survey, std::vector<double>* patch_rms) {
+  Store reopened = Store::Open(store_dir);
+  int recovered = 0;
+  for (const auto& p : reopened.patches()) {
+    const PatchSidecar s = reopened.ReadSidecar(p.id);
+    for (const auto& f : s.frames) recovered += f.registered_by.has_value();
+    patch_rms->push_back(PatchRms(s, survey));
+  }
+  return recovered;
+}
+
 // A random walk whose turn changes from frame to frame (up to 8 degrees): the motion model,
 // which extrapolates the last turns, overshoots, and following from where it expects the frame
 // fails. Followed again from where the last frame was, the frames are placed by their tracks,
@@ -1028,25 +1053,13 @@ TEST(MosaickerRobustness, KeyframesFollowedIntoAreDescribedByFewerFeatures) {
 // session 18).
 TEST(MosaickerRobustness, FramesInTurnsThatChangeAreFollowedNotRecovered) {
   test::ScratchDir dir;
-  SurveyOptions so = test::SmallSurvey(60);
-  so.path = "random";
-  so.max_turn_deg = 8;
-  so.forward_overlap = 0.93;
-  so.fov_deg = 60;
-  so.attitude_jitter_deg = 0.5;
-  so.seed = 3;
-  const Survey survey = WriteSurvey(so, dir / "survey");
+  const Survey survey = WriteSurvey(RandomWalk(60, 8, 0.93, 3), dir / "survey");
   Store store = Store::Create(dir / "s.rolamos");
   const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, Options());
   EXPECT_EQ(sum.stitched, 60);
-  Store reopened = Store::Open(dir / "s.rolamos");
-  int recovered = 0;
-  for (const auto& p : reopened.patches()) {
-    const PatchSidecar s = reopened.ReadSidecar(p.id);
-    for (const auto& f : s.frames) recovered += f.registered_by.has_value();
-    EXPECT_LT(PatchRms(s, survey), 0.5) << "patch " << p.id;
-  }
-  EXPECT_LE(recovered, 3);
+  std::vector<double> rms;
+  EXPECT_LE(Recovered(dir / "s.rolamos", survey, &rms), 3);
+  for (size_t i = 0; i < rms.size(); ++i) EXPECT_LT(rms[i], 0.5) << "patch " << i + 1;
 }
 
 // Stills of a random walk that turns by up to 40 degrees from one still to the next, at 70 %
@@ -1055,32 +1068,18 @@ TEST(MosaickerRobustness, FramesInTurnsThatChangeAreFollowedNotRecovered) {
 // followed, not recovered by SIFT, and placed at least as well.
 TEST(MosaickerRobustness, StillsTurnedSharplyAreFollowedFromTheTurnThatCorrelates) {
   test::ScratchDir dir;
-  SurveyOptions so = test::SmallSurvey(40);
-  so.path = "random";
-  so.max_turn_deg = 40;
-  so.forward_overlap = 0.7;
-  so.fov_deg = 60;
-  so.attitude_jitter_deg = 0.5;
-  so.seed = 5;
-  const Survey survey = WriteSurvey(so, dir / "survey");
+  const Survey survey = WriteSurvey(RandomWalk(40, 40, 0.7, 5), dir / "survey");
   auto run = [&](double search_deg, const std::string& name, double* rms) {
     MosaickerOptions o = Options();
     o.track_turn_search_deg = search_deg;
     Store store = Store::Create(dir / name);
     const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, o);
     EXPECT_EQ(sum.stitched, 40) << name;
-    Store reopened = Store::Open(dir / name);
-    int recovered = 0;
+    std::vector<double> patch_rms;
+    const int recovered = Recovered(dir / name, survey, &patch_rms);
     double squares = 0;
-    int patches = 0;
-    for (const auto& p : reopened.patches()) {
-      const PatchSidecar sc = reopened.ReadSidecar(p.id);
-      for (const auto& f : sc.frames) recovered += f.registered_by.has_value();
-      const double e = PatchRms(sc, survey);
-      squares += e * e;
-      ++patches;
-    }
-    *rms = std::sqrt(squares / std::max(1, patches));
+    for (double e : patch_rms) squares += e * e;
+    *rms = std::sqrt(squares / std::max<double>(1, double(patch_rms.size())));
     return recovered;
   };
   double with_rms = 0, without_rms = 0;
