@@ -3,10 +3,11 @@
 #include <algorithm>
 #include <csetjmp>
 #include <cstdio>
-#include <fstream>
-#include <vector>
 
 #include <jpeglib.h>
+
+#include "rolamos/error.hpp"
+#include "util/files.h"
 
 namespace rolamos {
 namespace {
@@ -42,7 +43,7 @@ bool Upright(jpeg_saved_marker_ptr marker) {
 
 // The decoding itself, between setjmp and the handler's longjmp: nothing here owns memory that
 // a jump would leak (libjpeg's own is freed by jpeg_destroy_decompress; *image by its owner).
-bool Decode(const std::vector<unsigned char>& data, cv::Mat* image) {
+bool Decode(const unsigned char* data, size_t size, cv::Mat* image) {
   jpeg_decompress_struct info;
   ErrorJump error;
   info.err = jpeg_std_error(&error.pub);
@@ -52,7 +53,7 @@ bool Decode(const std::vector<unsigned char>& data, cv::Mat* image) {
     return false;
   }
   jpeg_create_decompress(&info);
-  jpeg_mem_src(&info, data.data(), static_cast<unsigned long>(data.size()));
+  jpeg_mem_src(&info, data, static_cast<unsigned long>(size));
   jpeg_save_markers(&info, JPEG_APP0 + 1, 0xFFFF);
   if (jpeg_read_header(&info, TRUE) != JPEG_HEADER_OK || info.num_components != 3 ||
       info.jpeg_color_space != JCS_YCbCr || !Upright(info.marker_list)) {
@@ -100,14 +101,14 @@ int ExifOrientation(const unsigned char* data, size_t size) {
 
 bool ReadJpegBgr(const std::string& path, cv::Mat* image) {
   image->release();
-  std::ifstream in(path, std::ios::binary | std::ios::ate);
-  if (!in) return false;
-  const std::streamoff size = in.tellg();
-  if (size < 4) return false;
-  std::vector<unsigned char> data(static_cast<size_t>(size));
-  in.seekg(0);
-  if (!in.read(reinterpret_cast<char*>(data.data()), size) || data[0] != 0xFF || data[1] != 0xD8) return false;
-  if (Decode(data, image)) return true;
+  std::string bytes;
+  try {
+    bytes = ReadSmallFile(path);  // a missing, unreadable or huge file: cv::imread says which
+  } catch (const Error&) {
+    return false;
+  }
+  if (bytes.size() < 4 || bytes[0] != '\xFF' || bytes[1] != '\xD8') return false;
+  if (Decode(reinterpret_cast<const unsigned char*>(bytes.data()), bytes.size(), image)) return true;
   image->release();
   return false;
 }
