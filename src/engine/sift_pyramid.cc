@@ -1,5 +1,4 @@
 #include "engine/sift_pyramid.h"
-#include "util/cpu_features.h"
 
 #include <algorithm>
 #include <cmath>
@@ -11,11 +10,34 @@
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "util/cpu_features.h"
+
 namespace rolamos {
 
 namespace {
 
 constexpr float kInitSigma = 0.5f;  // the blur the input image is assumed to have (OpenCV's)
+
+// The mask of the lanes of a vector at column x that lie before `cols`.
+inline __mmask16 LanesBefore(int cols, int x) {
+  return cols - x >= 16 ? __mmask16(0xFFFF) : static_cast<__mmask16>((1u << (cols - x)) - 1);
+}
+
+// N vectors of the row pass from x (the last one's lanes in `last`): each a chain of ksize
+// multiply-adds from k = 0 in OpenCV's order. N chains at once, since one at a time waits on the
+// previous multiply-add's latency.
+template <int N>
+__attribute__((target("avx512f"))) inline void RowVectors(const float* ext, int x, const float* kernel, int ksize,
+                                                          __mmask16 last, float* out) {
+  __m512 s[N];
+  for (int v = 0; v < N; ++v) s[v] = _mm512_setzero_ps();
+  for (int k = 0; k < ksize; ++k) {
+    const __m512 w = _mm512_set1_ps(kernel[k]);
+    for (int v = 0; v < N; ++v)
+      s[v] = _mm512_fmadd_ps(_mm512_maskz_loadu_ps(v == N - 1 ? last : __mmask16(0xFFFF), ext + x + k + 16 * v), w, s[v]);
+  }
+  for (int v = 0; v < N; ++v) _mm512_mask_storeu_ps(out + x + 16 * v, v == N - 1 ? last : __mmask16(0xFFFF), s[v]);
+}
 
 // Row y of `src` filtered by `kernel` (ksize taps, borders reflected): out[x] = sum_k
 // kernel[k] src[x - r + k], accumulated from k = 0 by fused multiply-adds, as OpenCV's AVX2 row
@@ -26,66 +48,46 @@ __attribute__((target("avx512f"))) void BlurRow(const float* row, int cols, cons
   std::memcpy(ext + r, row, sizeof(float) * size_t(cols));
   for (int x = 0; x < r; ++x) ext[x] = row[index[x]];
   for (int x = cols + r; x < cols + 2 * r; ++x) ext[x] = row[index[x]];
-  // Four vectors' sums at once: each is a chain of ksize multiply-adds in OpenCV's order, which
-  // one at a time would wait on the previous one's latency.
   int x = 0;
-  for (; x + 64 <= cols; x += 64) {
-    __m512 s0 = _mm512_setzero_ps(), s1 = s0, s2 = s0, s3 = s0;
-    for (int k = 0; k < ksize; ++k) {
-      const __m512 w = _mm512_set1_ps(kernel[k]);
-      const float* e = ext + x + k;
-      s0 = _mm512_fmadd_ps(_mm512_loadu_ps(e), w, s0);
-      s1 = _mm512_fmadd_ps(_mm512_loadu_ps(e + 16), w, s1);
-      s2 = _mm512_fmadd_ps(_mm512_loadu_ps(e + 32), w, s2);
-      s3 = _mm512_fmadd_ps(_mm512_loadu_ps(e + 48), w, s3);
+  for (; x + 64 <= cols; x += 64) RowVectors<4>(ext, x, kernel, ksize, 0xFFFF, out);
+  for (; x < cols; x += 16) RowVectors<1>(ext, x, kernel, ksize, LanesBefore(cols, x), out);
+}
+
+// N vectors of the column pass from x (the last one's lanes in `last`), as BlurColumn describes.
+template <int N>
+__attribute__((target("avx512f"))) inline void ColumnVectors(const float* const* rows, int x, const float* kernel,
+                                                             int r, __mmask16 last, float* out, const float* from,
+                                                             float* difference) {
+  auto lanes = [last](int v) { return v == N - 1 ? last : __mmask16(0xFFFF); };
+  const __m512 c = _mm512_set1_ps(kernel[r]);
+  __m512 s[N];
+  for (int v = 0; v < N; ++v) s[v] = _mm512_mul_ps(_mm512_maskz_loadu_ps(lanes(v), rows[r] + x + 16 * v), c);
+  for (int k = 1; k <= r; ++k) {
+    const __m512 w = _mm512_set1_ps(kernel[r + k]);
+    const float *below = rows[r + k] + x, *above = rows[r - k] + x;
+    for (int v = 0; v < N; ++v) {
+      const __m512 pair = _mm512_add_ps(_mm512_maskz_loadu_ps(lanes(v), below + 16 * v),
+                                        _mm512_maskz_loadu_ps(lanes(v), above + 16 * v));
+      s[v] = _mm512_fmadd_ps(pair, w, s[v]);
     }
-    _mm512_storeu_ps(out + x, s0);
-    _mm512_storeu_ps(out + x + 16, s1);
-    _mm512_storeu_ps(out + x + 32, s2);
-    _mm512_storeu_ps(out + x + 48, s3);
   }
-  for (; x < cols; x += 16) {
-    const __mmask16 m = cols - x >= 16 ? __mmask16(0xFFFF) : static_cast<__mmask16>((1u << (cols - x)) - 1);
-    __m512 s = _mm512_setzero_ps();
-    for (int k = 0; k < ksize; ++k) s = _mm512_fmadd_ps(_mm512_maskz_loadu_ps(m, ext + x + k), _mm512_set1_ps(kernel[k]), s);
-    _mm512_mask_storeu_ps(out + x, m, s);
-  }
+  for (int v = 0; v < N; ++v) _mm512_mask_storeu_ps(out + x + 16 * v, lanes(v), s[v]);
+  if (difference)
+    for (int v = 0; v < N; ++v)
+      _mm512_mask_storeu_ps(difference + x + 16 * v, lanes(v),
+                            _mm512_sub_ps(s[v], _mm512_maskz_loadu_ps(lanes(v), from + x + 16 * v)));
 }
 
 // Row y of the column pass over the row-filtered `rows` (rows[k] is row y + k - r, reflected):
 // the centre times the middle tap, then each pair of rows about it summed and multiplied in, as
-// OpenCV's symmetric AVX2 column filter does it.
-// With `from` and `difference`, also difference = out - from (the source's row y): SIFT's
-// difference of Gaussians while the row is in registers, as cv::subtract computes it.
+// OpenCV's symmetric AVX2 column filter does it. With `from` and `difference`, also
+// difference = out - from (the source's row y): SIFT's difference of Gaussians while the row is
+// in registers, as cv::subtract computes it.
 __attribute__((target("avx512f"))) void BlurColumn(const float* const* rows, int cols, const float* kernel, int r,
                                                    float* out, const float* from, float* difference) {
-  // Four vectors at once, as in BlurRow.
   int x = 0;
-  for (; x + 64 <= cols; x += 64) {
-    const __m512 c = _mm512_set1_ps(kernel[r]);
-    __m512 s[4];
-    for (int v = 0; v < 4; ++v) s[v] = _mm512_mul_ps(_mm512_loadu_ps(rows[r] + x + 16 * v), c);
-    for (int k = 1; k <= r; ++k) {
-      const __m512 w = _mm512_set1_ps(kernel[r + k]);
-      const float *below = rows[r + k] + x, *above = rows[r - k] + x;
-      for (int v = 0; v < 4; ++v)
-        s[v] = _mm512_fmadd_ps(_mm512_add_ps(_mm512_loadu_ps(below + 16 * v), _mm512_loadu_ps(above + 16 * v)), w, s[v]);
-    }
-    for (int v = 0; v < 4; ++v) _mm512_storeu_ps(out + x + 16 * v, s[v]);
-    if (difference)
-      for (int v = 0; v < 4; ++v)
-        _mm512_storeu_ps(difference + x + 16 * v, _mm512_sub_ps(s[v], _mm512_loadu_ps(from + x + 16 * v)));
-  }
-  for (; x < cols; x += 16) {
-    const __mmask16 m = cols - x >= 16 ? __mmask16(0xFFFF) : static_cast<__mmask16>((1u << (cols - x)) - 1);
-    __m512 s = _mm512_mul_ps(_mm512_maskz_loadu_ps(m, rows[r] + x), _mm512_set1_ps(kernel[r]));
-    for (int k = 1; k <= r; ++k) {
-      const __m512 pair = _mm512_add_ps(_mm512_maskz_loadu_ps(m, rows[r + k] + x), _mm512_maskz_loadu_ps(m, rows[r - k] + x));
-      s = _mm512_fmadd_ps(pair, _mm512_set1_ps(kernel[r + k]), s);
-    }
-    _mm512_mask_storeu_ps(out + x, m, s);
-    if (difference) _mm512_mask_storeu_ps(difference + x, m, _mm512_sub_ps(s, _mm512_maskz_loadu_ps(m, from + x)));
-  }
+  for (; x + 64 <= cols; x += 64) ColumnVectors<4>(rows, x, kernel, r, 0xFFFF, out, from, difference);
+  for (; x < cols; x += 16) ColumnVectors<1>(rows, x, kernel, r, LanesBefore(cols, x), out, from, difference);
 }
 
 // cv::GaussianBlur(src, dst, Size(), sigma, sigma) of a float image (its kernel, its borders,
