@@ -349,6 +349,8 @@ struct Mosaicker::Impl {
   std::vector<Candidate> Recover(const std::shared_ptr<PreparedFrame>& p, Laps& lap,
                                  std::optional<Matches>* with_last_key = nullptr);
   bool Usable(const Candidate& c) const;
+  // Usable, strong and what the motion model expects: nothing else need be tried.
+  bool Settled(const Candidate& c) const { return Usable(c) && c.support.strong && c.verdict.consistent; }
   const Candidate* Pick(const std::vector<Candidate>& all) const;
   bool WantsKeyframe(const Candidate& c, const cv::Matx33d& to_patch) const;
   // Whether a new keyframe is described (MosaickerOptions::describe_overlap, still_describe_overlap).
@@ -1559,14 +1561,13 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   //    best, before SIFT is: a random walk's stills turn by up to 40 degrees, which no start
   //    above foresees (random: 104 of 300 stills went to recovery after three failed follows,
   //    30 with it; bench/RESULTS.md, session 33).
-  if (m.options.track_turn_search_deg > 0 &&
-      (!m.Usable(best) || !best.support.strong || !best.verdict.consistent)) {
+  if (m.options.track_turn_search_deg > 0 && !m.Settled(best)) {
     Impl::Candidate again = m.Track(p, Start::kTurned);
-    if (m.Usable(again) && again.support.strong && again.verdict.consistent) best = std::move(again);
+    if (m.Settled(again)) best = std::move(again);
   }
   lap.Restart();  // Track timed itself
   // 2. The motion model arbitrates between what following and recovery found.
-  if (!m.Usable(best) || !best.support.strong || !best.verdict.consistent) {
+  if (!m.Settled(best)) {
     const auto f = m.FeaturesOf(*p);
     if (f->strong < m.options.min_inliers) return done(m.Lost(p, r, "featureless"));
     if (m.options.recover) {

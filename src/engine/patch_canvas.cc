@@ -10,8 +10,8 @@
 
 #include "engine/area_resize.h"
 #include "engine/bilinear_warp.h"
-#include "util/homography.h"
 #include "util/cpu_features.h"
+#include "util/homography.h"
 
 namespace rolamos {
 
