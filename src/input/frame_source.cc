@@ -27,26 +27,40 @@ bool IsFolderFrame(const std::string& path) {
   return !name.empty() && name[0] != '.' && IsImageName(name);
 }
 
-// Decoders fill a cut-off JPEG or PNG with grey and carry on; a frame like that would put a grey
-// band into the mosaic. The end marker tells.
-bool LooksTruncated(const std::string& path) {
+namespace {
+
+bool IsJpegName(const std::string& path) {
   const std::string ext = Extension(path);
-  const bool jpeg = ext == ".jpg" || ext == ".jpeg", png = ext == ".png";
+  return ext == ".jpg" || ext == ".jpeg";
+}
+
+// Decoders fill a cut-off JPEG or PNG with grey and carry on; a frame like that would put a grey
+// band into the mosaic. The end marker, in the file's last 64 bytes, tells. `head` is the file's
+// first 4 bytes: a file not of the format at all is the decoder's to name ("unreadable").
+bool EndMarkerMissing(bool jpeg, const std::string& head, const std::string& tail) {
+  if (head.size() < 4) return false;
+  if (jpeg) return head[0] == '\xFF' && head[1] == '\xD8' && tail.find("\xFF\xD9") == std::string::npos;
+  return head.compare(1, 3, "PNG") == 0 && tail.find("IEND") == std::string::npos;
+}
+
+constexpr long long kTail = 64;
+
+}  // namespace
+
+bool LooksTruncated(const std::string& path) {
+  const bool jpeg = IsJpegName(path), png = Extension(path) == ".png";
   if (!jpeg && !png) return false;
   std::ifstream in(path, std::ios::binary | std::ios::ate);
   const auto size = static_cast<long long>(in.tellg());
-  char head[4] = {0, 0, 0, 0};
+  if (size < 4) return false;
+  std::string head(4, '\0');
   in.seekg(0);
-  in.read(head, 4);
-  // Not the format at all: the decoder says so ("unreadable").
-  if (jpeg && !(head[0] == '\xFF' && head[1] == '\xD8')) return false;
-  if (png && std::string(head + 1, 3) != "PNG") return false;
-  const long long n = std::min<long long>(size, 64);
+  in.read(head.data(), 4);
+  const long long n = std::min<long long>(size, kTail);
   std::string tail(static_cast<size_t>(n), '\0');
   in.seekg(size - n);
   in.read(tail.data(), n);
-  if (jpeg) return tail.find("\xFF\xD9") == std::string::npos;
-  return tail.find("IEND") == std::string::npos;
+  return EndMarkerMissing(jpeg, head, tail);
 }
 
 cv::Mat ToEightBit(const cv::Mat& image, std::atomic<int>* bits) {
@@ -74,13 +88,28 @@ cv::Mat ReadFrameImage(const std::string& path, std::atomic<int>* bits, std::str
     *error = "missing";
     return {};
   }
-  if (LooksTruncated(path)) {
-    *error = "truncated (no end-of-image marker)";
+  const std::string truncated = "truncated (no end-of-image marker)";
+  cv::Mat m;
+  if (IsJpegName(path)) {
+    // Read once: the end-marker check and the decoding look at the same bytes.
+    std::string bytes;
+    try {
+      bytes = ReadSmallFile(path);
+    } catch (const Error&) {
+      bytes.clear();  // unreadable or huge: cv::imread below says which
+    }
+    if (!bytes.empty()) {
+      const size_t n = std::min<size_t>(bytes.size(), kTail);
+      if (EndMarkerMissing(true, bytes.substr(0, 4), bytes.substr(bytes.size() - n))) {
+        *error = truncated;
+        return {};
+      }
+      if (DecodeJpegBgr(bytes, &m)) return m;
+    }
+  } else if (LooksTruncated(path)) {
+    *error = truncated;
     return {};
   }
-  cv::Mat m;
-  const std::string ext = Extension(path);
-  if ((ext == ".jpg" || ext == ".jpeg") && ReadJpegBgr(path, &m)) return m;
   try {
     m = ToEightBit(cv::imread(path, cv::IMREAD_COLOR | cv::IMREAD_ANYDEPTH), bits);
   } catch (const cv::Exception& e) {

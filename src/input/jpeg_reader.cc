@@ -107,6 +107,11 @@ bool ReadJpegBgr(const std::string& path, cv::Mat* image) {
   } catch (const Error&) {
     return false;
   }
+  return DecodeJpegBgr(bytes, image);
+}
+
+bool DecodeJpegBgr(const std::string& bytes, cv::Mat* image) {
+  image->release();
   if (bytes.size() < 4 || bytes[0] != '\xFF' || bytes[1] != '\xD8') return false;
   if (Decode(reinterpret_cast<const unsigned char*>(bytes.data()), bytes.size(), image)) return true;
   image->release();

@@ -17,6 +17,8 @@ namespace rolamos {
 // cannot decode or that is not a JPEG) returns false with *image empty: the caller decodes it
 // with cv::imread, which reads every kind and says what is wrong with a bad one.
 bool ReadJpegBgr(const std::string& path, cv::Mat* image);
+// The same from a JPEG file's bytes, already read.
+bool DecodeJpegBgr(const std::string& bytes, cv::Mat* image);
 
 // The EXIF orientation (1-8) in an APP1 marker's payload ("Exif\0\0" and a TIFF header), 1 when
 // the payload is EXIF without an orientation, 0 when it is not EXIF or does not parse.
