@@ -10,6 +10,7 @@
 
 #include "engine/area_resize.h"
 #include "engine/bilinear_warp.h"
+#include "engine/perspective_warp.h"
 #include "util/cpu_features.h"
 #include "util/homography.h"
 
@@ -208,14 +209,14 @@ void PatchCanvas::AddAtScale(const cv::Mat& bgrw, const std::array<float, 256>& 
   if (roi.empty()) return;
   cdata_ = cdata_.empty() ? roi : (cdata_ | roi);
   if (reduced_) {
-    // OpenCV's warp on the working canvas, which frames are registered against (ECC, recovery):
-    // the AVX2 interpolation of WarpAccumulate differs from it by 0.03 grey levels on average
-    // (rounding), yet with it the placements moved on most degraded surveys of the spread,
-    // small-degraded from 0.74 to 1.07 px. The engine's accuracy was measured with this one; it
-    // costs ~1 ms a keyframe.
+    // OpenCV's warp's pixels on the working canvas, which frames are registered against (ECC,
+    // recovery): the AVX2 interpolation of WarpAccumulate differs from it by 0.03 grey levels on
+    // average (rounding), yet with it the placements moved on most degraded surveys of the
+    // spread, small-degraded from 0.74 to 1.07 px. The engine's accuracy was measured with
+    // OpenCV's pixels, which WarpPerspectiveLinear gives.
     cv::Mat warped;
-    cv::warpPerspective(bgrw, warped, cv::Mat(cv::Matx33d(1, 0, -roi.x, 0, 1, -roi.y, 0, 0, 1) * H), roi.size(),
-                        cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+    WarpPerspectiveLinear(bgrw, warped, cv::Matx33d(1, 0, -roi.x, 0, 1, -roi.y, 0, 0, 1) * H, roi.size(),
+                          cv::INTER_LINEAR, cv::BORDER_REPLICATE);
     AddReduced(warped, weight, roi);
   } else {
     AddBlended(bgrw, weight, H, roi);

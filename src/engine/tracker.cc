@@ -10,6 +10,7 @@
 #include "engine/corner_peaks.h"
 #include "engine/lucas_kanade.h"
 #include "engine/motion_gate.h"
+#include "engine/perspective_warp.h"
 #include "rolamos/error.hpp"
 #include "util/homography.h"
 
@@ -232,8 +233,8 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
   if (options_.turn_deg > 0 &&
       std::abs(MotionOf(G, from.pyramid[0].size()).rotation) * 180 / CV_PI > options_.turn_deg) {
     cv::Mat warped;
-    cv::warpPerspective(to.pyramid[0], warped, cv::Mat(G), from.pyramid[0].size(),
-                        cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
+    WarpPerspectiveLinear(to.pyramid[0], warped, G, from.pyramid[0].size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
+                          cv::BORDER_REPLICATE);
     cv::buildOpticalFlowPyramid(warped, turned, win, options_.levels, true);
     target = &turned;
     b = a;
@@ -299,7 +300,7 @@ class LevelCorrelation {
   cv::Matx33d Shift(const cv::Matx33d& guess, double deg, double* response) {
     const cv::Matx33d turn = Turn(deg);
     const cv::Matx33d G = turn * ScaleMap(sb_) * guess * ScaleMap(sa_).inv();
-    cv::warpPerspective(a_, warped_, cv::Mat(G), b_.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
+    WarpPerspectiveLinear(a_, warped_, G, b_.size(), cv::INTER_LINEAR, cv::BORDER_REFLECT);
     warped_.convertTo(fa_, CV_32F);
     const cv::Point2d shift = cv::phaseCorrelate(fa_, fb_, window_, response);
     const double k = 1.0 / sb_;  // tracking pixels at this level -> full-resolution pixels

@@ -12,6 +12,12 @@ inline bool CpuHasAvx512() {
   return has;
 }
 
+// AVX-512 with its byte and word instructions on 128- to 512-bit vectors (the perspective warp).
+inline bool CpuHasAvx512Bw() {
+  static const bool has = CpuHasAvx512() && __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("avx512vl");
+  return has;
+}
+
 // AVX2 (the Lucas-Kanade rows, the canvas's colour rows), and AVX2 with FMA (the warps).
 inline bool CpuHasAvx2() {
   static const bool has = __builtin_cpu_supports("avx2");
