@@ -12,6 +12,7 @@
 
 #include "rolamos/error.hpp"
 #include "raster/downsample.h"
+#include "raster/mask_split.h"
 #include "raster/tiff_file.h"
 #include "raster/tiff_tags.h"
 #include "raster/tile_encoder.h"

@@ -132,29 +132,6 @@ std::vector<uint8_t> TileEncoderPool::JpegTables() {
   return tables;
 }
 
-void SplitMask(const cv::Mat& tile, cv::Mat* colour, cv::Mat* bits) {
-  CV_Assert(tile.depth() == CV_8U && (tile.channels() == 2 || tile.channels() == 4) && tile.cols % 8 == 0);
-  const int n = tile.channels() - 1;
-  cv::Mat alpha;
-  cv::extractChannel(tile, alpha, n);
-  const cv::Mat data = alpha >= 128;
-  colour->create(tile.size(), CV_8UC(n));
-  const int from_to[] = {0, 0, 1, 1, 2, 2};
-  cv::mixChannels(&tile, 1, colour, 1, from_to, size_t(n));
-  const int with_data = cv::countNonZero(data);
-  if (with_data > 0 && with_data < data.rows * data.cols) colour->setTo(cv::mean(*colour, data), ~data);
-  bits->create(tile.rows, tile.cols / 8, CV_8UC1);
-  for (int y = 0; y < tile.rows; ++y) {
-    const uchar* d = data.ptr<uchar>(y);
-    uchar* b = bits->ptr<uchar>(y);
-    for (int x = 0; x < tile.cols; x += 8) {
-      uchar byte = 0;
-      for (int k = 0; k < 8; ++k) byte = uchar(byte << 1) | uchar(d[x + k] & 1);
-      b[x / 8] = byte;
-    }
-  }
-}
-
 cv::Mat CutFileTile(const cv::Mat& band, int tx, int tile_size) {
   const int x0 = tx * tile_size;
   const int w = std::min(tile_size, band.cols - x0);

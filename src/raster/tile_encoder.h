@@ -61,11 +61,6 @@ class TileEncoderPool {
   std::vector<std::unique_ptr<TileEncoder>> idle_;
 };
 
-// Splits a file-order tile with alpha (RGBA or grey + alpha) into the colour JPEG stores and the
-// mask's packed bits (alpha >= 128 is data). Pixels without data take the mean colour of those
-// with data, so JPEG's blocks do not ring with black along the data's edge.
-void SplitMask(const cv::Mat& tile, cv::Mat* colour, cv::Mat* bits);
-
 // Cuts tile (tx, ty) out of `band` (whose row 0 is the tile row's first row), converts to file
 // channel order, and pads to a full tile by repeating edge pixels (no seams in JPEG at edges).
 cv::Mat CutFileTile(const cv::Mat& band, int tx, int tile_size);
