@@ -107,6 +107,58 @@ __attribute__((target("avx512f"))) void Store(const float* sum, int n, uchar* ou
   }
 }
 
+// OpenCV's INTER_AREA for whole factors of 3 and more each way (its block-average path, which
+// takes each value one at a time through a table of offsets): a block of sx x sy pixels is the
+// sum of its values times 1 / (sx sy) in float, rounded; a block cut by the image's right or
+// bottom edge is the sum over the pixels it holds divided by their count, in float. Sums are
+// whole numbers, so the order they are added in does not matter: the pixels are OpenCV's.
+void BlockAverage(const cv::Mat& src, cv::Mat& dst, cv::Size dsize, int sx, int sy) {
+  const int cn = src.channels(), values = src.cols * cn;
+  const float scale = 1.f / float(sx * sy);
+  const int whole_cols = src.cols / sx;  // destination pixels over whole blocks of columns
+  cv::Mat out(dsize, src.type());
+  std::vector<int> column(static_cast<size_t>(values));
+  for (int dy = 0; dy < dsize.height; ++dy) {
+    uchar* d = out.ptr<uchar>(dy);
+    const int y0 = dy * sy, y1 = std::min(y0 + sy, src.rows);
+    if (y0 >= src.rows) {
+      std::fill(d, d + size_t(dsize.width) * size_t(cn), uchar(0));
+      continue;
+    }
+    // Each source column's sum over the block's rows.
+    std::fill(column.begin(), column.end(), 0);
+    for (int y = y0; y < y1; ++y) {
+      const uchar* r = src.ptr<uchar>(y);
+      for (int k = 0; k < values; ++k) column[size_t(k)] += r[k];
+    }
+    const bool whole_rows = y1 - y0 == sy;
+    for (int dx = 0; dx < dsize.width; ++dx) {
+      const int x0 = dx * sx, x1 = std::min(x0 + sx, src.cols);
+      for (int c = 0; c < cn; ++c) {
+        uchar& v = d[size_t(dx) * size_t(cn) + size_t(c)];
+        if (x0 >= src.cols) {
+          v = 0;
+          continue;
+        }
+        int sum = 0;
+        for (int x = x0; x < x1; ++x) sum += column[size_t(x * cn + c)];
+        if (whole_rows && dx < whole_cols) v = cv::saturate_cast<uchar>(float(sum) * scale);
+        else v = cv::saturate_cast<uchar>(float(sum) / float((x1 - x0) * (y1 - y0)));
+      }
+    }
+  }
+  dst = out;
+}
+
+// Whether OpenCV takes that path for an 8-bit `src` whose factors (source pixels to one, from
+// the scale asked for or the sizes' ratio, as cv::resize has it) are fx, fy: whole numbers each
+// way. Not for 2 or less each way, which OpenCV copies or rounds another way in its vectors.
+bool BlockAverages(const cv::Mat& src, double fx, double fy, int* sx, int* sy) {
+  *sx = cv::saturate_cast<int>(fx), *sy = cv::saturate_cast<int>(fy);
+  return src.depth() == CV_8U && src.channels() <= 4 && fx >= 1 && fy >= 1 && std::abs(fx - *sx) < DBL_EPSILON &&
+         std::abs(fy - *sy) < DBL_EPSILON && !(*sx <= 2 && *sy <= 2);
+}
+
 }  // namespace
 
 void ResizeArea(const cv::Mat& src, cv::Mat& dst, double scale) {
@@ -114,6 +166,11 @@ void ResizeArea(const cv::Mat& src, cv::Mat& dst, double scale) {
   // As cv::resize: the tables' scale is the inverse of the one asked for, not the sizes' ratio.
   const double inverse = 1. / scale;
   const bool whole = std::abs(inverse - cv::saturate_cast<int>(inverse)) < DBL_EPSILON;
+  int sx, sy;
+  if (dsize.area() > 0 && BlockAverages(src, inverse, inverse, &sx, &sy)) {
+    BlockAverage(src, dst, dsize, sx, sy);
+    return;
+  }
   const int channels = src.channels();
   if (src.depth() != CV_8U || channels > 4 || !(scale > 0 && scale < 1) || whole || dsize.area() == 0 ||
       dsize == src.size() || !CpuHasAvx512()) {
@@ -140,6 +197,16 @@ void ResizeArea(const cv::Mat& src, cv::Mat& dst, double scale) {
       Store(sum.data(), dsize.width * channels, out.ptr<uchar>(s.dest));
   }
   dst = out;
+}
+
+void ResizeArea(const cv::Mat& src, cv::Mat& dst, cv::Size dsize) {
+  int sx, sy;
+  if (dsize.area() > 0 && !src.empty() &&
+      BlockAverages(src, 1. / (double(dsize.width) / src.cols), 1. / (double(dsize.height) / src.rows), &sx, &sy)) {
+    BlockAverage(src, dst, dsize, sx, sy);
+    return;
+  }
+  cv::resize(src, dst, dsize, 0, 0, cv::INTER_AREA);
 }
 
 }  // namespace rolamos

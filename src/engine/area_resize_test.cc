@@ -39,6 +39,30 @@ TEST(ResizeArea, GivesCvResizesPixels) {
   }
 }
 
+// Whole factors (OpenCV's block average): an eighth (the exposure gains'), a quarter (the
+// lighting model's), 3, and factors that differ each way; sizes the factor does not divide, so
+// that blocks are cut at the right and bottom edges; by scale and by size.
+TEST(ResizeArea, BlockAveragesAreCvResizes) {
+  int seed = 5;
+  for (const cv::Size size : {cv::Size(1292, 964), cv::Size(800, 600), cv::Size(101, 77), cv::Size(9, 5)})
+    for (int channels : {1, 3, 4}) {
+      const cv::Mat src = test::MakeImage(size.width, size.height, channels, 8, seed++);
+      for (double scale : {0.125, 0.25, 1.0 / 3}) {
+        cv::Mat ours, theirs;
+        ResizeArea(src, ours, scale);
+        cv::resize(src, theirs, cv::Size(), scale, scale, cv::INTER_AREA);
+        EXPECT_EQ(Differences(ours, theirs), 0) << size << " x" << channels << " at " << scale;
+      }
+      for (const cv::Size factor : {cv::Size(4, 4), cv::Size(8, 3), cv::Size(1, 5), cv::Size(3, 3)}) {
+        const cv::Size dsize(std::max(1, size.width / factor.width), std::max(1, size.height / factor.height));
+        cv::Mat ours, theirs;
+        ResizeArea(src, ours, dsize);
+        cv::resize(src, theirs, dsize, 0, 0, cv::INTER_AREA);
+        EXPECT_EQ(Differences(ours, theirs), 0) << size << " x" << channels << " to " << dsize;
+      }
+    }
+}
+
 // What it leaves to cv::resize gives cv::resize's result too: halving (a whole inverse), 16 bits,
 // enlarging.
 TEST(ResizeArea, OtherCasesAreCvResizes) {

@@ -7,6 +7,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "engine/area_resize.h"
 #include "rolamos/error.hpp"
 
 namespace rolamos {
@@ -47,10 +48,10 @@ void ColourModel::Add(const cv::Mat& frame, const cv::Mat& usable) {
   // reducing the frame to the grid at once, the same cells within one grey level.
   cv::Mat quarter, quarter_ok, small, ok;
   const cv::Size q(std::max(grid_.width, frame.cols / 4), std::max(grid_.height, frame.rows / 4));
-  cv::resize(frame, quarter, q, 0, 0, cv::INTER_AREA);
+  ResizeArea(frame, quarter, q);
   cv::resize(quarter, small, grid_, 0, 0, cv::INTER_AREA);
   if (!usable.empty()) {
-    cv::resize(usable, quarter_ok, q, 0, 0, cv::INTER_AREA);
+    ResizeArea(usable, quarter_ok, q);
     cv::resize(quarter_ok, ok, grid_, 0, 0, cv::INTER_AREA);
   }
   // Saturated cells say nothing about the lighting either.

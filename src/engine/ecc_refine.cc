@@ -5,6 +5,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
+#include "engine/area_resize.h"
 #include "engine/ecc_translation.h"
 #include "engine/patch_canvas.h"
 
@@ -70,7 +71,7 @@ EccResult RefineWithEcc(const cv::Mat& frame_gray, const cv::Matx33d& frame_to_p
   for (int level = o.levels - 1; level >= 0; --level) {
     const double s = o.scale / std::pow(2.0, level);
     cv::Mat templ, input, mask;
-    cv::resize(frame_gray, templ, cv::Size(), s, s, cv::INTER_AREA);
+    ResizeArea(frame_gray, templ, s);
     canvas.ViewFromFrame(frame_to_patch, frame_gray.size(), s, &input, &mask);
     cv::resize(input, input, templ.size());
     cv::resize(mask, mask, templ.size(), 0, 0, cv::INTER_NEAREST);
@@ -82,7 +83,7 @@ EccResult RefineWithEcc(const cv::Mat& frame_gray, const cv::Matx33d& frame_to_p
     cv::Mat templ_hp = HighPass(templ, full, sigma), input_hp = HighPass(input, mask, sigma);
     if (!frame_mask.empty()) {  // overlays fixed in the frame: flat, they pull nothing
       cv::Mat usable;
-      cv::resize(frame_mask, usable, templ.size(), 0, 0, cv::INTER_AREA);
+      ResizeArea(frame_mask, usable, templ.size());
       cv::erode(usable, usable, cv::Mat(), cv::Point(-1, -1), 2);
       usable.convertTo(usable, CV_32F, 1.0 / 255);
       templ_hp = templ_hp.mul(usable);

@@ -9,6 +9,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "engine/area_resize.h"
 #include "util/cpu_time.h"
 #include "util/exposure_gains.h"
 #include "util/homography.h"
@@ -116,7 +117,7 @@ TiffWriteStats BlendAndWrite(const PatchJob& job, std::vector<cv::Mat>& images,
     if (!job.colour.empty()) cv::resize(job.colour, small_colour, cv::Size(), kGainScale, kGainScale, cv::INTER_AREA);
     std::vector<cv::Mat> small(images.size());
     for (size_t i = 0; i < images.size(); ++i) {
-      cv::resize(images[i], small[i], cv::Size(), kGainScale, kGainScale, cv::INTER_AREA);
+      ResizeArea(images[i], small[i], kGainScale);
       small[i].convertTo(small[i], CV_32F);
       if (!small_colour.empty() && small_colour.size() == small[i].size()) small[i] = small[i].mul(small_colour);
     }
