@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cfloat>
 #include <cmath>
+#include <cstdint>
 #include <vector>
 
 #include <immintrin.h>
@@ -112,12 +113,44 @@ __attribute__((target("avx512f"))) void Store(const float* sum, int n, uchar* ou
 // sum of its values times 1 / (sx sy) in float, rounded; a block cut by the image's right or
 // bottom edge is the sum over the pixels it holds divided by their count, in float. Sums are
 // whole numbers, so the order they are added in does not matter: the pixels are OpenCV's.
+// column[k] += row[k] for `values` values (sums of at most 257 rows fit 16 bits).
+__attribute__((target("avx512f,avx512bw"))) void AddRowWide(const uchar* row, int values, uint16_t* column) {
+  int k = 0;
+  for (; k + 32 <= values; k += 32) {
+    const __m512i v = _mm512_cvtepu8_epi16(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(row + k)));
+    _mm512_storeu_si512(column + k, _mm512_add_epi16(_mm512_loadu_si512(column + k), v));
+  }
+  for (; k < values; ++k) column[k] = uint16_t(column[k] + row[k]);
+}
+
+void AddRow(const uchar* row, int values, uint16_t* column) {
+  if (CpuHasAvx512Bw()) return AddRowWide(row, values, column);
+  for (int k = 0; k < values; ++k) column[k] = uint16_t(column[k] + row[k]);
+}
+
+// out[i] = saturate_cast<uchar>(float(sums[i]) * scale) for n values: cvRound's rounding.
+__attribute__((target("avx512f,avx512bw"))) void FinishWide(const int* sums, int n, float scale, uchar* out) {
+  const __m512 s = _mm512_set1_ps(scale);
+  int i = 0;
+  for (; i + 16 <= n; i += 16) {
+    const __m512i v = _mm512_cvtps_epi32(_mm512_mul_ps(_mm512_cvtepi32_ps(_mm512_loadu_si512(sums + i)), s));
+    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + i), _mm512_cvtusepi32_epi8(_mm512_max_epi32(v, _mm512_setzero_si512())));
+  }
+  for (; i < n; ++i) out[i] = cv::saturate_cast<uchar>(float(sums[i]) * scale);
+}
+
+void Finish(const int* sums, int n, float scale, uchar* out) {
+  if (CpuHasAvx512Bw()) return FinishWide(sums, n, scale, out);
+  for (int i = 0; i < n; ++i) out[i] = cv::saturate_cast<uchar>(float(sums[i]) * scale);
+}
+
 void BlockAverage(const cv::Mat& src, cv::Mat& dst, cv::Size dsize, int sx, int sy) {
   const int cn = src.channels(), values = src.cols * cn;
   const float scale = 1.f / float(sx * sy);
-  const int whole_cols = src.cols / sx;  // destination pixels over whole blocks of columns
+  const int whole_cols = std::min(src.cols / sx, dsize.width);  // destination pixels over whole blocks of columns
   cv::Mat out(dsize, src.type());
-  std::vector<int> column(static_cast<size_t>(values));
+  std::vector<uint16_t> column(static_cast<size_t>(values));
+  std::vector<int> sums(static_cast<size_t>(dsize.width * cn));
   for (int dy = 0; dy < dsize.height; ++dy) {
     uchar* d = out.ptr<uchar>(dy);
     const int y0 = dy * sy, y1 = std::min(y0 + sy, src.rows);
@@ -126,13 +159,21 @@ void BlockAverage(const cv::Mat& src, cv::Mat& dst, cv::Size dsize, int sx, int 
       continue;
     }
     // Each source column's sum over the block's rows.
-    std::fill(column.begin(), column.end(), 0);
-    for (int y = y0; y < y1; ++y) {
-      const uchar* r = src.ptr<uchar>(y);
-      for (int k = 0; k < values; ++k) column[size_t(k)] += r[k];
-    }
+    std::fill(column.begin(), column.end(), uint16_t(0));
+    for (int y = y0; y < y1; ++y) AddRow(src.ptr<uchar>(y), values, column.data());
     const bool whole_rows = y1 - y0 == sy;
-    for (int dx = 0; dx < dsize.width; ++dx) {
+    int dx = 0;
+    if (whole_rows) {  // whole blocks: their sums, then scaled and rounded sixteen at a time
+      for (; dx < whole_cols; ++dx)
+        for (int c = 0; c < cn; ++c) {
+          const uint16_t* p = column.data() + size_t(dx * sx * cn + c);
+          int sum = 0;
+          for (int x = 0; x < sx; ++x) sum += p[x * cn];
+          sums[size_t(dx * cn + c)] = sum;
+        }
+      Finish(sums.data(), whole_cols * cn, scale, d);
+    }
+    for (; dx < dsize.width; ++dx) {
       const int x0 = dx * sx, x1 = std::min(x0 + sx, src.cols);
       for (int c = 0; c < cn; ++c) {
         uchar& v = d[size_t(dx) * size_t(cn) + size_t(c)];
@@ -155,7 +196,8 @@ void BlockAverage(const cv::Mat& src, cv::Mat& dst, cv::Size dsize, int sx, int 
 // way. Not for 2 or less each way, which OpenCV copies or rounds another way in its vectors.
 bool BlockAverages(const cv::Mat& src, double fx, double fy, int* sx, int* sy) {
   *sx = cv::saturate_cast<int>(fx), *sy = cv::saturate_cast<int>(fy);
-  return src.depth() == CV_8U && src.channels() <= 4 && fx >= 1 && fy >= 1 && std::abs(fx - *sx) < DBL_EPSILON &&
+  return src.depth() == CV_8U && src.channels() <= 4 && fy <= 257 && fx >= 1 && fy >= 1 &&
+         std::abs(fx - *sx) < DBL_EPSILON &&
          std::abs(fy - *sy) < DBL_EPSILON && !(*sx <= 2 && *sy <= 2);
 }
 
