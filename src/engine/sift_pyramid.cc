@@ -136,6 +136,91 @@ void Blur(const cv::Mat& src, cv::Mat& dst, double sigma, cv::Mat* difference = 
 
 }  // namespace
 
+namespace {
+
+// Output pixels 2k and 2k + 1 of a row doubled, for sixteen k: a[k - 1] / 4 + 3 a[k] / 4 and
+// 3 a[k] / 4 + a[k + 1] / 4, each product rounded, then the sum (OpenCV's order, no fused
+// multiply-add); `prev`, `mid` and `next` hold a[k - 1], a[k] and a[k + 1].
+__attribute__((target("avx512f"))) inline void DoublePairs(__m512 prev, __m512 mid, __m512 next, float* out) {
+  const __m512 quarter = _mm512_set1_ps(0.25f), three = _mm512_set1_ps(0.75f);
+  const __m512 m = _mm512_mul_ps(mid, three);
+  const __m512 even = _mm512_add_ps(_mm512_mul_ps(prev, quarter), m);
+  const __m512 odd = _mm512_add_ps(m, _mm512_mul_ps(next, quarter));
+  // Interleaved: even[0], odd[0], even[1], ...
+  const __m512i lo = _mm512_setr_epi32(0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
+  const __m512i hi = _mm512_setr_epi32(8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31);
+  _mm512_storeu_ps(out, _mm512_permutex2var_ps(even, lo, odd));
+  _mm512_storeu_ps(out + 16, _mm512_permutex2var_ps(even, hi, odd));
+}
+
+// a * wa + b * wb, each product rounded, then the sum: in separate statements, which the
+// compiler does not fuse into a multiply-add (OpenCV's code has none).
+inline float Weighed(float a, float wa, float b, float wb) {
+  const float p = a * wa;
+  const float q = b * wb;
+  return p + q;
+}
+
+// A row doubled across (2 cols values from cols >= 2) as OpenCV's INTER_LINEAR weighs it; at the
+// two ends its source is clamped with weights 1 and 0 (the edge value times 1).
+__attribute__((target("avx512f"))) void DoubleRow(const float* a, int cols, float* out) {
+  out[0] = a[0] * 1.f;
+  out[1] = Weighed(a[0], 0.75f, a[1], 0.25f);
+  int k = 1;
+  for (; k + 16 < cols; k += 16)  // a[k + 16] is the last one read
+    DoublePairs(_mm512_loadu_ps(a + k - 1), _mm512_loadu_ps(a + k), _mm512_loadu_ps(a + k + 1), out + 2 * k);
+  for (; k < cols - 1; ++k) {
+    out[2 * k] = Weighed(a[k - 1], 0.25f, a[k], 0.75f);
+    out[2 * k + 1] = Weighed(a[k], 0.75f, a[k + 1], 0.25f);
+  }
+  out[2 * k] = Weighed(a[k - 1], 0.25f, a[k], 0.75f);  // k = cols - 1
+  out[2 * k + 1] = a[k] * 1.f;
+}
+
+// out = a * wa + b * wb (Weighed's), sixteen at a time.
+__attribute__((target("avx512f"))) void BlendRows(const float* a, float wa, const float* b, float wb, int n,
+                                                  float* out) {
+  const __m512 va = _mm512_set1_ps(wa), vb = _mm512_set1_ps(wb);
+  int x = 0;
+  for (; x + 16 <= n; x += 16)
+    _mm512_storeu_ps(out + x, _mm512_add_ps(_mm512_mul_ps(_mm512_loadu_ps(a + x), va),
+                                            _mm512_mul_ps(_mm512_loadu_ps(b + x), vb)));
+  for (; x < n; ++x) out[x] = Weighed(a[x], wa, b[x], wb);
+}
+
+}  // namespace
+
+cv::Mat DoubleLinear(const cv::Mat& f) {
+  if (!FastSiftApplies() || f.type() != CV_32FC1 || f.cols < 2 || f.rows < 2) {
+    cv::Mat out;
+    cv::resize(f, out, cv::Size(f.cols * 2, f.rows * 2), 0, 0, cv::INTER_LINEAR);
+    return out;
+  }
+  const int w = 2 * f.cols;
+  cv::Mat out(f.rows * 2, w, CV_32F);
+  cv::parallel_for_(cv::Range(0, f.rows), [&](const cv::Range& r) {
+    // Source rows doubled across, the last three in a ring (row k in slot k % 3).
+    cv::Mat ring(3, w, CV_32F);
+    int held[3] = {-1, -1, -1};
+    auto across = [&](int k) -> const float* {
+      k = std::clamp(k, 0, f.rows - 1);  // rows are clamped at the ends, the weights are not
+      float* p = ring.ptr<float>(k % 3);
+      if (held[k % 3] != k) {
+        DoubleRow(f.ptr<float>(k), f.cols, p);
+        held[k % 3] = k;
+      }
+      return p;
+    };
+    for (int k = r.start; k < r.end; ++k) {
+      // Output rows 2k and 2k + 1 from source rows k - 1, k, k + 1.
+      const float *up = across(k - 1), *mid = across(k), *down = across(k + 1);
+      BlendRows(up, 0.25f, mid, 0.75f, w, out.ptr<float>(2 * k));
+      BlendRows(mid, 0.75f, down, 0.25f, w, out.ptr<float>(2 * k + 1));
+    }
+  });
+  return out;
+}
+
 bool FastSiftApplies() { return CpuHasAvx512(); }
 
 cv::Mat SiftBaseImage(const cv::Mat& gray, bool doubled, float sigma) {
@@ -143,9 +228,7 @@ cv::Mat SiftBaseImage(const cv::Mat& gray, bool doubled, float sigma) {
   gray.convertTo(f, CV_32F, 1, 0);
   if (doubled) {
     const float diff = std::sqrt(std::max(sigma * sigma - kInitSigma * kInitSigma * 4, 0.01f));
-    cv::Mat twice;
-    cv::resize(f, twice, cv::Size(f.cols * 2, f.rows * 2), 0, 0, cv::INTER_LINEAR);
-    Blur(twice, out, diff);
+    Blur(DoubleLinear(f), out, diff);
     return out;
   }
   const float diff = std::sqrt(std::max(sigma * sigma - kInitSigma * kInitSigma, 0.01f));

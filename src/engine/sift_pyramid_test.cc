@@ -36,6 +36,21 @@ std::vector<std::vector<cv::Mat>> OpenCvsPyramid(const cv::Mat& grey, int octave
   return p;
 }
 
+// The doubled first octave's image is cv::resize's, to the bit: odd and even sizes, down to two
+// pixels (the ends clamp), and sizes past a vector's width.
+TEST(SiftPyramid, DoublingIsCvResizes) {
+  cv::RNG rng(9);
+  for (const cv::Size size : {cv::Size(463, 345), cv::Size(400, 300), cv::Size(17, 2), cv::Size(2, 5), cv::Size(33, 18)}) {
+    cv::Mat f(size, CV_32F);
+    rng.fill(f, cv::RNG::UNIFORM, 0, 255);
+    cv::Mat theirs;
+    cv::resize(f, theirs, cv::Size(f.cols * 2, f.rows * 2), 0, 0, cv::INTER_LINEAR);
+    const cv::Mat ours = DoubleLinear(f);
+    ASSERT_EQ(ours.size(), theirs.size());
+    EXPECT_EQ(cv::countNonZero(ours != theirs), 0) << size;
+  }
+}
+
 // The blur is OpenCV's arithmetic in OpenCV's order: the same images to the last bit, at every
 // octave (down to images smaller than the kernel).
 TEST(SiftPyramid, IsOpenCvsPyramid) {
