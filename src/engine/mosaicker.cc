@@ -17,6 +17,7 @@
 #include "engine/egomotion.h"
 #include "engine/feather.h"
 #include "engine/features.h"
+#include "engine/grey.h"
 #include "engine/keyframe_job.h"
 #include "engine/lucas_kanade.h"
 #include "engine/motion_gate.h"
@@ -1392,7 +1393,7 @@ FrameReport Mosaicker::Impl::Place(const std::shared_ptr<PreparedFrame>& p, Cand
   }
   if (options.ecc && blend) {
     cv::Mat gray;
-    cv::cvtColor(p->image, gray, cv::COLOR_BGR2GRAY);
+    BgrToGrey(p->image, gray);
     const cv::Mat u = Usable();
     const EccResult ecc = RefineWithEcc(gray, to_patch, *canvas, ecc_options,
                                         u.size() == frame_size ? u : cv::Mat());

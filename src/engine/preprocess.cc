@@ -12,6 +12,7 @@
 #include "engine/area_resize.h"
 #include "engine/bilateral_filter.h"
 #include "engine/bilinear_warp.h"
+#include "engine/grey.h"
 #include "rolamos/error.hpp"
 
 namespace rolamos {
@@ -205,7 +206,7 @@ cv::Mat Preprocessor::Undistort(const cv::Mat& frame) {
 
 cv::Mat Preprocessor::DetectionImage(const cv::Mat& frame, double scale, cv::Mat* usable) const {
   cv::Mat gray;
-  if (frame.channels() == 3) cv::cvtColor(frame, gray, cv::COLOR_BGR2GRAY);
+  if (frame.channels() == 3) BgrToGrey(frame, gray);
   else gray = frame;
   if (scale < 1.0) {
     cv::Mat small;

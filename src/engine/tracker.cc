@@ -8,6 +8,7 @@
 #include <opencv2/video/tracking.hpp>
 
 #include "engine/corner_peaks.h"
+#include "engine/grey.h"
 #include "engine/lucas_kanade.h"
 #include "engine/motion_gate.h"
 #include "engine/perspective_warp.h"
@@ -128,7 +129,7 @@ std::shared_ptr<const TrackFrame> FrameTracker::Prepare(const cv::Mat& frame, co
   t->size = frame.size();
   t->scale = options_.ScaleFor(frame.size());
   cv::Mat gray;
-  if (frame.channels() == 3) cv::cvtColor(frame, gray, cv::COLOR_BGR2GRAY);
+  if (frame.channels() == 3) BgrToGrey(frame, gray);
   else if (frame.channels() == 4) cv::cvtColor(frame, gray, cv::COLOR_BGRA2GRAY);
   else gray = frame;
   if (t->scale < 1.0) {
