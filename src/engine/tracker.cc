@@ -7,6 +7,7 @@
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
 
+#include "engine/area_resize.h"
 #include "engine/corner_peaks.h"
 #include "engine/grey.h"
 #include "engine/lucas_kanade.h"
@@ -134,7 +135,7 @@ std::shared_ptr<const TrackFrame> FrameTracker::Prepare(const cv::Mat& frame, co
   else gray = frame;
   if (t->scale < 1.0) {
     cv::Mat small;
-    cv::resize(gray, small, cv::Size(), t->scale, t->scale, cv::INTER_AREA);
+    ResizeArea(gray, small, t->scale);
     gray = small;
   }
   if (options_.normalize_sigma > 0) gray = LocalContrast(gray, options_.normalize_sigma);
