@@ -69,9 +69,9 @@ __attribute__((target("avx512f"))) __m512i Byte(__m512i v, unsigned shift) {
   return _mm512_and_si512(_mm512_srli_epi32(v, shift), _mm512_set1_epi32(0xFF));
 }
 
-// The image's bytes at `at` (byte offsets from its first pixel, each below `end`, the offset just
-// past its last pixel), one per lane: each read as the 32-bit word that ends at it (or, in the
-// first three bytes, starts at the first), never past the image.
+// The image's bytes at `at` (byte offsets of pixels from its first), one per lane: each read as
+// the 32-bit word that ends at it (or, in the image's first three bytes, starts at the first), so
+// never past the image's last pixel (Handled asks for at least 4 bytes).
 __attribute__((target("avx512f"))) __m512i GatherBytes(const uchar* base, __m512i at, __mmask16 lanes) {
   const __m512i from = _mm512_max_epi32(_mm512_sub_epi32(at, _mm512_set1_epi32(3)), _mm512_setzero_si512());
   const __m512i word = _mm512_mask_i32gather_epi32(_mm512_setzero_si512(), lanes, from, base, 1);
