@@ -49,7 +49,7 @@ __attribute__((target("avx512f,avx512bw,avx512vbmi"))) void RowWide(const uchar*
 }  // namespace
 
 void BgrToGrey(const cv::Mat& bgr, cv::Mat& grey) {
-  if (bgr.type() != CV_8UC3 || !CpuHasAvx512Bw() || !__builtin_cpu_supports("avx512vbmi")) {
+  if (bgr.type() != CV_8UC3 || !CpuHasAvx512Vbmi()) {
     if (bgr.channels() == 3) cv::cvtColor(bgr, grey, cv::COLOR_BGR2GRAY);
     else if (bgr.channels() == 4) cv::cvtColor(bgr, grey, cv::COLOR_BGRA2GRAY);
     else bgr.copyTo(grey);

@@ -46,11 +46,6 @@ void SplitRowFrom(const uchar* in, int cols, int cn, int x, uchar* colour, uchar
   }
 }
 
-bool Fast() {
-  static const bool has = CpuHasAvx512Bw() && __builtin_cpu_supports("avx512vbmi") && __builtin_cpu_supports("bmi2");
-  return has;
-}
-
 // The RGB bytes of 16 RGBA pixels, in order, in the first 48 bytes.
 __attribute__((target("avx512f,avx512bw,avx512vbmi"))) __m512i RgbIndex() {
   alignas(64) uint8_t idx[64] = {};
@@ -114,7 +109,7 @@ void SplitMask(const cv::Mat& tile, cv::Mat* colour, cv::Mat* bits) {
   const int cn = tile.channels(), n = cn - 1;
   colour->create(tile.size(), CV_8UC(n));
   bits->create(tile.rows, tile.cols / 8, CV_8UC1);
-  const bool fast = cn == 4 && Fast();
+  const bool fast = cn == 4 && CpuHasAvx512Vbmi();
   Sums s;
   for (int y = 0; y < tile.rows; ++y) {
     if (fast) SplitRgbaRow(tile.ptr<uchar>(y), tile.cols, colour->ptr<uchar>(y), bits->ptr<uchar>(y), &s);

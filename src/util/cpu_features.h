@@ -18,6 +18,14 @@ inline bool CpuHasAvx512Bw() {
   return has;
 }
 
+// AVX-512BW with byte permutes across a whole vector (VBMI) and BMI2's bit deposit and extract:
+// grey from BGR, the masked tiles' split.
+inline bool CpuHasAvx512Vbmi() {
+  static const bool has =
+      CpuHasAvx512Bw() && __builtin_cpu_supports("avx512vbmi") && __builtin_cpu_supports("bmi2");
+  return has;
+}
+
 // AVX2 (the Lucas-Kanade rows, the canvas's colour rows), and AVX2 with FMA (the warps).
 inline bool CpuHasAvx2() {
   static const bool has = __builtin_cpu_supports("avx2");
