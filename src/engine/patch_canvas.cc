@@ -464,8 +464,9 @@ void PatchCanvas::ViewFromFrame(const cv::Matx33d& frame_to_patch, cv::Size fram
   const cv::Matx33d T(1 / f, 0, (-region.x + 0.5) / f - 0.5, 0, 1 / f, (-region.y + 0.5) / f - 0.5, 0, 0, 1);
   const cv::Mat M(T * H * S);
   cv::Mat sum_view, w_view;
-  cv::warpPerspective(sum, sum_view, M, out, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT);
-  cv::warpPerspective(weight, w_view, M, out, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT);
+  const cv::Matx33d view(M);
+  WarpPerspectiveLinear(sum, sum_view, view, out, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT);
+  WarpPerspectiveLinear(weight, w_view, view, out, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT);
   std::vector<cv::Mat> ch;
   cv::split(sum_view, ch);
   cv::Mat safe = cv::max(w_view, 1e-12);

@@ -60,6 +60,28 @@ TEST(PerspectiveWarp, GivesOpenCvsPixels) {
   EXPECT_GT(pixels, 2000000);
 }
 
+// Float images with a border of zeros (ECC's view of the working canvas: its sums of colour and
+// of weight) to the bit: OpenCV's float weights and order of sums, taps outside counted as 0.
+TEST(PerspectiveWarp, GivesOpenCvsFloatPixels) {
+  cv::RNG rng(17);
+  int pixels = 0;
+  for (int type : {CV_32FC1, CV_32FC3})
+    for (const cv::Size& size : {cv::Size(323, 241), cv::Size(80, 61), cv::Size(7, 5)})
+      for (int flags : {int(cv::INTER_LINEAR), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP})
+        for (int k = 0; k < 4; ++k) {
+          cv::Mat src(size, type);
+          rng.fill(src, cv::RNG::UNIFORM, 0.0, 4000.0);
+          const cv::Matx33d H = Homography(size, rng);
+          const cv::Size out_size(size.width + int(rng.uniform(-3, 20)), size.height + int(rng.uniform(-3, 20)));
+          cv::Mat ours, theirs;
+          WarpPerspectiveLinear(src, ours, H, out_size, flags, cv::BORDER_CONSTANT);
+          cv::warpPerspective(src, theirs, cv::Mat(H), out_size, flags, cv::BORDER_CONSTANT);
+          ASSERT_EQ(Differing(ours, theirs), 0) << cv::typeToString(type) << " " << size << " flags " << flags;
+          pixels += int(theirs.total());
+        }
+  EXPECT_GT(pixels, 300000);
+}
+
 // What is not handled here (another depth, a constant border) is OpenCV's own call.
 TEST(PerspectiveWarp, OtherImagesGoToOpenCv) {
   cv::RNG rng(5);
