@@ -108,11 +108,6 @@ __attribute__((target("avx512f"))) void Store(const float* sum, int n, uchar* ou
   }
 }
 
-// OpenCV's INTER_AREA for whole factors of 3 and more each way (its block-average path, which
-// takes each value one at a time through a table of offsets): a block of sx x sy pixels is the
-// sum of its values times 1 / (sx sy) in float, rounded; a block cut by the image's right or
-// bottom edge is the sum over the pixels it holds divided by their count, in float. Sums are
-// whole numbers, so the order they are added in does not matter: the pixels are OpenCV's.
 // column[k] += row[k] for `values` values (sums of at most 257 rows fit 16 bits).
 __attribute__((target("avx512f,avx512bw"))) void AddRowWide(const uchar* row, int values, uint16_t* column) {
   int k = 0;
@@ -144,6 +139,11 @@ void Finish(const int* sums, int n, float scale, uchar* out) {
   for (int i = 0; i < n; ++i) out[i] = cv::saturate_cast<uchar>(float(sums[i]) * scale);
 }
 
+// OpenCV's INTER_AREA for whole factors of 3 and more each way (its block-average path, which
+// takes each value one at a time through a table of offsets): a block of sx x sy pixels is the
+// sum of its values times 1 / (sx sy) in float, rounded; a block cut by the image's right or
+// bottom edge is the sum over the pixels it holds divided by their count, in float. Sums are
+// whole numbers, so the order they are added in does not matter: the pixels are OpenCV's.
 void BlockAverage(const cv::Mat& src, cv::Mat& dst, cv::Size dsize, int sx, int sy) {
   const int cn = src.channels(), values = src.cols * cn;
   const float scale = 1.f / float(sx * sy);
@@ -173,7 +173,7 @@ void BlockAverage(const cv::Mat& src, cv::Mat& dst, cv::Size dsize, int sx, int 
         }
       Finish(sums.data(), whole_cols * cn, scale, d);
     }
-    for (; dx < dsize.width; ++dx) {
+    for (; dx < dsize.width; ++dx) {  // blocks cut by the right or bottom edge (or past it)
       const int x0 = dx * sx, x1 = std::min(x0 + sx, src.cols);
       for (int c = 0; c < cn; ++c) {
         uchar& v = d[size_t(dx) * size_t(cn) + size_t(c)];
@@ -183,8 +183,7 @@ void BlockAverage(const cv::Mat& src, cv::Mat& dst, cv::Size dsize, int sx, int 
         }
         int sum = 0;
         for (int x = x0; x < x1; ++x) sum += column[size_t(x * cn + c)];
-        if (whole_rows && dx < whole_cols) v = cv::saturate_cast<uchar>(float(sum) * scale);
-        else v = cv::saturate_cast<uchar>(float(sum) / float((x1 - x0) * (y1 - y0)));
+        v = cv::saturate_cast<uchar>(float(sum) / float((x1 - x0) * (y1 - y0)));
       }
     }
   }

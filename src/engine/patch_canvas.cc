@@ -462,9 +462,8 @@ void PatchCanvas::ViewFromFrame(const cv::Matx33d& frame_to_patch, cv::Size fram
   // patch -> dense pixel: q = (p - region.tl + 0.5) / factor - 0.5
   const double f = factor;
   const cv::Matx33d T(1 / f, 0, (-region.x + 0.5) / f - 0.5, 0, 1 / f, (-region.y + 0.5) / f - 0.5, 0, 0, 1);
-  const cv::Mat M(T * H * S);
+  const cv::Matx33d view = T * H * S;
   cv::Mat sum_view, w_view;
-  const cv::Matx33d view(M);
   WarpPerspectiveLinear(sum, sum_view, view, out, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT);
   WarpPerspectiveLinear(weight, w_view, view, out, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT);
   std::vector<cv::Mat> ch;
