@@ -1,6 +1,7 @@
 #include "engine/sift_pyramid.h"
 
 #include <algorithm>
+#include <climits>
 #include <cmath>
 #include <cstring>
 #include <vector>
@@ -53,41 +54,58 @@ __attribute__((target("avx512f"))) void BlurRow(const float* row, int cols, cons
   for (; x < cols; x += 16) RowVectors<1>(ext, x, kernel, ksize, LanesBefore(cols, x), out);
 }
 
-// N vectors of the column pass from x (the last one's lanes in `last`), as BlurColumn describes.
-template <int N>
+// The column pass of R output rows at once, N vectors from x (the last one's lanes in `last`):
+// rows[i] is the row-filtered row y - r + i (reflected), i < ksize + R - 1; output row y + j is
+// the centre times the middle tap, then each pair of rows about it summed and multiplied in, as
+// OpenCV's symmetric AVX2 column filter does it. Neighbouring outputs share all but two of their
+// rows at each tap, so the rows are read once for the R outputs (the pass waited on the loads
+// when each output read its own), and passed down registers: above[j] and below[j] hold output
+// j's pair at tap k. With `from` and `difference`, also difference = out - from (the source's
+// row): SIFT's difference of Gaussians while the row is in registers, as cv::subtract computes it.
+template <int R, int N>
 __attribute__((target("avx512f"))) inline void ColumnVectors(const float* const* rows, int x, const float* kernel,
-                                                             int r, __mmask16 last, float* out, const float* from,
-                                                             float* difference) {
+                                                             int r, __mmask16 last, float* const* out,
+                                                             const float* const* from, float* const* difference) {
   auto lanes = [last](int v) { return v == N - 1 ? last : __mmask16(0xFFFF); };
   const __m512 c = _mm512_set1_ps(kernel[r]);
-  __m512 s[N];
-  for (int v = 0; v < N; ++v) s[v] = _mm512_mul_ps(_mm512_maskz_loadu_ps(lanes(v), rows[r] + x + 16 * v), c);
+  __m512 s[R][N], above[R][N], below[R][N];
+  for (int v = 0; v < N; ++v)
+    for (int j = 0; j < R; ++j) {
+      const __m512 centre = _mm512_maskz_loadu_ps(lanes(v), rows[r + j] + x + 16 * v);
+      s[j][v] = _mm512_mul_ps(centre, c);
+      // Before tap 1: output j's pair at tap 0 (rows r + j, r + j), shifted in below.
+      above[j][v] = centre;
+      below[j][v] = centre;
+    }
   for (int k = 1; k <= r; ++k) {
     const __m512 w = _mm512_set1_ps(kernel[r + k]);
-    const float *below = rows[r + k] + x, *above = rows[r - k] + x;
     for (int v = 0; v < N; ++v) {
-      const __m512 pair = _mm512_add_ps(_mm512_maskz_loadu_ps(lanes(v), below + 16 * v),
-                                        _mm512_maskz_loadu_ps(lanes(v), above + 16 * v));
-      s[v] = _mm512_fmadd_ps(pair, w, s[v]);
+      // Tap k: output j reads rows r + j - k (output j - 1's at tap k - 1) and r + j + k (output
+      // j + 1's at tap k - 1); two rows are new.
+      for (int j = R - 1; j > 0; --j) above[j][v] = above[j - 1][v];
+      above[0][v] = _mm512_maskz_loadu_ps(lanes(v), rows[r - k] + x + 16 * v);
+      for (int j = 0; j + 1 < R; ++j) below[j][v] = below[j + 1][v];
+      below[R - 1][v] = _mm512_maskz_loadu_ps(lanes(v), rows[r + R - 1 + k] + x + 16 * v);
+      for (int j = 0; j < R; ++j) s[j][v] = _mm512_fmadd_ps(_mm512_add_ps(below[j][v], above[j][v]), w, s[j][v]);
     }
   }
-  for (int v = 0; v < N; ++v) _mm512_mask_storeu_ps(out + x + 16 * v, lanes(v), s[v]);
-  if (difference)
-    for (int v = 0; v < N; ++v)
-      _mm512_mask_storeu_ps(difference + x + 16 * v, lanes(v),
-                            _mm512_sub_ps(s[v], _mm512_maskz_loadu_ps(lanes(v), from + x + 16 * v)));
+  for (int j = 0; j < R; ++j)
+    for (int v = 0; v < N; ++v) {
+      _mm512_mask_storeu_ps(out[j] + x + 16 * v, lanes(v), s[j][v]);
+      if (difference)
+        _mm512_mask_storeu_ps(difference[j] + x + 16 * v, lanes(v),
+                              _mm512_sub_ps(s[j][v], _mm512_maskz_loadu_ps(lanes(v), from[j] + x + 16 * v)));
+    }
 }
 
-// Row y of the column pass over the row-filtered `rows` (rows[k] is row y + k - r, reflected):
-// the centre times the middle tap, then each pair of rows about it summed and multiplied in, as
-// OpenCV's symmetric AVX2 column filter does it. With `from` and `difference`, also
-// difference = out - from (the source's row y): SIFT's difference of Gaussians while the row is
-// in registers, as cv::subtract computes it.
-__attribute__((target("avx512f"))) void BlurColumn(const float* const* rows, int cols, const float* kernel, int r,
-                                                   float* out, const float* from, float* difference) {
+// R rows of the column pass over the row-filtered `rows`, as ColumnVectors describes.
+template <int R>
+__attribute__((target("avx512f"))) void BlurColumns(const float* const* rows, int cols, const float* kernel, int r,
+                                                    float* const* out, const float* const* from,
+                                                    float* const* difference) {
   int x = 0;
-  for (; x + 64 <= cols; x += 64) ColumnVectors<4>(rows, x, kernel, r, 0xFFFF, out, from, difference);
-  for (; x < cols; x += 16) ColumnVectors<1>(rows, x, kernel, r, LanesBefore(cols, x), out, from, difference);
+  for (; x + 32 <= cols; x += 32) ColumnVectors<R, 2>(rows, x, kernel, r, 0xFFFF, out, from, difference);
+  for (; x < cols; x += 16) ColumnVectors<R, 1>(rows, x, kernel, r, LanesBefore(cols, x), out, from, difference);
 }
 
 // cv::GaussianBlur(src, dst, Size(), sigma, sigma) of a float image (its kernel, its borders,
@@ -106,28 +124,46 @@ void Blur(const cv::Mat& src, cv::Mat& dst, double sigma, cv::Mat* difference = 
   const float* kernel = kernel_mat.ptr<float>();
   std::vector<int> index(size_t(src.cols + 2 * r));
   for (int x = -r; x < src.cols + r; ++x) index[size_t(x + r)] = cv::borderInterpolate(x, src.cols, cv::BORDER_REFLECT_101);
-  // Rows filtered across into a ring of the last ksize (in cache), then down, band by band.
+  // Rows filtered across into a ring (in cache), then down four output rows at a time, band by band.
+  constexpr int kRowsAtOnce = 4;
+  const int ring_rows = ksize + kRowsAtOnce - 1;
   cv::Mat out(src.size(), CV_32F);
   const int bands = std::max(1, std::min(cv::getNumThreads(), src.rows / (4 * ksize)));
   cv::parallel_for_(cv::Range(0, bands), [&](const cv::Range& range) {
     std::vector<float> ext(size_t(src.cols + 2 * r + 16));
-    cv::Mat ring(ksize, src.cols, CV_32F);
-    std::vector<int> held(size_t(ksize), -1);  // the source row each ring row holds
-    std::vector<const float*> rows(static_cast<size_t>(ksize), nullptr);
+    cv::Mat ring(ring_rows, src.cols, CV_32F);
+    // The row each ring slot holds, by its index before reflection (y - r + i): indices in a
+    // window of ring_rows never share a slot.
+    std::vector<int> held(size_t(ring_rows), INT_MIN);
+    std::vector<const float*> rows(static_cast<size_t>(ring_rows), nullptr);
     for (int band = range.start; band < range.end; ++band) {
       const int y0 = src.rows * band / bands, y1 = src.rows * (band + 1) / bands;
-      for (int y = y0; y < y1; ++y) {
-        for (int k = 0; k < ksize; ++k) {
-          const int from = cv::borderInterpolate(y + k - r, src.rows, cv::BORDER_REFLECT_101);
-          const int slot = from % ksize;
-          if (held[size_t(slot)] != from) {
-            BlurRow(src.ptr<float>(from), src.cols, kernel, ksize, index.data(), ext.data(), ring.ptr<float>(slot));
-            held[size_t(slot)] = from;
+      for (int y = y0; y < y1;) {
+        const int count = y1 - y >= kRowsAtOnce ? kRowsAtOnce : 1;
+        for (int i = 0; i < ksize + count - 1; ++i) {
+          const int unreflected = y - r + i;
+          const int slot = ((unreflected % ring_rows) + ring_rows) % ring_rows;
+          if (held[size_t(slot)] != unreflected) {
+            const int row = cv::borderInterpolate(unreflected, src.rows, cv::BORDER_REFLECT_101);
+            BlurRow(src.ptr<float>(row), src.cols, kernel, ksize, index.data(), ext.data(), ring.ptr<float>(slot));
+            held[size_t(slot)] = unreflected;
           }
-          rows[size_t(k)] = ring.ptr<float>(slot);
+          rows[size_t(i)] = ring.ptr<float>(slot);
         }
-        BlurColumn(rows.data(), src.cols, kernel, r, out.ptr<float>(y), src.ptr<float>(y),
-                   difference ? difference->ptr<float>(y) : nullptr);
+        float* outs[kRowsAtOnce];
+        const float* froms[kRowsAtOnce];
+        float* differences[kRowsAtOnce];
+        for (int j = 0; j < count; ++j) {
+          outs[j] = out.ptr<float>(y + j);
+          froms[j] = src.ptr<float>(y + j);
+          differences[j] = difference ? difference->ptr<float>(y + j) : nullptr;
+        }
+        float* const* diff = difference ? differences : nullptr;
+        if (count == kRowsAtOnce)
+          BlurColumns<kRowsAtOnce>(rows.data(), src.cols, kernel, r, outs, froms, diff);
+        else
+          BlurColumns<1>(rows.data(), src.cols, kernel, r, outs, froms, diff);
+        y += count;
       }
     }
   });
