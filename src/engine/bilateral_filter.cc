@@ -4,8 +4,10 @@
 
 #include <algorithm>
 #include <array>
+#include <climits>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <vector>
 
 #include <opencv2/core/utility.hpp>
@@ -63,17 +65,18 @@ __attribute__((target("avx512f"))) inline __m512i Load16(const uchar* p) {
 
 // Rows [y0, y1) of `dst` from the padded planes, sixteen pixels at a time.
 __attribute__((target("avx512f"))) void FilterRows(const cv::Mat* planes, int radius, const Neighbourhood& n,
-                                                   const float* table, cv::Mat& dst, int y0, int y1) {
+                                                   const float* table, cv::Mat& dst, int y0, int y1, int x0 = 0,
+                                                   int x1 = INT_MAX) {
   const __m512 t0 = _mm512_loadu_ps(table), t1 = _mm512_loadu_ps(table + 16);
   const __m512 t2 = _mm512_loadu_ps(table + 32), t3 = _mm512_loadu_ps(table + 48);
   const __m512i last = _mm512_set1_epi32(kTable - 1), upper = _mm512_set1_epi32(32);
-  const int width = dst.cols;
+  const int width = std::min(dst.cols, x1);
   const size_t taps = n.offset.size();
   for (int y = y0; y < y1; ++y) {
     const uchar* const p[3] = {planes[0].ptr(y + radius) + radius, planes[1].ptr(y + radius) + radius,
                                planes[2].ptr(y + radius) + radius};
     uchar* out = dst.ptr(y);
-    int x = 0;
+    int x = x0;
     for (; x + 16 <= width; x += 16) {
       const __m512i b0 = Load16(p[0] + x), g0 = Load16(p[1] + x), r0 = Load16(p[2] + x);
       __m512 sb = _mm512_setzero_ps(), sg = sb, sr = sb, ws = sb;
@@ -109,6 +112,171 @@ __attribute__((target("avx512f"))) void FilterRows(const cv::Mat* planes, int ra
   }
 }
 
+// The 32-pixel step of FilterRows32: with AVX-512 BW, a pixel's colour difference is summed in
+// 16 bits, 32 pixels to a vector, and its weight read from the table as two 16-bit halves (each
+// a permute over 64 entries, no blend), then widened; the neighbours' values are read as floats
+// from `fplanes`. Each neighbour has its own table, colour x space weight, so that product is
+// not taken per pixel (the multiplier was the bound). Each pixel's weights and sums are the
+// 16-pixel step's, in its order: the same bits.
+struct Wide {
+  // Per neighbour, the table's floats' upper and lower 16 bits: entries 0..31, then 32..63.
+  std::vector<std::array<uint16_t, 2 * kTable>> halves;
+  // Puts pixel 4L + j at word 8L + j and 16 + 4L + j at 8L + 4 + j: unpacklo/hi_epi16 pair the
+  // words 0..3 / 4..7 of each 128-bit lane L into dwords 4L..4L+3, pixels 0..15 and 16..31.
+  alignas(64) std::array<uint16_t, 32> order;
+};
+
+Wide MakeWide(const float* table, const Neighbourhood& n) {
+  Wide w;
+  w.halves.resize(n.weight.size());
+  for (size_t k = 0; k < n.weight.size(); ++k)
+    for (int i = 0; i < kTable; ++i) {
+      const float product = table[i] * n.weight[k];
+      uint32_t bits;
+      std::memcpy(&bits, &product, 4);
+      w.halves[k][size_t(i)] = static_cast<uint16_t>(bits >> 16);
+      w.halves[k][size_t(kTable + i)] = static_cast<uint16_t>(bits & 0xFFFF);
+    }
+  for (int lane = 0; lane < 4; ++lane)
+    for (int j = 0; j < 4; ++j) {
+      w.order[size_t(8 * lane + j)] = static_cast<uint16_t>(4 * lane + j);
+      w.order[size_t(8 * lane + 4 + j)] = static_cast<uint16_t>(16 + 4 * lane + j);
+    }
+  return w;
+}
+
+__attribute__((target("avx512f,avx512bw"))) inline __m512i Load32(const uchar* p) {
+  return _mm512_cvtepu8_epi16(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(p)));
+}
+
+__attribute__((target("avx512f,avx512bw"))) inline void Store16(__m512 sb, __m512 sg, __m512 sr, __m512 ws,
+                                                                  uchar* o) {
+  const __m512 inv = _mm512_div_ps(_mm512_set1_ps(1.f), ws);
+  alignas(64) std::int32_t vb[16], vg[16], vr[16];
+  _mm512_store_si512(vb, _mm512_cvtps_epi32(_mm512_mul_ps(sb, inv)));
+  _mm512_store_si512(vg, _mm512_cvtps_epi32(_mm512_mul_ps(sg, inv)));
+  _mm512_store_si512(vr, _mm512_cvtps_epi32(_mm512_mul_ps(sr, inv)));
+  for (int i = 0; i < 16; ++i, o += 3) {
+    o[0] = static_cast<uchar>(vb[i]);
+    o[1] = static_cast<uchar>(vg[i]);
+    o[2] = static_cast<uchar>(vr[i]);
+  }
+}
+
+// Pixels x .. x + 31 of a row (`p`: the padded planes at the row).
+__attribute__((target("avx512f,avx512bw"))) inline void Filter32(const uchar* const p[3], int x, const Neighbourhood& n, const Wide& t,
+                                                                   uchar* out) {
+  const __m512i b0 = Load32(p[0] + x), g0 = Load32(p[1] + x), r0 = Load32(p[2] + x);
+  const __m512i last = _mm512_set1_epi16(kTable - 1), order = _mm512_load_si512(t.order.data());
+  __m512 sb[2], sg[2], sr[2], ws[2];
+  for (int h = 0; h < 2; ++h) sb[h] = sg[h] = sr[h] = ws[h] = _mm512_setzero_ps();
+  const size_t taps = n.offset.size();
+  for (size_t k = 0; k < taps; ++k) {
+    const std::ptrdiff_t at = n.offset[k] + x;
+    __m512i d = _mm512_add_epi16(_mm512_add_epi16(_mm512_abs_epi16(_mm512_sub_epi16(Load32(p[0] + at), b0)),
+                                                  _mm512_abs_epi16(_mm512_sub_epi16(Load32(p[1] + at), g0))),
+                                 _mm512_abs_epi16(_mm512_sub_epi16(Load32(p[2] + at), r0)));
+    d = _mm512_permutexvar_epi16(order, _mm512_min_epu16(d, last));
+    const uint16_t* half = t.halves[k].data();
+    const __m512i high = _mm512_permutex2var_epi16(_mm512_loadu_si512(half), d, _mm512_loadu_si512(half + 32));
+    const __m512i low = _mm512_permutex2var_epi16(_mm512_loadu_si512(half + 64), d, _mm512_loadu_si512(half + 96));
+    const __m512 w[2] = {_mm512_castsi512_ps(_mm512_unpacklo_epi16(low, high)),
+                         _mm512_castsi512_ps(_mm512_unpackhi_epi16(low, high))};
+    for (int h = 0; h < 2; ++h) {
+      const std::ptrdiff_t q = at + 16 * h;
+      ws[h] = _mm512_add_ps(ws[h], w[h]);
+      sb[h] = _mm512_fmadd_ps(w[h], _mm512_cvtepi32_ps(Load16(p[0] + q)), sb[h]);
+      sg[h] = _mm512_fmadd_ps(w[h], _mm512_cvtepi32_ps(Load16(p[1] + q)), sg[h]);
+      sr[h] = _mm512_fmadd_ps(w[h], _mm512_cvtepi32_ps(Load16(p[2] + q)), sr[h]);
+    }
+  }
+  for (int h = 0; h < 2; ++h) Store16(sb[h], sg[h], sr[h], ws[h], out + 3 * (x + 16 * h));
+}
+
+// The last `count` (< 16) pixels of a row from x, as FilterPixel computes them (each product
+// rounded, then added), sixteen lanes at once; the planes' rows must be readable 16 bytes past
+// the last pixel's neighbours.
+__attribute__((target("avx512f"))) void FilterTail(const uchar* const p[3], int x, int count, const Neighbourhood& n,
+                                                   const float* table, uchar* out) {
+  const __m512 t0 = _mm512_loadu_ps(table), t1 = _mm512_loadu_ps(table + 16);
+  const __m512 t2 = _mm512_loadu_ps(table + 32), t3 = _mm512_loadu_ps(table + 48);
+  const __m512i last = _mm512_set1_epi32(kTable - 1), upper = _mm512_set1_epi32(32);
+  const __m512i b0 = Load16(p[0] + x), g0 = Load16(p[1] + x), r0 = Load16(p[2] + x);
+  __m512 sb = _mm512_setzero_ps(), sg = sb, sr = sb, ws = sb;
+  for (size_t k = 0; k < n.offset.size(); ++k) {
+    const std::ptrdiff_t at = n.offset[k] + x;
+    const __m512i b = Load16(p[0] + at), g = Load16(p[1] + at), r = Load16(p[2] + at);
+    __m512i d = _mm512_add_epi32(_mm512_add_epi32(_mm512_abs_epi32(_mm512_sub_epi32(b, b0)),
+                                                  _mm512_abs_epi32(_mm512_sub_epi32(g, g0))),
+                                 _mm512_abs_epi32(_mm512_sub_epi32(r, r0)));
+    d = _mm512_min_epi32(d, last);
+    const __m512 colour = _mm512_mask_blend_ps(_mm512_cmpge_epi32_mask(d, upper), _mm512_permutex2var_ps(t0, d, t1),
+                                               _mm512_permutex2var_ps(t2, d, t3));
+    const __m512 w = _mm512_mul_ps(colour, _mm512_set1_ps(n.weight[k]));
+    ws = _mm512_add_ps(ws, w);
+    sb = _mm512_add_ps(sb, _mm512_mul_ps(w, _mm512_cvtepi32_ps(b)));
+    sg = _mm512_add_ps(sg, _mm512_mul_ps(w, _mm512_cvtepi32_ps(g)));
+    sr = _mm512_add_ps(sr, _mm512_mul_ps(w, _mm512_cvtepi32_ps(r)));
+  }
+  // Lanes past the row hold sums of whatever follows it; only `count` are written.
+  const __m512 inv = _mm512_div_ps(_mm512_set1_ps(1.f), ws);
+  alignas(64) std::int32_t vb[16], vg[16], vr[16];
+  _mm512_store_si512(vb, _mm512_cvtps_epi32(_mm512_mul_ps(sb, inv)));
+  _mm512_store_si512(vg, _mm512_cvtps_epi32(_mm512_mul_ps(sg, inv)));
+  _mm512_store_si512(vr, _mm512_cvtps_epi32(_mm512_mul_ps(sr, inv)));
+  uchar* o = out + 3 * x;
+  for (int i = 0; i < count; ++i, o += 3) {
+    o[0] = static_cast<uchar>(vb[i]);
+    o[1] = static_cast<uchar>(vg[i]);
+    o[2] = static_cast<uchar>(vr[i]);
+  }
+}
+
+// Rows [y0, y1) with the 32-pixel step (AVX-512 BW), then FilterRows' 16-pixel step, then the
+// tail sixteen lanes at once (PaddedPlanes leaves the room past each row).
+__attribute__((target("avx512f,avx512bw"))) void FilterRows32(const cv::Mat* planes, int radius, const Neighbourhood& n,
+                                                              const Wide& t, const float* table, cv::Mat& dst, int y0,
+                                                              int y1) {
+  const int width = dst.cols, wide_end = width - width % 32, sixteen_end = width - width % 16;
+  for (int y = y0; y < y1; ++y) {
+    const uchar* const p[3] = {planes[0].ptr(y + radius) + radius, planes[1].ptr(y + radius) + radius,
+                               planes[2].ptr(y + radius) + radius};
+    uchar* out = dst.ptr(y);
+    for (int x = 0; x < wide_end; x += 32) Filter32(p, x, n, t, out);
+    if (wide_end < sixteen_end) FilterRows(planes, radius, n, table, dst, y, y + 1, wide_end, sixteen_end);
+    if (sixteen_end < width) FilterTail(p, sixteen_end, width - sixteen_end, n, table, out);
+  }
+}
+
+// `src` with a border of `radius` reflected (BORDER_REFLECT_101), split into three planes whose
+// rows run on `slack` bytes past the border (never read into results).
+void PaddedPlanes(const cv::Mat& src, int radius, int slack, cv::Mat planes[3]) {
+  const int rows = src.rows + 2 * radius, cols = src.cols + 2 * radius;
+  cv::Mat inner[3];
+  for (int c = 0; c < 3; ++c) {
+    planes[c] = cv::Mat(rows, cols + slack, CV_8U);
+    planes[c].colRange(cols, cols + slack).setTo(0);
+    inner[c] = planes[c](cv::Rect(radius, radius, src.cols, src.rows));
+  }
+  cv::split(src, inner);  // into the planes (create keeps a view of the right size and type)
+  for (int c = 0; c < 3; ++c) {
+    CV_Assert(inner[c].data == planes[c].ptr(radius) + radius);
+    for (int y = radius; y < radius + src.rows; ++y) {
+      uchar* row = planes[c].ptr(y);
+      for (int j = 0; j < radius; ++j) {
+        row[j] = row[radius + cv::borderInterpolate(j - radius, src.cols, cv::BORDER_REFLECT_101)];
+        row[radius + src.cols + j] = row[radius + cv::borderInterpolate(src.cols + j, src.cols, cv::BORDER_REFLECT_101)];
+      }
+    }
+    for (int j = 0; j < radius; ++j) {
+      planes[c].row(radius + cv::borderInterpolate(j - radius, src.rows, cv::BORDER_REFLECT_101)).copyTo(planes[c].row(j));
+      planes[c]
+          .row(radius + cv::borderInterpolate(src.rows + j, src.rows, cv::BORDER_REFLECT_101))
+          .copyTo(planes[c].row(radius + src.rows + j));
+    }
+  }
+}
+
 }  // namespace
 
 bool FastBilateralApplies(const cv::Mat& src, double sigma_color) {
@@ -127,15 +295,20 @@ void BilateralFilter(const cv::Mat& src, cv::Mat& dst, int diameter, double sigm
   const double colour_coeff = -0.5 / (sigma_color * sigma_color);
   std::array<float, kTable> table{};
   for (int i = 0; i < kTable - 1; ++i) table[size_t(i)] = static_cast<float>(std::exp(i * i * colour_coeff));
-  cv::Mat padded;
-  cv::copyMakeBorder(src, padded, radius, radius, radius, radius, cv::BORDER_REFLECT_101);
   cv::Mat planes[3];
-  cv::split(padded, planes);
+  PaddedPlanes(src, radius, 16, planes);
   const Neighbourhood n = MakeNeighbourhood(radius, sigma_space, planes[0].step);
   cv::Mat out(src.size(), CV_8UC3);  // not dst: src may be dst
-  cv::parallel_for_(cv::Range(0, src.rows), [&](const cv::Range& rows) {
-    FilterRows(planes, radius, n, table.data(), out, rows.start, rows.end);
-  });
+  if (CpuHasAvx512Bw()) {
+    const Wide wide = MakeWide(table.data(), n);
+    cv::parallel_for_(cv::Range(0, src.rows), [&](const cv::Range& rows) {
+      FilterRows32(planes, radius, n, wide, table.data(), out, rows.start, rows.end);
+    });
+  } else {
+    cv::parallel_for_(cv::Range(0, src.rows), [&](const cv::Range& rows) {
+      FilterRows(planes, radius, n, table.data(), out, rows.start, rows.end);
+    });
+  }
   dst = out;
 }
 
