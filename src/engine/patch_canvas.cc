@@ -122,12 +122,34 @@ __attribute__((target("avx2"))) void CorrectRowAvx2(const uchar* p, const float*
   CorrectRowScalar(p + i, c ? c + i : nullptr, s, n - i, out + i);
 }
 
+// Pixels [0, n) of a row: corrected values (B, G, R, ...) and codes into (B, G, R, code) words.
+void InterleaveRowScalar(const ushort* row, const uchar* code, int n, cv::Vec4w* out) {
+  for (int x = 0; x < n; ++x) out[x] = cv::Vec4w(row[3 * x], row[3 * x + 1], row[3 * x + 2], code[x]);
+}
+
+// Eight pixels at a time: 24 values and 8 codes into 32 words by one permute.
+__attribute__((target("avx512f,avx512bw"))) void InterleaveRowAvx512(const ushort* row, const uchar* code, int n,
+                                                                    cv::Vec4w* out) {
+  alignas(64) uint16_t order[32];
+  for (int p = 0; p < 8; ++p)
+    for (int c = 0; c < 4; ++c) order[4 * p + c] = static_cast<uint16_t>(c < 3 ? 3 * p + c : 32 + p);
+  const __m512i idx = _mm512_load_si512(order);
+  int x = 0;
+  for (; x + 8 <= n; x += 8) {
+    const __m512i values = _mm512_maskz_loadu_epi16(0xFFFFFF, row + 3 * x);
+    const __m512i codes =
+        _mm512_zextsi128_si512(_mm_cvtepu8_epi16(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(code + x))));
+    _mm512_storeu_si512(out + x, _mm512_permutex2var_epi16(values, idx, codes));
+  }
+  InterleaveRowScalar(row + 3 * x, code + x, n - x, out + x);
+}
+
 }  // namespace
 
 cv::Mat PatchCanvas::InterleaveDeep(const cv::Mat& frame, const cv::Mat& colour, double scale, const cv::Mat& code) {
   CV_Assert(frame.type() == CV_8UC3 && code.type() == CV_8U && code.size() == frame.size());
   CV_Assert(colour.empty() || (colour.type() == CV_32FC3 && colour.size() == frame.size()));
-  const bool avx2 = CpuHasAvx2();
+  const bool avx2 = CpuHasAvx2(), bw = CpuHasAvx512Bw();
   cv::Mat bgrw(frame.size(), CV_16UC4);
   const float s = static_cast<float>(scale);
   cv::parallel_for_(cv::Range(0, frame.rows), [&](const cv::Range& range) {
@@ -135,9 +157,8 @@ cv::Mat PatchCanvas::InterleaveDeep(const cv::Mat& frame, const cv::Mat& colour,
     for (int y = range.start; y < range.end; ++y) {
       const float* c = colour.empty() ? nullptr : colour.ptr<float>(y);
       (avx2 ? CorrectRowAvx2 : CorrectRowScalar)(frame.ptr<uchar>(y), c, s, 3 * frame.cols, row.data());
-      const uchar* w = code.ptr<uchar>(y);
-      cv::Vec4w* o = bgrw.ptr<cv::Vec4w>(y);
-      for (int x = 0; x < frame.cols; ++x) o[x] = cv::Vec4w(row[3 * x], row[3 * x + 1], row[3 * x + 2], w[x]);
+      (bw ? InterleaveRowAvx512 : InterleaveRowScalar)(row.data(), code.ptr<uchar>(y), frame.cols,
+                                                       bgrw.ptr<cv::Vec4w>(y));
     }
   });
   return bgrw;
