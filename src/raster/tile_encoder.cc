@@ -1,11 +1,14 @@
 #include "raster/tile_encoder.h"
 
+#include <immintrin.h>
+
 #include <opencv2/imgproc.hpp>
 #include <webp/encode.h>
 
 #include "rolamos/error.hpp"
 #include "raster/tiff_file.h"
 #include "raster/tiff_tags.h"
+#include "util/cpu_features.h"
 
 namespace rolamos {
 
@@ -132,6 +135,35 @@ std::vector<uint8_t> TileEncoderPool::JpegTables() {
   return tables;
 }
 
+namespace {
+
+// BGRA -> RGBA of 8-bit pixels: cv::cvtColor's bytes, without its dispatch and thread pool per
+// tile (0.9 % of a still's CPU).
+__attribute__((target("avx2"))) void SwapRedBlueAvx2(const uchar* in, uchar* out, int pixels) {
+  const __m256i order = _mm256_setr_epi8(2, 1, 0, 3, 6, 5, 4, 7, 10, 9, 8, 11, 14, 13, 12, 15, 2, 1, 0, 3, 6, 5, 4, 7,
+                                         10, 9, 8, 11, 14, 13, 12, 15);
+  int i = 0;
+  for (; i + 8 <= pixels; i += 8)
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + 4 * i),
+                        _mm256_shuffle_epi8(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(in + 4 * i)), order));
+  for (; i < pixels; ++i) {
+    out[4 * i] = in[4 * i + 2];
+    out[4 * i + 1] = in[4 * i + 1];
+    out[4 * i + 2] = in[4 * i];
+    out[4 * i + 3] = in[4 * i + 3];
+  }
+}
+
+void SwapRedBlue(const cv::Mat& src, cv::Mat& dst) {
+  if (src.type() != CV_8UC4 || !CpuHasAvx2()) {
+    cv::cvtColor(src, dst, cv::COLOR_BGRA2RGBA);
+    return;
+  }
+  for (int y = 0; y < src.rows; ++y) SwapRedBlueAvx2(src.ptr(y), dst.ptr(y), src.cols);
+}
+
+}  // namespace
+
 cv::Mat CutFileTile(const cv::Mat& band, int tx, int tile_size) {
   const int x0 = tx * tile_size;
   const int w = std::min(tile_size, band.cols - x0);
@@ -141,7 +173,7 @@ cv::Mat CutFileTile(const cv::Mat& band, int tx, int tile_size) {
   cv::Mat inner = tile(cv::Rect(0, 0, w, h));
   switch (band.channels()) {
     case 3: cv::cvtColor(src, inner, cv::COLOR_BGR2RGB); break;
-    case 4: cv::cvtColor(src, inner, cv::COLOR_BGRA2RGBA); break;
+    case 4: SwapRedBlue(src, inner); break;
     default: src.copyTo(inner); break;
   }
   if (w < tile_size || h < tile_size) {
