@@ -13,6 +13,7 @@
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "engine/channel_shuffle.h"
 #include "util/cpu_features.h"
 
 namespace rolamos {
@@ -258,7 +259,7 @@ void PaddedPlanes(const cv::Mat& src, int radius, int slack, cv::Mat planes[3]) 
     planes[c].colRange(cols, cols + slack).setTo(0);
     inner[c] = planes[c](cv::Rect(radius, radius, src.cols, src.rows));
   }
-  cv::split(src, inner);  // into the planes (create keeps a view of the right size and type)
+  SplitBgr(src, inner);  // into the planes (create keeps a view of the right size and type)
   for (int c = 0; c < 3; ++c) {
     CV_Assert(inner[c].data == planes[c].ptr(radius) + radius);
     for (int y = radius; y < radius + src.rows; ++y) {

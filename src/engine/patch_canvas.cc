@@ -10,6 +10,7 @@
 
 #include "engine/area_resize.h"
 #include "engine/bilinear_warp.h"
+#include "engine/channel_shuffle.h"
 #include "engine/perspective_warp.h"
 #include "util/cpu_features.h"
 #include "util/homography.h"
@@ -90,10 +91,10 @@ bool AnyWeight(const cv::Mat& part) {
 cv::Mat PatchCanvas::Interleave(const cv::Mat& frame, const cv::Mat& code) {
   CV_Assert((frame.type() == CV_8UC3 || frame.type() == CV_16UC3) && code.type() == CV_8U &&
             code.size() == frame.size());
-  const bool deep = frame.depth() == CV_16U;
-  cv::Mat wide = code;
-  if (deep) code.convertTo(wide, CV_16U);
-  cv::Mat bgrw(frame.size(), deep ? CV_16UC4 : CV_8UC4);
+  if (frame.depth() == CV_8U) return InterleaveBgrAnd(frame, code);
+  cv::Mat wide;
+  code.convertTo(wide, CV_16U);
+  cv::Mat bgrw(frame.size(), CV_16UC4);
   const cv::Mat in[] = {frame, wide};
   const int from_to[] = {0, 0, 1, 1, 2, 2, 3, 3};
   cv::mixChannels(in, 2, &bgrw, 1, from_to, 4);
