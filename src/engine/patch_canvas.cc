@@ -369,27 +369,80 @@ void PatchCanvas::Dense(const cv::Rect& rect, cv::Mat* sum, cv::Mat* weight, int
   }
 }
 
-cv::Mat PatchCanvas::Render(const cv::Rect& patch_rect) const {
-  cv::Mat out = cv::Mat::zeros(patch_rect.size(), CV_8UC4);
-  if (patch_rect.empty()) return out;
-  cv::Mat sum, weight;
-  Dense(patch_rect, &sum, &weight);
-  // Blended colour where any frame weighed in, alpha 255 there; elsewhere all zero (no data,
-  // not black data: the alpha says so).
-  cv::parallel_for_(cv::Range(0, patch_rect.height), [&](const cv::Range& range) {
-    for (int y = range.start; y < range.end; ++y) {
-      const cv::Vec3f* s = sum.ptr<cv::Vec3f>(y);
-      const float* w = weight.ptr<float>(y);
-      cv::Vec4b* o = out.ptr<cv::Vec4b>(y);
-      for (int x = 0; x < patch_rect.width; ++x) {
-        if (w[x] <= kAlphaCut) continue;
-        const float k = 1.0f / w[x];
-        o[x] = cv::Vec4b(cv::saturate_cast<uchar>(s[x][0] * k), cv::saturate_cast<uchar>(s[x][1] * k),
-                         cv::saturate_cast<uchar>(s[x][2] * k), 255);
-      }
+namespace {
+
+// Pixels [0, n) of a rendered row: where the weight passes kAlphaCut, the sums over the weight
+// (times 1 / weight, rounded and saturated as cv::saturate_cast does) and alpha 255; elsewhere
+// all zero.
+void RenderRowScalar(const cv::Vec3f* s, const float* w, int n, cv::Vec4b* o) {
+  for (int x = 0; x < n; ++x) {
+    if (w[x] <= kAlphaCut) {
+      o[x] = cv::Vec4b(0, 0, 0, 0);
+      continue;
     }
+    const float k = 1.0f / w[x];
+    o[x] = cv::Vec4b(cv::saturate_cast<uchar>(s[x][0] * k), cv::saturate_cast<uchar>(s[x][1] * k),
+                     cv::saturate_cast<uchar>(s[x][2] * k), 255);
+  }
+}
+
+// Sixteen pixels at a time (AVX-512 VBMI): the same products, rounded to nearest even as
+// cvRound, clamped to 0..255, and the bytes laid out BGRA by one permute.
+__attribute__((target("avx512f,avx512bw,avx512vbmi,bmi2"))) void RenderRowAvx512(const cv::Vec3f* s, const float* w, int n,
+                                                                            cv::Vec4b* o) {
+  // Interleaved value i of the 48 belongs to pixel i / 3.
+  alignas(64) int32_t owner[3][16];
+  for (int j = 0; j < 3; ++j)
+    for (int i = 0; i < 16; ++i) owner[j][i] = (16 * j + i) / 3;
+  // Output byte 4p + c is value 3p + c (c < 3) of the 48, or alpha (from a vector of 255s).
+  alignas(64) uint8_t layout[64];
+  for (int p = 0; p < 16; ++p)
+    for (int c = 0; c < 4; ++c) layout[4 * p + c] = static_cast<uint8_t>(c < 3 ? 3 * p + c : 64);
+  const __m512i lay = _mm512_load_si512(layout), opaque = _mm512_set1_epi8(char(0xFF));
+  const __m512 cut = _mm512_set1_ps(kAlphaCut), one = _mm512_set1_ps(1.0f);
+  const __m512i zero = _mm512_setzero_si512();
+  int x = 0;
+  for (; x + 16 <= n; x += 16) {
+    const __m512 weight = _mm512_loadu_ps(w + x);
+    const __mmask16 data = _mm512_cmp_ps_mask(weight, cut, _CMP_GT_OQ);
+    const __m512 k = _mm512_div_ps(one, weight);
+    const float* sums = s[x].val;
+    __m128i bytes[3];
+    for (int j = 0; j < 3; ++j) {
+      const __m512 kj = _mm512_permutexvar_ps(_mm512_load_si512(owner[j]), k);
+      const __m512i v = _mm512_max_epi32(_mm512_cvtps_epi32(_mm512_mul_ps(_mm512_loadu_ps(sums + 16 * j), kj)), zero);
+      bytes[j] = _mm512_cvtusepi32_epi8(v);
+    }
+    // The 48 values' bytes in the low 48 bytes of one vector.
+    const __m512i values = _mm512_inserti32x4(
+        _mm512_inserti32x4(_mm512_castsi128_si512(bytes[0]), bytes[1], 1), bytes[2], 2);
+    const __m512i bgra = _mm512_permutex2var_epi8(values, lay, opaque);
+    // Pixels without data: all four bytes zero.
+    const __mmask64 keep = _pdep_u64(data, 0x1111111111111111ull) * 0xF;  // each pixel's bit for its 4 bytes
+    _mm512_storeu_si512(o + x, _mm512_maskz_mov_epi8(keep, bgra));
+  }
+  RenderRowScalar(s + x, w + x, n - x, o + x);
+}
+
+}  // namespace
+
+cv::Mat RenderSums(const cv::Mat& sum, const cv::Mat& weight) {
+  CV_Assert(sum.type() == CV_32FC3 && weight.type() == CV_32F && sum.size() == weight.size());
+  cv::Mat out(sum.size(), CV_8UC4);  // every pixel written below
+  const bool vbmi = CpuHasAvx512Vbmi();
+  cv::parallel_for_(cv::Range(0, sum.rows), [&](const cv::Range& range) {
+    for (int y = range.start; y < range.end; ++y)
+      (vbmi ? RenderRowAvx512 : RenderRowScalar)(sum.ptr<cv::Vec3f>(y), weight.ptr<float>(y), sum.cols,
+                                                 out.ptr<cv::Vec4b>(y));
   });
   return out;
+}
+
+cv::Mat PatchCanvas::Render(const cv::Rect& patch_rect) const {
+  if (patch_rect.empty()) return cv::Mat::zeros(patch_rect.size(), CV_8UC4);
+  cv::Mat sum, weight;
+  Dense(patch_rect, &sum, &weight);
+  return RenderSums(sum, weight);
 }
 
 bool PatchCanvas::Reduced(const cv::Rect& wanted, double scale, cv::Mat* sum, cv::Mat* weight, double* rest,

@@ -112,4 +112,9 @@ class PatchCanvas {
   std::unordered_map<int64_t, Block> blocks_;
 };
 
+// Blended colour from a canvas's sums (CV_32FC3) and weights (CV_32F): sum / weight rounded and
+// saturated to 8 bits, alpha 255, where the weight passes kAlphaCut; elsewhere all zero (no
+// data, not black data: the alpha says so). BGRA, CV_8UC4.
+cv::Mat RenderSums(const cv::Mat& sum, const cv::Mat& weight);
+
 }  // namespace rolamos

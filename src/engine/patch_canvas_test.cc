@@ -188,5 +188,40 @@ TEST(PatchCanvas, DeepInterleavingCorrectsAsOpenCVDoes) {
   }
 }
 
+// The sums rendered as the rule says, value by value: colours past 255 and below 0, weights at
+// and around the cut, products on a rounding boundary (half-way values go to the even byte).
+TEST(PatchCanvas, RendersSumsByTheRule) {
+  const cv::Size size(53, 7);  // three 16-pixel steps and a tail
+  cv::Mat sum(size, CV_32FC3), weight(size, CV_32F);
+  cv::RNG rng(5);
+  rng.fill(sum, cv::RNG::UNIFORM, -40.0, 600.0);
+  rng.fill(weight, cv::RNG::UNIFORM, 0.0, 2.0);
+  weight.at<float>(0, 3) = kAlphaCut;
+  weight.at<float>(0, 4) = std::nextafter(kAlphaCut, 1.0f);
+  weight.at<float>(1, 5) = 0;
+  for (int x = 0; x < 8; ++x) {
+    weight.at<float>(2, x) = 1.0f;
+    sum.at<cv::Vec3f>(2, x) = cv::Vec3f(x + 0.5f, 254.5f, 255.5f);
+  }
+  const cv::Mat out = RenderSums(sum, weight);
+  ASSERT_EQ(out.type(), CV_8UC4);
+  int wrong = 0;
+  for (int y = 0; y < size.height; ++y)
+    for (int x = 0; x < size.width; ++x) {
+      const float w = weight.at<float>(y, x);
+      cv::Vec4b want(0, 0, 0, 0);
+      if (w > kAlphaCut) {
+        const float k = 1.0f / w;
+        const cv::Vec3f s = sum.at<cv::Vec3f>(y, x);
+        want = cv::Vec4b(cv::saturate_cast<uchar>(s[0] * k), cv::saturate_cast<uchar>(s[1] * k),
+                         cv::saturate_cast<uchar>(s[2] * k), 255);
+      }
+      wrong += out.at<cv::Vec4b>(y, x) != want;
+    }
+  EXPECT_EQ(wrong, 0);
+  EXPECT_EQ(out.at<cv::Vec4b>(2, 1), cv::Vec4b(2, 254, 255, 255));  // 1.5 -> 2, 254.5 -> 254
+  EXPECT_EQ(out.at<cv::Vec4b>(0, 3), cv::Vec4b(0, 0, 0, 0));
+}
+
 }  // namespace
 }  // namespace rolamos
