@@ -426,23 +426,47 @@ __attribute__((target("avx512f,avx512bw,avx512vbmi,bmi2"))) void RenderRowAvx512
 
 }  // namespace
 
+namespace {
+
+void RenderRows(const cv::Mat& sum, const cv::Mat& weight, cv::Mat& out, int y0, int y1) {
+  const bool vbmi = CpuHasAvx512Vbmi();
+  for (int y = y0; y < y1; ++y)
+    (vbmi ? RenderRowAvx512 : RenderRowScalar)(sum.ptr<cv::Vec3f>(y), weight.ptr<float>(y), sum.cols,
+                                               out.ptr<cv::Vec4b>(y));
+}
+
+}  // namespace
+
 cv::Mat RenderSums(const cv::Mat& sum, const cv::Mat& weight) {
   CV_Assert(sum.type() == CV_32FC3 && weight.type() == CV_32F && sum.size() == weight.size());
   cv::Mat out(sum.size(), CV_8UC4);  // every pixel written below
-  const bool vbmi = CpuHasAvx512Vbmi();
-  cv::parallel_for_(cv::Range(0, sum.rows), [&](const cv::Range& range) {
-    for (int y = range.start; y < range.end; ++y)
-      (vbmi ? RenderRowAvx512 : RenderRowScalar)(sum.ptr<cv::Vec3f>(y), weight.ptr<float>(y), sum.cols,
-                                                 out.ptr<cv::Vec4b>(y));
-  });
+  cv::parallel_for_(cv::Range(0, sum.rows),
+                    [&](const cv::Range& range) { RenderRows(sum, weight, out, range.start, range.end); });
   return out;
 }
 
 cv::Mat PatchCanvas::Render(const cv::Rect& patch_rect) const {
-  if (patch_rect.empty()) return cv::Mat::zeros(patch_rect.size(), CV_8UC4);
-  cv::Mat sum, weight;
-  Dense(patch_rect, &sum, &weight);
-  return RenderSums(sum, weight);
+  // Straight from the blocks (no dense copy of the sums in between); where no block is, zeros.
+  cv::Mat out = cv::Mat::zeros(patch_rect.size(), CV_8UC4);
+  if (patch_rect.empty()) return out;
+  std::vector<std::pair<cv::Rect, const Block*>> parts;  // (rect in patch pixels, its block)
+  for (int by = FloorDiv(patch_rect.y, kBlock); by <= FloorDiv(patch_rect.br().y - 1, kBlock); ++by)
+    for (int bx = FloorDiv(patch_rect.x, kBlock); bx <= FloorDiv(patch_rect.br().x - 1, kBlock); ++bx) {
+      const auto it = blocks_.find(Key(bx, by));
+      if (it != blocks_.end())
+        parts.emplace_back(cv::Rect(bx * kBlock, by * kBlock, kBlock, kBlock) & patch_rect, &it->second);
+    }
+  cv::parallel_for_(cv::Range(0, static_cast<int>(parts.size())), [&](const cv::Range& range) {
+    for (int i = range.start; i < range.end; ++i) {
+      const cv::Rect& r = parts[size_t(i)].first;
+      const Block& b = *parts[size_t(i)].second;
+      const cv::Rect in_block(r.x - FloorDiv(r.x, kBlock) * kBlock, r.y - FloorDiv(r.y, kBlock) * kBlock, r.width,
+                              r.height);
+      cv::Mat view = out(r - patch_rect.tl());
+      RenderRows(b.sum(in_block), b.weight(in_block), view, 0, r.height);
+    }
+  });
+  return out;
 }
 
 bool PatchCanvas::Reduced(const cv::Rect& wanted, double scale, cv::Mat* sum, cv::Mat* weight, double* rest,
