@@ -1,6 +1,7 @@
 #include "engine/patch_canvas.h"
 
 #include <cmath>
+#include <tuple>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
@@ -186,6 +187,31 @@ TEST(PatchCanvas, DeepInterleavingCorrectsAsOpenCVDoes) {
     code.convertTo(wide, CV_16U);
     EXPECT_EQ(cv::norm(ch[3], wide, cv::NORM_INF), 0);
   }
+}
+
+// The working canvas's sums, by the book: two frames at whole-pixel shifts (their warps copy
+// them), each pixel weight[code] x colour and weight[code] added frame after frame where the
+// code is not 0; one frame starts on an odd column, both leave rows' tails.
+TEST(PatchCanvas, WorkingCanvasSumsAreTheFramesWeighted) {
+  const cv::Mat a = RenderSeafloor(10, 20, 203, 61), b = RenderSeafloor(60, 10, 187, 57);
+  const FeatherCode code_a(FeatherWeights(a.size(), 0.2)), code_b(FeatherWeights(b.size(), 0.2));
+  PatchCanvas canvas(10'000'000);
+  const cv::Point at_a(0, 0), at_b(33, 7);
+  canvas.Add(a, code_a, cv::Matx33d(1, 0, at_a.x, 0, 1, at_a.y, 0, 0, 1));
+  canvas.Add(b, code_b, cv::Matx33d(1, 0, at_b.x, 0, 1, at_b.y, 0, 0, 1));
+  const cv::Rect rect(0, 0, 240, 70);
+  cv::Mat sum = cv::Mat::zeros(rect.size(), CV_32FC3), weight = cv::Mat::zeros(rect.size(), CV_32F);
+  for (const auto& [frame, code, at] : {std::make_tuple(&a, &code_a, at_a), std::make_tuple(&b, &code_b, at_b)})
+    for (int y = 0; y < frame->rows; ++y)
+      for (int x = 0; x < frame->cols; ++x) {
+        const uchar c = code->code.at<uchar>(y, x);
+        if (!c) continue;
+        const float w = code->weight[c];
+        const cv::Vec3b p = frame->at<cv::Vec3b>(y, x);
+        sum.at<cv::Vec3f>(y + at.y, x + at.x) += cv::Vec3f(w * p[0], w * p[1], w * p[2]);
+        weight.at<float>(y + at.y, x + at.x) += w;
+      }
+  EXPECT_EQ(cv::norm(canvas.Render(rect), RenderSums(sum, weight), cv::NORM_INF), 0);
 }
 
 // The sums rendered as the rule says, value by value: colours past 255 and below 0, weights at
