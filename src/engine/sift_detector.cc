@@ -262,10 +262,17 @@ std::vector<cv::KeyPoint> OrientStrongest(const Search& s, std::vector<Extremum>
   auto orient_to = [&](size_t end) {
     end = std::min(end, extrema.size());
     if (end <= done) return;
-    cv::parallel_for_(cv::Range(static_cast<int>(done), static_cast<int>(end)), [&](const cv::Range& range) {
-      for (int i = range.start; i < range.end; ++i) {
-        const Extremum& e = extrema[size_t(i)];
-        Orient(s, e.octave, e.layer, e.r, e.c, e.k, &oriented[size_t(i)]);
+    // Oriented in the order of their layers' rows, not of their strength: each window then
+    // overlaps the last one's in cache (in strength order, most of a window's first rows missed
+    // it). Each extremum's keypoints are its own, whatever the order.
+    std::vector<size_t> order(end - done);
+    for (size_t i = 0; i < order.size(); ++i) order[i] = done + i;
+    std::sort(order.begin(), order.end(), [&](size_t a, size_t b) { return extrema[a].Place() < extrema[b].Place(); });
+    cv::parallel_for_(cv::Range(0, static_cast<int>(order.size())), [&](const cv::Range& range) {
+      for (int n = range.start; n < range.end; ++n) {
+        const size_t i = order[size_t(n)];
+        const Extremum& e = extrema[i];
+        Orient(s, e.octave, e.layer, e.r, e.c, e.k, &oriented[i]);
       }
     });
     done = end;
