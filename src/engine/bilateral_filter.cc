@@ -4,7 +4,6 @@
 
 #include <algorithm>
 #include <array>
-#include <climits>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -40,76 +39,73 @@ Neighbourhood MakeNeighbourhood(int radius, double sigma_space, size_t step) {
   return n;
 }
 
-// One pixel, as OpenCV sums it: the neighbours in order, weight = space x colour.
-inline void FilterPixel(const uchar* const planes[3], int x, const Neighbourhood& n, const float* table, uchar* out) {
-  const int b0 = planes[0][x], g0 = planes[1][x], r0 = planes[2][x];
-  float sb = 0, sg = 0, sr = 0, ws = 0;
-  for (size_t k = 0; k < n.offset.size(); ++k) {
-    const std::ptrdiff_t at = n.offset[k] + x;
-    const int b = planes[0][at], g = planes[1][at], r = planes[2][at];
-    const int d = std::min(kTable - 1, std::abs(b - b0) + std::abs(g - g0) + std::abs(r - r0));
-    const float w = table[d] * n.weight[k];
-    ws += w;
-    sb += w * float(b);
-    sg += w * float(g);
-    sr += w * float(r);
-  }
-  const float inv = 1.f / ws;
-  out[0] = static_cast<uchar>(cvRound(sb * inv));
-  out[1] = static_cast<uchar>(cvRound(sg * inv));
-  out[2] = static_cast<uchar>(cvRound(sr * inv));
-}
-
 __attribute__((target("avx512f"))) inline __m512i Load16(const uchar* p) {
   return _mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p)));
 }
 
-// Rows [y0, y1) of `dst` from the padded planes, sixteen pixels at a time.
-__attribute__((target("avx512f"))) void FilterRows(const cv::Mat* planes, int radius, const Neighbourhood& n,
-                                                   const float* table, cv::Mat& dst, int y0, int y1, int x0 = 0,
-                                                   int x1 = INT_MAX) {
+// The first `count` of sixteen pixels' sums over their weights, rounded, as BGR bytes.
+__attribute__((target("avx512f"))) inline void StoreSixteen(__m512 sb, __m512 sg, __m512 sr, __m512 ws, int count,
+                                                           uchar* o) {
+  const __m512 inv = _mm512_div_ps(_mm512_set1_ps(1.f), ws);
+  alignas(64) std::int32_t vb[16], vg[16], vr[16];
+  _mm512_store_si512(vb, _mm512_cvtps_epi32(_mm512_mul_ps(sb, inv)));
+  _mm512_store_si512(vg, _mm512_cvtps_epi32(_mm512_mul_ps(sg, inv)));
+  _mm512_store_si512(vr, _mm512_cvtps_epi32(_mm512_mul_ps(sr, inv)));
+  for (int i = 0; i < count; ++i, o += 3) {
+    o[0] = static_cast<uchar>(vb[i]);
+    o[1] = static_cast<uchar>(vg[i]);
+    o[2] = static_cast<uchar>(vr[i]);
+  }
+}
+
+// Pixels x .. x + count - 1 (count <= 16) of a row, as OpenCV sums them: the neighbours in
+// order, weight = colour x space. Fused: each value multiplied in and added by one multiply-add
+// (the vector steps); else the product rounded, then added (what the scalar tail did, which the
+// last width % 16 pixels of a row keep). `p` are the padded planes at the row, readable 16
+// bytes past each row's last neighbour (PaddedPlanes' slack): lanes past `count` are not written.
+template <bool kFused>
+__attribute__((target("avx512f"))) void FilterSixteen(const uchar* const p[3], int x, int count, const Neighbourhood& n,
+                                                      const float* table, uchar* out) {
   const __m512 t0 = _mm512_loadu_ps(table), t1 = _mm512_loadu_ps(table + 16);
   const __m512 t2 = _mm512_loadu_ps(table + 32), t3 = _mm512_loadu_ps(table + 48);
   const __m512i last = _mm512_set1_epi32(kTable - 1), upper = _mm512_set1_epi32(32);
-  const int width = std::min(dst.cols, x1);
-  const size_t taps = n.offset.size();
+  const __m512i b0 = Load16(p[0] + x), g0 = Load16(p[1] + x), r0 = Load16(p[2] + x);
+  __m512 sb = _mm512_setzero_ps(), sg = sb, sr = sb, ws = sb;
+  for (size_t k = 0; k < n.offset.size(); ++k) {
+    const std::ptrdiff_t at = n.offset[k] + x;
+    const __m512i b = Load16(p[0] + at), g = Load16(p[1] + at), r = Load16(p[2] + at);
+    __m512i d = _mm512_add_epi32(_mm512_add_epi32(_mm512_abs_epi32(_mm512_sub_epi32(b, b0)),
+                                                  _mm512_abs_epi32(_mm512_sub_epi32(g, g0))),
+                                 _mm512_abs_epi32(_mm512_sub_epi32(r, r0)));
+    d = _mm512_min_epi32(d, last);
+    // Entries 0..31 from t0:t1, 32..63 from t2:t3 (the permute reads the index's low 5 bits).
+    const __m512 colour = _mm512_mask_blend_ps(_mm512_cmpge_epi32_mask(d, upper), _mm512_permutex2var_ps(t0, d, t1),
+                                               _mm512_permutex2var_ps(t2, d, t3));
+    const __m512 w = _mm512_mul_ps(colour, _mm512_set1_ps(n.weight[k]));
+    ws = _mm512_add_ps(ws, w);
+    if (kFused) {
+      sb = _mm512_fmadd_ps(w, _mm512_cvtepi32_ps(b), sb);
+      sg = _mm512_fmadd_ps(w, _mm512_cvtepi32_ps(g), sg);
+      sr = _mm512_fmadd_ps(w, _mm512_cvtepi32_ps(r), sr);
+    } else {
+      sb = _mm512_add_ps(sb, _mm512_mul_ps(w, _mm512_cvtepi32_ps(b)));
+      sg = _mm512_add_ps(sg, _mm512_mul_ps(w, _mm512_cvtepi32_ps(g)));
+      sr = _mm512_add_ps(sr, _mm512_mul_ps(w, _mm512_cvtepi32_ps(r)));
+    }
+  }
+  StoreSixteen(sb, sg, sr, ws, count, out + 3 * x);
+}
+
+// Columns [x0, x1) of rows [y0, y1) of `dst` from the padded planes: sixteen pixels at a time,
+// then the row's tail.
+__attribute__((target("avx512f"))) void FilterRows(const cv::Mat* planes, int radius, const Neighbourhood& n,
+                                                   const float* table, cv::Mat& dst, int y0, int y1, int x0, int x1) {
   for (int y = y0; y < y1; ++y) {
     const uchar* const p[3] = {planes[0].ptr(y + radius) + radius, planes[1].ptr(y + radius) + radius,
                                planes[2].ptr(y + radius) + radius};
-    uchar* out = dst.ptr(y);
     int x = x0;
-    for (; x + 16 <= width; x += 16) {
-      const __m512i b0 = Load16(p[0] + x), g0 = Load16(p[1] + x), r0 = Load16(p[2] + x);
-      __m512 sb = _mm512_setzero_ps(), sg = sb, sr = sb, ws = sb;
-      for (size_t k = 0; k < taps; ++k) {
-        const std::ptrdiff_t at = n.offset[k] + x;
-        const __m512i b = Load16(p[0] + at), g = Load16(p[1] + at), r = Load16(p[2] + at);
-        __m512i d = _mm512_add_epi32(_mm512_add_epi32(_mm512_abs_epi32(_mm512_sub_epi32(b, b0)),
-                                                      _mm512_abs_epi32(_mm512_sub_epi32(g, g0))),
-                                     _mm512_abs_epi32(_mm512_sub_epi32(r, r0)));
-        d = _mm512_min_epi32(d, last);
-        // Entries 0..31 from t0:t1, 32..63 from t2:t3 (the permute reads the index's low 5 bits).
-        const __m512 colour = _mm512_mask_blend_ps(_mm512_cmpge_epi32_mask(d, upper), _mm512_permutex2var_ps(t0, d, t1),
-                                                   _mm512_permutex2var_ps(t2, d, t3));
-        const __m512 w = _mm512_mul_ps(colour, _mm512_set1_ps(n.weight[k]));
-        ws = _mm512_add_ps(ws, w);
-        sb = _mm512_fmadd_ps(w, _mm512_cvtepi32_ps(b), sb);
-        sg = _mm512_fmadd_ps(w, _mm512_cvtepi32_ps(g), sg);
-        sr = _mm512_fmadd_ps(w, _mm512_cvtepi32_ps(r), sr);
-      }
-      const __m512 inv = _mm512_div_ps(_mm512_set1_ps(1.f), ws);
-      alignas(64) std::int32_t vb[16], vg[16], vr[16];
-      _mm512_store_si512(vb, _mm512_cvtps_epi32(_mm512_mul_ps(sb, inv)));
-      _mm512_store_si512(vg, _mm512_cvtps_epi32(_mm512_mul_ps(sg, inv)));
-      _mm512_store_si512(vr, _mm512_cvtps_epi32(_mm512_mul_ps(sr, inv)));
-      uchar* o = out + 3 * x;
-      for (int i = 0; i < 16; ++i, o += 3) {
-        o[0] = static_cast<uchar>(vb[i]);
-        o[1] = static_cast<uchar>(vg[i]);
-        o[2] = static_cast<uchar>(vr[i]);
-      }
-    }
-    for (; x < width; ++x) FilterPixel(p, x, n, table, out + 3 * x);
+    for (; x + 16 <= x1; x += 16) FilterSixteen<true>(p, x, 16, n, table, dst.ptr(y));
+    if (x < x1) FilterSixteen<false>(p, x, x1 - x, n, table, dst.ptr(y));
   }
 }
 
@@ -150,20 +146,6 @@ __attribute__((target("avx512f,avx512bw"))) inline __m512i Load32(const uchar* p
   return _mm512_cvtepu8_epi16(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(p)));
 }
 
-__attribute__((target("avx512f,avx512bw"))) inline void Store16(__m512 sb, __m512 sg, __m512 sr, __m512 ws,
-                                                                  uchar* o) {
-  const __m512 inv = _mm512_div_ps(_mm512_set1_ps(1.f), ws);
-  alignas(64) std::int32_t vb[16], vg[16], vr[16];
-  _mm512_store_si512(vb, _mm512_cvtps_epi32(_mm512_mul_ps(sb, inv)));
-  _mm512_store_si512(vg, _mm512_cvtps_epi32(_mm512_mul_ps(sg, inv)));
-  _mm512_store_si512(vr, _mm512_cvtps_epi32(_mm512_mul_ps(sr, inv)));
-  for (int i = 0; i < 16; ++i, o += 3) {
-    o[0] = static_cast<uchar>(vb[i]);
-    o[1] = static_cast<uchar>(vg[i]);
-    o[2] = static_cast<uchar>(vr[i]);
-  }
-}
-
 // Pixels x .. x + 31 of a row (`p`: the padded planes at the row).
 __attribute__((target("avx512f,avx512bw"))) inline void Filter32(const uchar* const p[3], int x, const Neighbourhood& n, const Wide& t,
                                                                    uchar* out) {
@@ -191,61 +173,19 @@ __attribute__((target("avx512f,avx512bw"))) inline void Filter32(const uchar* co
       sr[h] = _mm512_fmadd_ps(w[h], _mm512_cvtepi32_ps(Load16(p[2] + q)), sr[h]);
     }
   }
-  for (int h = 0; h < 2; ++h) Store16(sb[h], sg[h], sr[h], ws[h], out + 3 * (x + 16 * h));
+  for (int h = 0; h < 2; ++h) StoreSixteen(sb[h], sg[h], sr[h], ws[h], 16, out + 3 * (x + 16 * h));
 }
 
-// The last `count` (< 16) pixels of a row from x, as FilterPixel computes them (each product
-// rounded, then added), sixteen lanes at once; the planes' rows must be readable 16 bytes past
-// the last pixel's neighbours.
-__attribute__((target("avx512f"))) void FilterTail(const uchar* const p[3], int x, int count, const Neighbourhood& n,
-                                                   const float* table, uchar* out) {
-  const __m512 t0 = _mm512_loadu_ps(table), t1 = _mm512_loadu_ps(table + 16);
-  const __m512 t2 = _mm512_loadu_ps(table + 32), t3 = _mm512_loadu_ps(table + 48);
-  const __m512i last = _mm512_set1_epi32(kTable - 1), upper = _mm512_set1_epi32(32);
-  const __m512i b0 = Load16(p[0] + x), g0 = Load16(p[1] + x), r0 = Load16(p[2] + x);
-  __m512 sb = _mm512_setzero_ps(), sg = sb, sr = sb, ws = sb;
-  for (size_t k = 0; k < n.offset.size(); ++k) {
-    const std::ptrdiff_t at = n.offset[k] + x;
-    const __m512i b = Load16(p[0] + at), g = Load16(p[1] + at), r = Load16(p[2] + at);
-    __m512i d = _mm512_add_epi32(_mm512_add_epi32(_mm512_abs_epi32(_mm512_sub_epi32(b, b0)),
-                                                  _mm512_abs_epi32(_mm512_sub_epi32(g, g0))),
-                                 _mm512_abs_epi32(_mm512_sub_epi32(r, r0)));
-    d = _mm512_min_epi32(d, last);
-    const __m512 colour = _mm512_mask_blend_ps(_mm512_cmpge_epi32_mask(d, upper), _mm512_permutex2var_ps(t0, d, t1),
-                                               _mm512_permutex2var_ps(t2, d, t3));
-    const __m512 w = _mm512_mul_ps(colour, _mm512_set1_ps(n.weight[k]));
-    ws = _mm512_add_ps(ws, w);
-    sb = _mm512_add_ps(sb, _mm512_mul_ps(w, _mm512_cvtepi32_ps(b)));
-    sg = _mm512_add_ps(sg, _mm512_mul_ps(w, _mm512_cvtepi32_ps(g)));
-    sr = _mm512_add_ps(sr, _mm512_mul_ps(w, _mm512_cvtepi32_ps(r)));
-  }
-  // Lanes past the row hold sums of whatever follows it; only `count` are written.
-  const __m512 inv = _mm512_div_ps(_mm512_set1_ps(1.f), ws);
-  alignas(64) std::int32_t vb[16], vg[16], vr[16];
-  _mm512_store_si512(vb, _mm512_cvtps_epi32(_mm512_mul_ps(sb, inv)));
-  _mm512_store_si512(vg, _mm512_cvtps_epi32(_mm512_mul_ps(sg, inv)));
-  _mm512_store_si512(vr, _mm512_cvtps_epi32(_mm512_mul_ps(sr, inv)));
-  uchar* o = out + 3 * x;
-  for (int i = 0; i < count; ++i, o += 3) {
-    o[0] = static_cast<uchar>(vb[i]);
-    o[1] = static_cast<uchar>(vg[i]);
-    o[2] = static_cast<uchar>(vr[i]);
-  }
-}
-
-// Rows [y0, y1) with the 32-pixel step (AVX-512 BW), then FilterRows' 16-pixel step, then the
-// tail sixteen lanes at once (PaddedPlanes leaves the room past each row).
+// Rows [y0, y1) with the 32-pixel step (AVX-512 BW), then FilterRows' steps for the rest.
 __attribute__((target("avx512f,avx512bw"))) void FilterRows32(const cv::Mat* planes, int radius, const Neighbourhood& n,
                                                               const Wide& t, const float* table, cv::Mat& dst, int y0,
                                                               int y1) {
-  const int width = dst.cols, wide_end = width - width % 32, sixteen_end = width - width % 16;
+  const int width = dst.cols, wide_end = width - width % 32;
   for (int y = y0; y < y1; ++y) {
     const uchar* const p[3] = {planes[0].ptr(y + radius) + radius, planes[1].ptr(y + radius) + radius,
                                planes[2].ptr(y + radius) + radius};
-    uchar* out = dst.ptr(y);
-    for (int x = 0; x < wide_end; x += 32) Filter32(p, x, n, t, out);
-    if (wide_end < sixteen_end) FilterRows(planes, radius, n, table, dst, y, y + 1, wide_end, sixteen_end);
-    if (sixteen_end < width) FilterTail(p, sixteen_end, width - sixteen_end, n, table, out);
+    for (int x = 0; x < wide_end; x += 32) Filter32(p, x, n, t, dst.ptr(y));
+    FilterRows(planes, radius, n, table, dst, y, y + 1, wide_end, width);
   }
 }
 
@@ -307,7 +247,7 @@ void BilateralFilter(const cv::Mat& src, cv::Mat& dst, int diameter, double sigm
     });
   } else {
     cv::parallel_for_(cv::Range(0, src.rows), [&](const cv::Range& rows) {
-      FilterRows(planes, radius, n, table.data(), out, rows.start, rows.end);
+      FilterRows(planes, radius, n, table.data(), out, rows.start, rows.end, 0, src.cols);
     });
   }
   dst = out;
