@@ -4,15 +4,13 @@
 #include <cmath>
 #include <vector>
 
-#include <immintrin.h>
-
 #include <opencv2/imgproc.hpp>
 
 #include "engine/area_resize.h"
 #include "engine/bilinear_warp.h"
+#include "engine/canvas_rows.h"
 #include "engine/channel_shuffle.h"
 #include "engine/perspective_warp.h"
-#include "util/cpu_features.h"
 #include "util/homography.h"
 
 namespace rolamos {
@@ -101,65 +99,17 @@ cv::Mat PatchCanvas::Interleave(const cv::Mat& frame, const cv::Mat& code) {
   return bgrw;
 }
 
-namespace {
-
-// One row of a frame's 8-bit channels times the colour correction (one factor per channel, or
-// none) and `scale`, rounded and saturated to 16 bits, as a flat run of values.
-void CorrectRowScalar(const uchar* p, const float* c, float s, int n, ushort* out) {
-  for (int i = 0; i < n; ++i) out[i] = cv::saturate_cast<ushort>(c ? float(p[i]) * c[i] * s : float(p[i]) * s);
-}
-
-__attribute__((target("avx2"))) void CorrectRowAvx2(const uchar* p, const float* c, float s, int n, ushort* out) {
-  const __m256 scale = _mm256_set1_ps(s);
-  int i = 0;
-  for (; i + 8 <= n; i += 8) {
-    __m256 v = _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(p + i))));
-    if (c) v = _mm256_mul_ps(v, _mm256_loadu_ps(c + i));
-    // Rounded to nearest as cvRound; past 65535 saturated by the pack (values stay far below 2^31).
-    const __m256i q = _mm256_cvtps_epi32(_mm256_mul_ps(v, scale));
-    _mm_storeu_si128(reinterpret_cast<__m128i*>(out + i),
-                     _mm_packus_epi32(_mm256_castsi256_si128(q), _mm256_extracti128_si256(q, 1)));
-  }
-  CorrectRowScalar(p + i, c ? c + i : nullptr, s, n - i, out + i);
-}
-
-// Pixels [0, n) of a row: corrected values (B, G, R, ...) and codes into (B, G, R, code) words.
-void InterleaveRowScalar(const ushort* row, const uchar* code, int n, cv::Vec4w* out) {
-  for (int x = 0; x < n; ++x) out[x] = cv::Vec4w(row[3 * x], row[3 * x + 1], row[3 * x + 2], code[x]);
-}
-
-// Eight pixels at a time: 24 values and 8 codes into 32 words by one permute.
-__attribute__((target("avx512f,avx512bw"))) void InterleaveRowAvx512(const ushort* row, const uchar* code, int n,
-                                                                    cv::Vec4w* out) {
-  alignas(64) uint16_t order[32];
-  for (int p = 0; p < 8; ++p)
-    for (int c = 0; c < 4; ++c) order[4 * p + c] = static_cast<uint16_t>(c < 3 ? 3 * p + c : 32 + p);
-  const __m512i idx = _mm512_load_si512(order);
-  int x = 0;
-  for (; x + 8 <= n; x += 8) {
-    const __m512i values = _mm512_maskz_loadu_epi16(0xFFFFFF, row + 3 * x);
-    const __m512i codes =
-        _mm512_zextsi128_si512(_mm_cvtepu8_epi16(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(code + x))));
-    _mm512_storeu_si512(out + x, _mm512_permutex2var_epi16(values, idx, codes));
-  }
-  InterleaveRowScalar(row + 3 * x, code + x, n - x, out + x);
-}
-
-}  // namespace
-
 cv::Mat PatchCanvas::InterleaveDeep(const cv::Mat& frame, const cv::Mat& colour, double scale, const cv::Mat& code) {
   CV_Assert(frame.type() == CV_8UC3 && code.type() == CV_8U && code.size() == frame.size());
   CV_Assert(colour.empty() || (colour.type() == CV_32FC3 && colour.size() == frame.size()));
-  const bool avx2 = CpuHasAvx2(), bw = CpuHasAvx512Bw();
   cv::Mat bgrw(frame.size(), CV_16UC4);
   const float s = static_cast<float>(scale);
   cv::parallel_for_(cv::Range(0, frame.rows), [&](const cv::Range& range) {
     std::vector<ushort> row(3 * static_cast<size_t>(frame.cols));
     for (int y = range.start; y < range.end; ++y) {
       const float* c = colour.empty() ? nullptr : colour.ptr<float>(y);
-      (avx2 ? CorrectRowAvx2 : CorrectRowScalar)(frame.ptr<uchar>(y), c, s, 3 * frame.cols, row.data());
-      (bw ? InterleaveRowAvx512 : InterleaveRowScalar)(row.data(), code.ptr<uchar>(y), frame.cols,
-                                                       bgrw.ptr<cv::Vec4w>(y));
+      CorrectRow(frame.ptr<uchar>(y), c, s, 3 * frame.cols, row.data());
+      InterleaveDeepRow(row.data(), code.ptr<uchar>(y), frame.cols, bgrw.ptr<cv::Vec4w>(y));
     }
   });
   return bgrw;
@@ -289,120 +239,6 @@ void PatchCanvas::AddBlended(const cv::Mat& bgrw, const std::array<float, 256>& 
   });
 }
 
-namespace {
-
-// One row of the working canvas's accumulation: pixels [0, n) of `px` (BGRW) into the sums from
-// column `col` of a block, and into the 2 x 2 means' row: weight[code] x colour and weight[code]
-// (code 0 adds nothing), each a quarter into its cell.
-void AddReducedRowScalar(const cv::Vec4b* px, int n, int col, const float* table, cv::Vec3f* acc, float* wsum,
-                         cv::Vec3f* small, float* small_w) {
-  constexpr float kCell = 0.25f;
-  for (int x = 0; x < n; ++x) {
-    if (!px[x][3]) continue;
-    const float a = table[px[x][3]];
-    const cv::Vec3f c(a * px[x][0], a * px[x][1], a * px[x][2]);
-    acc[x] += c;
-    wsum[x] += a;
-    const int cell = (col + x) / 2;
-    small[cell] += c * kCell;
-    small_w[cell] += a * kCell;
-  }
-}
-
-// The same sixteen pixels (eight cells) at a time with AVX-512 from an even column: each sum
-// gets the same products in the same order (a cell its even pixel's, then its odd one's; code 0
-// adds +0, which leaves a sum of non-negative values as it was).
-struct ReducedLayout {
-  alignas(64) int32_t bg[3][16], r[3][16];    // B, G then R into interleaved BGR, 48 values
-  alignas(64) int32_t even[16], odd[16];       // a vector's even and odd lanes into lanes 0..7
-  alignas(64) int32_t cell_bg[2][16], cell_r[2][16];  // 8 cells' B, G, R interleaved, 24 values
-  ReducedLayout() {
-    for (int j = 0; j < 3; ++j)
-      for (int i = 0; i < 16; ++i) {
-        const int v = 16 * j + i, p = v / 3, c = v % 3;
-        bg[j][i] = c == 0 ? p : 16 + p;  // b from the first source, g from the second
-        r[j][i] = p;
-      }
-    for (int i = 0; i < 16; ++i) {
-      even[i] = 2 * (i % 8);
-      odd[i] = 2 * (i % 8) + 1;
-    }
-    for (int j = 0; j < 2; ++j)
-      for (int i = 0; i < 16; ++i) {
-        const int v = 16 * j + i, p = (v / 3) % 8, c = v % 3;
-        cell_bg[j][i] = c == 0 ? p : 16 + p;
-        cell_r[j][i] = p;
-      }
-  }
-};
-
-// Lanes of an interleaved vector j (16 values) that hold R: value 16 j + i with (16 j + i) % 3 == 2.
-constexpr __mmask16 RedLanes(int j) {
-  __mmask16 m = 0;
-  for (int i = 0; i < 16; ++i)
-    if ((16 * j + i) % 3 == 2) m = static_cast<__mmask16>(m | (1u << i));
-  return m;
-}
-
-__attribute__((target("avx512f"))) inline __m512 Interleaved(const int32_t* bg, const int32_t* r, __mmask16 red,
-                                                             __m512 b, __m512 g, __m512 rr) {
-  const __m512 two = _mm512_permutex2var_ps(b, _mm512_load_si512(bg), g);
-  return _mm512_mask_permutexvar_ps(two, red, _mm512_load_si512(r), rr);
-}
-
-__attribute__((target("avx512f"))) void AddReducedRowAvx512(const cv::Vec4b* px, int n, int col, const float* table,
-                                                            cv::Vec3f* acc, float* wsum, cv::Vec3f* small,
-                                                            float* small_w) {
-  static const ReducedLayout lay;
-  int x = 0;
-  if ((col & 1) && n > 0) {  // an odd first column: its cell's even pixel is not in this segment
-    AddReducedRowScalar(px, 1, col, table, acc, wsum, small, small_w);
-    x = 1;
-  }
-  const __m512i byte = _mm512_set1_epi32(0xFF), zero = _mm512_setzero_si512();
-  const __m512 quarter = _mm512_set1_ps(0.25f);
-  for (; x + 16 <= n; x += 16) {
-    const __m512i v = _mm512_loadu_si512(px + x);
-    const __m512i code = _mm512_srli_epi32(v, 24);
-    const __mmask16 used = _mm512_cmpneq_epi32_mask(code, zero);
-    const __m512 a = _mm512_mask_i32gather_ps(_mm512_setzero_ps(), used, code, table, 4);
-    const __m512 cb = _mm512_mul_ps(a, _mm512_cvtepi32_ps(_mm512_and_si512(v, byte)));
-    const __m512 cg = _mm512_mul_ps(a, _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32(v, 8), byte)));
-    const __m512 cr = _mm512_mul_ps(a, _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32(v, 16), byte)));
-    float* s = acc[x].val;
-    _mm512_storeu_ps(s, _mm512_add_ps(_mm512_loadu_ps(s), Interleaved(lay.bg[0], lay.r[0], RedLanes(0), cb, cg, cr)));
-    _mm512_storeu_ps(s + 16,
-                     _mm512_add_ps(_mm512_loadu_ps(s + 16), Interleaved(lay.bg[1], lay.r[1], RedLanes(1), cb, cg, cr)));
-    _mm512_storeu_ps(s + 32,
-                     _mm512_add_ps(_mm512_loadu_ps(s + 32), Interleaved(lay.bg[2], lay.r[2], RedLanes(2), cb, cg, cr)));
-    _mm512_storeu_ps(wsum + x, _mm512_add_ps(_mm512_loadu_ps(wsum + x), a));
-    // The cells: each quarter, even pixels then odd ones.
-    const __m512i even = _mm512_load_si512(lay.even), odd = _mm512_load_si512(lay.odd);
-    const __m512 qb = _mm512_mul_ps(cb, quarter), qg = _mm512_mul_ps(cg, quarter), qr = _mm512_mul_ps(cr, quarter);
-    const __m512 qa = _mm512_mul_ps(a, quarter);
-    const __m512 eb = _mm512_permutexvar_ps(even, qb), eg = _mm512_permutexvar_ps(even, qg),
-                 er = _mm512_permutexvar_ps(even, qr);
-    const __m512 ob = _mm512_permutexvar_ps(odd, qb), og = _mm512_permutexvar_ps(odd, qg),
-                 orr = _mm512_permutexvar_ps(odd, qr);
-    float* c = small[(col + x) / 2].val;
-    const __mmask16 first8 = 0xFF;
-    const __m512 e0 = Interleaved(lay.cell_bg[0], lay.cell_r[0], RedLanes(0), eb, eg, er);
-    const __m512 e1 = Interleaved(lay.cell_bg[1], lay.cell_r[1], RedLanes(1), eb, eg, er);
-    const __m512 o0 = Interleaved(lay.cell_bg[0], lay.cell_r[0], RedLanes(0), ob, og, orr);
-    const __m512 o1 = Interleaved(lay.cell_bg[1], lay.cell_r[1], RedLanes(1), ob, og, orr);
-    _mm512_storeu_ps(c, _mm512_add_ps(_mm512_add_ps(_mm512_loadu_ps(c), e0), o0));
-    _mm512_mask_storeu_ps(c + 16, first8,
-                          _mm512_add_ps(_mm512_add_ps(_mm512_maskz_loadu_ps(first8, c + 16), e1), o1));
-    float* w = small_w + (col + x) / 2;
-    _mm512_mask_storeu_ps(w, first8,
-                          _mm512_add_ps(_mm512_add_ps(_mm512_maskz_loadu_ps(first8, w), _mm512_permutexvar_ps(even, qa)),
-                                        _mm512_permutexvar_ps(odd, qa)));
-  }
-  AddReducedRowScalar(px + x, n - x, col + x, table, acc + x, wsum + x, small, small_w);
-}
-
-}  // namespace
-
 void PatchCanvas::AddReduced(const cv::Mat& warped, const std::array<float, 256>& weight, const cv::Rect& roi) {
   // The blocks this frame touches (created here, on one thread), then filled in parallel.
   const int bx0 = FloorDiv(roi.x, kBlock), by0 = FloorDiv(roi.y, kBlock);
@@ -418,7 +254,6 @@ void PatchCanvas::AddReduced(const cv::Mat& warped, const std::array<float, 256>
   }
   const float* table = weight.data();
   static_assert(kMirror == 2, "AddReducedRow's cells are 2 x 2");
-  const bool wide = CpuHasAvx512();
   cv::parallel_for_(cv::Range(0, static_cast<int>(parts.size())), [&](const cv::Range& range) {
     for (int i = range.start; i < range.end; ++i) {
       const cv::Rect& block_rect = parts[static_cast<size_t>(i)].first;
@@ -432,7 +267,7 @@ void PatchCanvas::AddReduced(const cv::Mat& warped, const std::array<float, 256>
         const cv::Vec4b* px = warped.ptr<cv::Vec4b>(y - roi.y) + (overlap.x - roi.x);
         cv::Vec3f* small = b.small_sum.ptr<cv::Vec3f>(by / kMirror);
         float* small_w = b.small_weight.ptr<float>(by / kMirror);
-        (wide ? AddReducedRowAvx512 : AddReducedRowScalar)(px, overlap.width, bx, table, acc, wsum, small, small_w);
+        AddReducedRow(px, overlap.width, bx, table, acc, wsum, small, small_w);
       }
     }
   });
@@ -477,68 +312,9 @@ void PatchCanvas::Dense(const cv::Rect& rect, cv::Mat* sum, cv::Mat* weight, int
 
 namespace {
 
-// Pixels [0, n) of a rendered row: where the weight passes kAlphaCut, the sums over the weight
-// (times 1 / weight, rounded and saturated as cv::saturate_cast does) and alpha 255; elsewhere
-// all zero.
-void RenderRowScalar(const cv::Vec3f* s, const float* w, int n, cv::Vec4b* o) {
-  for (int x = 0; x < n; ++x) {
-    if (w[x] <= kAlphaCut) {
-      o[x] = cv::Vec4b(0, 0, 0, 0);
-      continue;
-    }
-    const float k = 1.0f / w[x];
-    o[x] = cv::Vec4b(cv::saturate_cast<uchar>(s[x][0] * k), cv::saturate_cast<uchar>(s[x][1] * k),
-                     cv::saturate_cast<uchar>(s[x][2] * k), 255);
-  }
-}
-
-// Sixteen pixels at a time (AVX-512 VBMI): the same products, rounded to nearest even as
-// cvRound, clamped to 0..255, and the bytes laid out BGRA by one permute.
-__attribute__((target("avx512f,avx512bw,avx512vbmi,bmi2"))) void RenderRowAvx512(const cv::Vec3f* s, const float* w, int n,
-                                                                            cv::Vec4b* o) {
-  // Interleaved value i of the 48 belongs to pixel i / 3.
-  alignas(64) int32_t owner[3][16];
-  for (int j = 0; j < 3; ++j)
-    for (int i = 0; i < 16; ++i) owner[j][i] = (16 * j + i) / 3;
-  // Output byte 4p + c is value 3p + c (c < 3) of the 48, or alpha (from a vector of 255s).
-  alignas(64) uint8_t layout[64];
-  for (int p = 0; p < 16; ++p)
-    for (int c = 0; c < 4; ++c) layout[4 * p + c] = static_cast<uint8_t>(c < 3 ? 3 * p + c : 64);
-  const __m512i lay = _mm512_load_si512(layout), opaque = _mm512_set1_epi8(char(0xFF));
-  const __m512 cut = _mm512_set1_ps(kAlphaCut), one = _mm512_set1_ps(1.0f);
-  const __m512i zero = _mm512_setzero_si512();
-  int x = 0;
-  for (; x + 16 <= n; x += 16) {
-    const __m512 weight = _mm512_loadu_ps(w + x);
-    const __mmask16 data = _mm512_cmp_ps_mask(weight, cut, _CMP_GT_OQ);
-    const __m512 k = _mm512_div_ps(one, weight);
-    const float* sums = s[x].val;
-    __m128i bytes[3];
-    for (int j = 0; j < 3; ++j) {
-      const __m512 kj = _mm512_permutexvar_ps(_mm512_load_si512(owner[j]), k);
-      const __m512i v = _mm512_max_epi32(_mm512_cvtps_epi32(_mm512_mul_ps(_mm512_loadu_ps(sums + 16 * j), kj)), zero);
-      bytes[j] = _mm512_cvtusepi32_epi8(v);
-    }
-    // The 48 values' bytes in the low 48 bytes of one vector.
-    const __m512i values = _mm512_inserti32x4(
-        _mm512_inserti32x4(_mm512_castsi128_si512(bytes[0]), bytes[1], 1), bytes[2], 2);
-    const __m512i bgra = _mm512_permutex2var_epi8(values, lay, opaque);
-    // Pixels without data: all four bytes zero.
-    const __mmask64 keep = _pdep_u64(data, 0x1111111111111111ull) * 0xF;  // each pixel's bit for its 4 bytes
-    _mm512_storeu_si512(o + x, _mm512_maskz_mov_epi8(keep, bgra));
-  }
-  RenderRowScalar(s + x, w + x, n - x, o + x);
-}
-
-}  // namespace
-
-namespace {
-
 void RenderRows(const cv::Mat& sum, const cv::Mat& weight, cv::Mat& out, int y0, int y1) {
-  const bool vbmi = CpuHasAvx512Vbmi();
   for (int y = y0; y < y1; ++y)
-    (vbmi ? RenderRowAvx512 : RenderRowScalar)(sum.ptr<cv::Vec3f>(y), weight.ptr<float>(y), sum.cols,
-                                               out.ptr<cv::Vec4b>(y));
+    RenderSumsRow(sum.ptr<cv::Vec3f>(y), weight.ptr<float>(y), sum.cols, out.ptr<cv::Vec4b>(y));
 }
 
 }  // namespace
