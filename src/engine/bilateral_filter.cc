@@ -110,11 +110,12 @@ __attribute__((target("avx512f"))) void FilterRows(const cv::Mat* planes, int ra
 }
 
 // The 32-pixel step of FilterRows32: with AVX-512 BW, a pixel's colour difference is summed in
-// 16 bits, 32 pixels to a vector, and its weight read from the table as two 16-bit halves (each
-// a permute over 64 entries, no blend), then widened; the neighbours' values are read as floats
-// from `fplanes`. Each neighbour has its own table, colour x space weight, so that product is
-// not taken per pixel (the multiplier was the bound). Each pixel's weights and sums are the
-// 16-pixel step's, in its order: the same bits.
+// 16 bits, 32 pixels to a vector, and its weight read from a table as two 16-bit halves (each a
+// permute over 64 entries, no blend), then widened. Each neighbour has its own table of colour x
+// space weights (the same float products as the 16-pixel step's). Each pixel's weights and sums
+// are the 16-pixel step's, in its order: the same bits. (The neighbours' values read as floats
+// from float planes were slower than widened from 16 bytes: a 64-byte load mostly splits across
+// cache lines.)
 struct Wide {
   // Per neighbour, the table's floats' upper and lower 16 bits: entries 0..31, then 32..63.
   std::vector<std::array<uint16_t, 2 * kTable>> halves;
@@ -147,8 +148,8 @@ __attribute__((target("avx512f,avx512bw"))) inline __m512i Load32(const uchar* p
 }
 
 // Pixels x .. x + 31 of a row (`p`: the padded planes at the row).
-__attribute__((target("avx512f,avx512bw"))) inline void Filter32(const uchar* const p[3], int x, const Neighbourhood& n, const Wide& t,
-                                                                   uchar* out) {
+__attribute__((target("avx512f,avx512bw"))) inline void Filter32(const uchar* const p[3], int x,
+                                                                   const Neighbourhood& n, const Wide& t, uchar* out) {
   const __m512i b0 = Load32(p[0] + x), g0 = Load32(p[1] + x), r0 = Load32(p[2] + x);
   const __m512i last = _mm512_set1_epi16(kTable - 1), order = _mm512_load_si512(t.order.data());
   __m512 sb[2], sg[2], sr[2], ws[2];
@@ -177,9 +178,9 @@ __attribute__((target("avx512f,avx512bw"))) inline void Filter32(const uchar* co
 }
 
 // Rows [y0, y1) with the 32-pixel step (AVX-512 BW), then FilterRows' steps for the rest.
-__attribute__((target("avx512f,avx512bw"))) void FilterRows32(const cv::Mat* planes, int radius, const Neighbourhood& n,
-                                                              const Wide& t, const float* table, cv::Mat& dst, int y0,
-                                                              int y1) {
+__attribute__((target("avx512f,avx512bw"))) void FilterRows32(const cv::Mat* planes, int radius,
+                                                              const Neighbourhood& n, const Wide& t, const float* table,
+                                                              cv::Mat& dst, int y0, int y1) {
   const int width = dst.cols, wide_end = width - width % 32;
   for (int y = y0; y < y1; ++y) {
     const uchar* const p[3] = {planes[0].ptr(y + radius) + radius, planes[1].ptr(y + radius) + radius,
@@ -206,14 +207,15 @@ void PaddedPlanes(const cv::Mat& src, int radius, int slack, cv::Mat planes[3]) 
       uchar* row = planes[c].ptr(y);
       for (int j = 0; j < radius; ++j) {
         row[j] = row[radius + cv::borderInterpolate(j - radius, src.cols, cv::BORDER_REFLECT_101)];
-        row[radius + src.cols + j] = row[radius + cv::borderInterpolate(src.cols + j, src.cols, cv::BORDER_REFLECT_101)];
+        const int right = cv::borderInterpolate(src.cols + j, src.cols, cv::BORDER_REFLECT_101);
+        row[radius + src.cols + j] = row[radius + right];
       }
     }
     for (int j = 0; j < radius; ++j) {
-      planes[c].row(radius + cv::borderInterpolate(j - radius, src.rows, cv::BORDER_REFLECT_101)).copyTo(planes[c].row(j));
-      planes[c]
-          .row(radius + cv::borderInterpolate(src.rows + j, src.rows, cv::BORDER_REFLECT_101))
-          .copyTo(planes[c].row(radius + src.rows + j));
+      const int above = cv::borderInterpolate(j - radius, src.rows, cv::BORDER_REFLECT_101);
+      const int below = cv::borderInterpolate(src.rows + j, src.rows, cv::BORDER_REFLECT_101);
+      planes[c].row(radius + above).copyTo(planes[c].row(j));
+      planes[c].row(radius + below).copyTo(planes[c].row(radius + src.rows + j));
     }
   }
 }

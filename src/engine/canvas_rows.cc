@@ -155,9 +155,8 @@ __attribute__((target("avx512f"))) void AddReducedRowAvx512(const cv::Vec4b* px,
     _mm512_mask_storeu_ps(c + 16, first8,
                           _mm512_add_ps(_mm512_add_ps(_mm512_maskz_loadu_ps(first8, c + 16), e1), o1));
     float* w = small_w + (col + x) / 2;
-    _mm512_mask_storeu_ps(w, first8,
-                          _mm512_add_ps(_mm512_add_ps(_mm512_maskz_loadu_ps(first8, w), _mm512_permutexvar_ps(even, qa)),
-                                        _mm512_permutexvar_ps(odd, qa)));
+    const __m512 we = _mm512_permutexvar_ps(even, qa), wo = _mm512_permutexvar_ps(odd, qa);
+    _mm512_mask_storeu_ps(w, first8, _mm512_add_ps(_mm512_add_ps(_mm512_maskz_loadu_ps(first8, w), we), wo));
   }
   AddReducedRowScalar(px + x, n - x, col + x, table, acc + x, wsum + x, small, small_w);
 }
@@ -179,8 +178,8 @@ void RenderRowScalar(const cv::Vec3f* s, const float* w, int n, cv::Vec4b* o) {
 
 // Sixteen pixels at a time (AVX-512 VBMI): the same products, rounded to nearest even as
 // cvRound, clamped to 0..255, and the bytes laid out BGRA by one permute.
-__attribute__((target("avx512f,avx512bw,avx512vbmi,bmi2"))) void RenderRowAvx512(const cv::Vec3f* s, const float* w, int n,
-                                                                            cv::Vec4b* o) {
+__attribute__((target("avx512f,avx512bw,avx512vbmi,bmi2"))) void RenderRowAvx512(const cv::Vec3f* s, const float* w,
+                                                                                 int n, cv::Vec4b* o) {
   // Interleaved value i of the 48 belongs to pixel i / 3.
   alignas(64) int32_t owner[3][16];
   for (int j = 0; j < 3; ++j)

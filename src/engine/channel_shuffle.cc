@@ -84,7 +84,8 @@ __attribute__((target("avx512f,avx512bw,avx512vbmi"))) void InterleaveRow(const 
     const __m512i a = _mm512_loadu_si512(bgr + 3 * x), b = _mm512_loadu_si512(bgr + 3 * x + 64);
     const __m512i c = _mm512_loadu_si512(bgr + 3 * x + 128), w = _mm512_loadu_si512(fourth + x);
     for (int q = 0; q < 4; ++q) {
-      const __m512i rgb = q <= 1 ? _mm512_permutex2var_epi8(a, colour[q], b) : _mm512_permutex2var_epi8(b, colour[q], c);
+      const __m512i rgb =
+          q <= 1 ? _mm512_permutex2var_epi8(a, colour[q], b) : _mm512_permutex2var_epi8(b, colour[q], c);
       _mm512_storeu_si512(out + 4 * x + 64 * q,
                           _mm512_mask_permutexvar_epi8(rgb, order.from_code[size_t(q)], code[q], w));
     }
