@@ -38,10 +38,15 @@ void InterleaveRowScalar(const ushort* row, const uchar* code, int n, cv::Vec4w*
 // Eight pixels at a time: 24 values and 8 codes into 32 words by one permute.
 __attribute__((target("avx512f,avx512bw"))) void InterleaveRowAvx512(const ushort* row, const uchar* code, int n,
                                                                     cv::Vec4w* out) {
-  alignas(64) uint16_t order[32];
-  for (int p = 0; p < 8; ++p)
-    for (int c = 0; c < 4; ++c) order[4 * p + c] = static_cast<uint16_t>(c < 3 ? 3 * p + c : 32 + p);
-  const __m512i idx = _mm512_load_si512(order);
+  // Word 4p + c is value 3p + c (c < 3) of the 24, or code p (word 32 + p of the pair).
+  static const struct Order {
+    alignas(64) uint16_t word[32];
+    Order() {
+      for (int p = 0; p < 8; ++p)
+        for (int c = 0; c < 4; ++c) word[4 * p + c] = static_cast<uint16_t>(c < 3 ? 3 * p + c : 32 + p);
+    }
+  } order;
+  const __m512i idx = _mm512_load_si512(order.word);
   int x = 0;
   for (; x + 8 <= n; x += 8) {
     const __m512i values = _mm512_maskz_loadu_epi16(0xFFFFFF, row + 3 * x);
@@ -73,29 +78,21 @@ void AddReducedRowScalar(const cv::Vec4b* px, int n, int col, const float* table
 // The same sixteen pixels (eight cells) at a time with AVX-512 from an even column: each sum
 // gets the same products in the same order (a cell its even pixel's, then its odd one's; code 0
 // adds +0, which leaves a sum of non-negative values as it was).
-struct ReducedLayout {
-  alignas(64) int32_t bg[3][16], r[3][16];    // B, G then R into interleaved BGR, 48 values
-  alignas(64) int32_t even[16], odd[16];       // a vector's even and odd lanes into lanes 0..7
-  alignas(64) int32_t cell_bg[2][16], cell_r[2][16];  // 8 cells' B, G, R interleaved, 24 values
-  ReducedLayout() {
+// Sixteen pixels' B, G, R interleaved as the sums hold them: value v = 16 j + i of vector j is
+// channel v % 3 of pixel v / 3. Eight (the 2 x 2 cells) take the first 24 values, the same lanes.
+struct BgrLayout {
+  alignas(64) int32_t pixel[3][16];  // v / 3: R (and any channel) from its pixel's lane
+  alignas(64) int32_t bg[3][16];     // B from the first source's lane, G from the second's
+  BgrLayout() {
     for (int j = 0; j < 3; ++j)
       for (int i = 0; i < 16; ++i) {
-        const int v = 16 * j + i, p = v / 3, c = v % 3;
-        bg[j][i] = c == 0 ? p : 16 + p;  // b from the first source, g from the second
-        r[j][i] = p;
-      }
-    for (int i = 0; i < 16; ++i) {
-      even[i] = 2 * (i % 8);
-      odd[i] = 2 * (i % 8) + 1;
-    }
-    for (int j = 0; j < 2; ++j)
-      for (int i = 0; i < 16; ++i) {
-        const int v = 16 * j + i, p = (v / 3) % 8, c = v % 3;
-        cell_bg[j][i] = c == 0 ? p : 16 + p;
-        cell_r[j][i] = p;
+        const int v = 16 * j + i, p = v / 3;
+        pixel[j][i] = p;
+        bg[j][i] = v % 3 == 0 ? p : 16 + p;
       }
   }
 };
+const BgrLayout kBgr;
 
 // Lanes of an interleaved vector j (16 values) that hold R: value 16 j + i with (16 j + i) % 3 == 2.
 constexpr __mmask16 RedLanes(int j) {
@@ -105,16 +102,15 @@ constexpr __mmask16 RedLanes(int j) {
   return m;
 }
 
-__attribute__((target("avx512f"))) inline __m512 Interleaved(const int32_t* bg, const int32_t* r, __mmask16 red,
-                                                             __m512 b, __m512 g, __m512 rr) {
-  const __m512 two = _mm512_permutex2var_ps(b, _mm512_load_si512(bg), g);
-  return _mm512_mask_permutexvar_ps(two, red, _mm512_load_si512(r), rr);
+// Vector j of the interleaved values of B, G and R.
+__attribute__((target("avx512f"))) inline __m512 Interleaved(int j, __m512 b, __m512 g, __m512 r) {
+  const __m512 two = _mm512_permutex2var_ps(b, _mm512_load_si512(kBgr.bg[j]), g);
+  return _mm512_mask_permutexvar_ps(two, RedLanes(j), _mm512_load_si512(kBgr.pixel[j]), r);
 }
 
 __attribute__((target("avx512f"))) void AddReducedRowAvx512(const cv::Vec4b* px, int n, int col, const float* table,
                                                             cv::Vec3f* acc, float* wsum, cv::Vec3f* small,
                                                             float* small_w) {
-  static const ReducedLayout lay;
   int x = 0;
   if ((col & 1) && n > 0) {  // an odd first column: its cell's even pixel is not in this segment
     AddReducedRowScalar(px, 1, col, table, acc, wsum, small, small_w);
@@ -131,14 +127,16 @@ __attribute__((target("avx512f"))) void AddReducedRowAvx512(const cv::Vec4b* px,
     const __m512 cg = _mm512_mul_ps(a, _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32(v, 8), byte)));
     const __m512 cr = _mm512_mul_ps(a, _mm512_cvtepi32_ps(_mm512_and_si512(_mm512_srli_epi32(v, 16), byte)));
     float* s = acc[x].val;
-    _mm512_storeu_ps(s, _mm512_add_ps(_mm512_loadu_ps(s), Interleaved(lay.bg[0], lay.r[0], RedLanes(0), cb, cg, cr)));
+    _mm512_storeu_ps(s, _mm512_add_ps(_mm512_loadu_ps(s), Interleaved(0, cb, cg, cr)));
     _mm512_storeu_ps(s + 16,
-                     _mm512_add_ps(_mm512_loadu_ps(s + 16), Interleaved(lay.bg[1], lay.r[1], RedLanes(1), cb, cg, cr)));
+                     _mm512_add_ps(_mm512_loadu_ps(s + 16), Interleaved(1, cb, cg, cr)));
     _mm512_storeu_ps(s + 32,
-                     _mm512_add_ps(_mm512_loadu_ps(s + 32), Interleaved(lay.bg[2], lay.r[2], RedLanes(2), cb, cg, cr)));
+                     _mm512_add_ps(_mm512_loadu_ps(s + 32), Interleaved(2, cb, cg, cr)));
     _mm512_storeu_ps(wsum + x, _mm512_add_ps(_mm512_loadu_ps(wsum + x), a));
     // The cells: each quarter, even pixels then odd ones.
-    const __m512i even = _mm512_load_si512(lay.even), odd = _mm512_load_si512(lay.odd);
+    // A vector's even and odd lanes into lanes 0..7 (the upper eight: unused).
+    const __m512i even = _mm512_setr_epi32(0, 2, 4, 6, 8, 10, 12, 14, 0, 2, 4, 6, 8, 10, 12, 14);
+    const __m512i odd = _mm512_setr_epi32(1, 3, 5, 7, 9, 11, 13, 15, 1, 3, 5, 7, 9, 11, 13, 15);
     const __m512 qb = _mm512_mul_ps(cb, quarter), qg = _mm512_mul_ps(cg, quarter), qr = _mm512_mul_ps(cr, quarter);
     const __m512 qa = _mm512_mul_ps(a, quarter);
     const __m512 eb = _mm512_permutexvar_ps(even, qb), eg = _mm512_permutexvar_ps(even, qg),
@@ -147,10 +145,9 @@ __attribute__((target("avx512f"))) void AddReducedRowAvx512(const cv::Vec4b* px,
                  orr = _mm512_permutexvar_ps(odd, qr);
     float* c = small[(col + x) / 2].val;
     const __mmask16 first8 = 0xFF;
-    const __m512 e0 = Interleaved(lay.cell_bg[0], lay.cell_r[0], RedLanes(0), eb, eg, er);
-    const __m512 e1 = Interleaved(lay.cell_bg[1], lay.cell_r[1], RedLanes(1), eb, eg, er);
-    const __m512 o0 = Interleaved(lay.cell_bg[0], lay.cell_r[0], RedLanes(0), ob, og, orr);
-    const __m512 o1 = Interleaved(lay.cell_bg[1], lay.cell_r[1], RedLanes(1), ob, og, orr);
+    // The eight cells' values are the first 24 of an interleaving (e1, o1: their first 8 lanes).
+    const __m512 e0 = Interleaved(0, eb, eg, er), e1 = Interleaved(1, eb, eg, er);
+    const __m512 o0 = Interleaved(0, ob, og, orr), o1 = Interleaved(1, ob, og, orr);
     _mm512_storeu_ps(c, _mm512_add_ps(_mm512_add_ps(_mm512_loadu_ps(c), e0), o0));
     _mm512_mask_storeu_ps(c + 16, first8,
                           _mm512_add_ps(_mm512_add_ps(_mm512_maskz_loadu_ps(first8, c + 16), e1), o1));
@@ -180,15 +177,15 @@ void RenderRowScalar(const cv::Vec3f* s, const float* w, int n, cv::Vec4b* o) {
 // cvRound, clamped to 0..255, and the bytes laid out BGRA by one permute.
 __attribute__((target("avx512f,avx512bw,avx512vbmi,bmi2"))) void RenderRowAvx512(const cv::Vec3f* s, const float* w,
                                                                                  int n, cv::Vec4b* o) {
-  // Interleaved value i of the 48 belongs to pixel i / 3.
-  alignas(64) int32_t owner[3][16];
-  for (int j = 0; j < 3; ++j)
-    for (int i = 0; i < 16; ++i) owner[j][i] = (16 * j + i) / 3;
   // Output byte 4p + c is value 3p + c (c < 3) of the 48, or alpha (from a vector of 255s).
-  alignas(64) uint8_t layout[64];
-  for (int p = 0; p < 16; ++p)
-    for (int c = 0; c < 4; ++c) layout[4 * p + c] = static_cast<uint8_t>(c < 3 ? 3 * p + c : 64);
-  const __m512i lay = _mm512_load_si512(layout), opaque = _mm512_set1_epi8(char(0xFF));
+  static const struct Layout {
+    alignas(64) uint8_t byte[64];
+    Layout() {
+      for (int p = 0; p < 16; ++p)
+        for (int c = 0; c < 4; ++c) byte[4 * p + c] = static_cast<uint8_t>(c < 3 ? 3 * p + c : 64);
+    }
+  } layout;
+  const __m512i lay = _mm512_load_si512(layout.byte), opaque = _mm512_set1_epi8(char(0xFF));
   const __m512 cut = _mm512_set1_ps(kAlphaCut), one = _mm512_set1_ps(1.0f);
   const __m512i zero = _mm512_setzero_si512();
   int x = 0;
@@ -199,7 +196,7 @@ __attribute__((target("avx512f,avx512bw,avx512vbmi,bmi2"))) void RenderRowAvx512
     const float* sums = s[x].val;
     __m128i bytes[3];
     for (int j = 0; j < 3; ++j) {
-      const __m512 kj = _mm512_permutexvar_ps(_mm512_load_si512(owner[j]), k);
+      const __m512 kj = _mm512_permutexvar_ps(_mm512_load_si512(kBgr.pixel[j]), k);  // each value's pixel's
       const __m512i v = _mm512_max_epi32(_mm512_cvtps_epi32(_mm512_mul_ps(_mm512_loadu_ps(sums + 16 * j), kj)), zero);
       bytes[j] = _mm512_cvtusepi32_epi8(v);
     }
