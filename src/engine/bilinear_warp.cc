@@ -290,6 +290,42 @@ __attribute__((target("avx512f"))) void WarpInsideRows(const cv::Mat& src, const
   }
 }
 
+// The columns [*begin, *end) of output row y whose source positions (through `m`) can fall
+// within two pixels of a `size` image; past them every tap is on the image's outer ring. Where
+// the map's denominator is not positive along the row, the whole row.
+void RowSpan(const cv::Matx33d& m, int y, int cols, cv::Size size, int* begin, int* end) {
+  *begin = 0, *end = cols;
+  const double gy = m(2, 1) * y + m(2, 2);
+  const double w0 = m(2, 0) * -1.0 + gy, w1 = m(2, 0) * (cols + 1.0) + gy;
+  if (!(w0 > 1e-12 && w1 > 1e-12)) return;
+  double lo = -1.0, hi = cols + 1.0;
+  // lo_v <= (a x + b) / (g x + h) <= hi_v, with g x + h > 0 along the row: two linear bounds each.
+  const auto within = [&](int r, double lo_v, double hi_v) {
+    const double a = m(r, 0), b = m(r, 1) * y + m(r, 2), g = m(2, 0);
+    for (const double v : {lo_v, hi_v}) {
+      const double k = a - v * g, c = v * gy - b;  // a x + b - v (g x + h) = k x - c
+      const bool lower = v == lo_v;                // want k x >= c (lower) or k x <= c (upper)
+      if (std::abs(k) < 1e-12) {
+        if (lower ? 0.0 < c : 0.0 > c) lo = 1, hi = 0;
+        continue;
+      }
+      const double x = c / k;
+      if ((k > 0) == lower)
+        lo = std::max(lo, x);
+      else
+        hi = std::min(hi, x);
+    }
+  };
+  within(0, -2.0, size.width + 1.0);
+  within(1, -2.0, size.height + 1.0);
+  if (!(lo <= hi)) {
+    *end = 0;
+    return;
+  }
+  *begin = static_cast<int>(std::clamp(std::floor(lo) - 1, 0.0, double(cols)));
+  *end = static_cast<int>(std::clamp(std::ceil(hi) + 2, 0.0, double(cols)));
+}
+
 void CheckType(const cv::Mat& src, const char* what) {
   if (src.type() != CV_8UC4 && src.type() != CV_16UC4)
     Fail(what, "image type " + cv::typeToString(src.type()) + " is not 8- or 16-bit BGRW");
@@ -298,7 +334,7 @@ void CheckType(const cv::Mat& src, const char* what) {
 }  // namespace
 
 void WarpAccumulate(const cv::Mat& src, const cv::Matx33d& src_to_dst, const std::array<float, 256>& weight,
-                    float unit, cv::Mat& sum, cv::Mat& weight_sum) {
+                    float unit, cv::Mat& sum, cv::Mat& weight_sum, bool ring_zero) {
   CheckType(src, "bilinear warp into a canvas");
   CV_Assert(sum.type() == CV_32FC3 && weight_sum.type() == CV_32F && sum.size() == weight_sum.size());
   if (src.empty()) return;
@@ -308,12 +344,28 @@ void WarpAccumulate(const cv::Mat& src, const cv::Matx33d& src_to_dst, const std
                                             " pixels is past 2^31 values");
   const cv::Matx33d dst_to_src = src_to_dst.inv();
   for (int y = 0; y < sum.rows; ++y) {
-    AccumulateSink sink{sum.ptr<cv::Vec3f>(y), weight_sum.ptr<float>(y), weight.data(), unit};
+    int begin = 0, end = sum.cols;
+    if (ring_zero) RowSpan(dst_to_src, y, sum.cols, src.size(), &begin, &end);
+    if (begin >= end) continue;
+    AccumulateSink sink{sum.ptr<cv::Vec3f>(y) + begin, weight_sum.ptr<float>(y) + begin, weight.data(), unit};
     if (src.depth() == CV_8U)
-      Row<uint8_t>(src, dst_to_src, y, 0, sum.cols, sink);
+      Row<uint8_t>(src, dst_to_src, y, begin, end, sink);
     else
-      Row<uint16_t>(src, dst_to_src, y, 0, sum.cols, sink);
+      Row<uint16_t>(src, dst_to_src, y, begin, end, sink);
   }
+}
+
+bool CodeRingIsZero(const cv::Mat& bgrw) {
+  CheckType(bgrw, "the feather code's outer ring");
+  if (bgrw.empty()) return true;
+  const auto zero = [&](int x, int y) {
+    return bgrw.depth() == CV_8U ? bgrw.at<cv::Vec4b>(y, x)[3] == 0 : bgrw.at<cv::Vec4w>(y, x)[3] == 0;
+  };
+  for (int x = 0; x < bgrw.cols; ++x)
+    if (!zero(x, 0) || !zero(x, bgrw.rows - 1)) return false;
+  for (int y = 0; y < bgrw.rows; ++y)
+    if (!zero(0, y) || !zero(bgrw.cols - 1, y)) return false;
+  return true;
 }
 
 void WarpInside(const cv::Mat& src, const cv::Matx33d& dst_to_src, cv::Mat& dst) {

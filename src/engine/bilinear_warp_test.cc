@@ -84,7 +84,7 @@ cv::Mat WarpedColour(cv::Mat src, const cv::Matx33d& m, cv::Size size) {
   ch[3].setTo(255);
   cv::merge(ch, src);
   cv::Mat sum = cv::Mat::zeros(size, CV_32FC3), weight = cv::Mat::zeros(size, CV_32F);
-  WarpAccumulate(src, m, UnitWeights(), 1.0f, sum, weight);
+  WarpAccumulate(src, m, UnitWeights(), 1.0f, sum, weight, /*ring_zero=*/false);
   EXPECT_EQ(cv::countNonZero(weight != 1.0f), 0);
   return sum;
 }
@@ -149,7 +149,8 @@ TEST(BilinearWarp, SurvivesADegeneratePlacement) {
     }
   // Every pixel from a point at infinity.
   cv::Mat sum = cv::Mat::zeros(16, 16, CV_32FC3), weight = cv::Mat::zeros(16, 16, CV_32F);
-  EXPECT_NO_THROW(WarpAccumulate(src, cv::Matx33d(1, 0, 0, 0, 1, 0, 0, 0, 1e-30), UnitWeights(), 1.0f, sum, weight));
+  EXPECT_NO_THROW(WarpAccumulate(src, cv::Matx33d(1, 0, 0, 0, 1, 0, 0, 0, 1e-30), UnitWeights(), 1.0f, sum, weight,
+                                 /*ring_zero=*/false));
 }
 
 // Blended straight into a canvas: each pixel adds weight[code] x colour x unit, and onto what
@@ -172,7 +173,13 @@ TEST(BilinearWarp, AccumulatesWhatTheWarpedFrameWouldAdd) {
     for (const cv::Matx33d& m : kWarps) {
       const cv::Size size(260, 230);
       cv::Mat sum(size, CV_32FC3, cv::Scalar::all(1)), weight(size, CV_32F, cv::Scalar(2));
-      WarpAccumulate(src, m, table, unit, sum, weight);
+      WarpAccumulate(src, m, table, unit, sum, weight, false);
+      // With the ring's code 0, the pixels beyond the frame are left out: the same sums.
+      ASSERT_TRUE(CodeRingIsZero(src));
+      cv::Mat skipped(size, CV_32FC3, cv::Scalar::all(1)), skipped_weight(size, CV_32F, cv::Scalar(2));
+      WarpAccumulate(src, m, table, unit, skipped, skipped_weight, true);
+      EXPECT_EQ(cv::norm(sum.reshape(1), skipped.reshape(1), cv::NORM_INF), 0.0) << cv::typeToString(type) << " " << m;
+      EXPECT_EQ(cv::norm(weight, skipped_weight, cv::NORM_INF), 0.0) << cv::typeToString(type) << " " << m;
       const cv::Matx33d back = m.inv();
       int blended = 0;
       for (int y = 0; y < size.height; ++y)
@@ -195,11 +202,28 @@ TEST(BilinearWarp, AccumulatesWhatTheWarpedFrameWouldAdd) {
   }
 }
 
+TEST(BilinearWarp, TellsAZeroRingOfCodes) {
+  for (const int type : {CV_8UC4, CV_16UC4}) {
+    cv::Mat src(40, 30, type, cv::Scalar(9, 9, 9, 7));
+    src.row(0).setTo(cv::Scalar(9, 9, 9, 0));
+    src.row(39).setTo(cv::Scalar(9, 9, 9, 0));
+    src.col(0).setTo(cv::Scalar(9, 9, 9, 0));
+    EXPECT_FALSE(CodeRingIsZero(src)) << "the last column still holds 7";
+    src.col(29).setTo(cv::Scalar(9, 9, 9, 0));
+    EXPECT_TRUE(CodeRingIsZero(src));
+    if (type == CV_8UC4)
+      src.at<cv::Vec4b>(39, 17)[3] = 1;
+    else
+      src.at<cv::Vec4w>(39, 17)[3] = 1;
+    EXPECT_FALSE(CodeRingIsZero(src));
+  }
+}
+
 TEST(BilinearWarp, SaysWhichImageItCannotWarp) {
   const cv::Mat grey(10, 10, CV_8UC1, cv::Scalar(0));
   try {
     cv::Mat sum = cv::Mat::zeros(10, 10, CV_32FC3), weight = cv::Mat::zeros(10, 10, CV_32F);
-    WarpAccumulate(grey, cv::Matx33d::eye(), UnitWeights(), 1.0f, sum, weight);
+    WarpAccumulate(grey, cv::Matx33d::eye(), UnitWeights(), 1.0f, sum, weight, false);
     FAIL() << "a grey image was warped";
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("8UC1"), std::string::npos) << e.what();

@@ -227,6 +227,7 @@ void PatchCanvas::AddBlended(const cv::Mat& bgrw, const std::array<float, 256>& 
       if (!overlap.empty() && (!convex || QuadMeets(quad, overlap))) parts.emplace_back(overlap, &BlockAt(bx, by));
     }
   const float unit = bgrw.depth() == CV_16U ? 1.0f / kDeepScale : 1.0f;
+  const bool ring_zero = CodeRingIsZero(bgrw);  // a whole frame's feather code, not a band's
   cv::parallel_for_(cv::Range(0, static_cast<int>(parts.size())), [&](const cv::Range& range) {
     for (int i = range.start; i < range.end; ++i) {
       const cv::Rect& overlap = parts[static_cast<size_t>(i)].first;
@@ -234,7 +235,8 @@ void PatchCanvas::AddBlended(const cv::Mat& bgrw, const std::array<float, 256>& 
       const cv::Rect in_block(overlap.x - FloorDiv(overlap.x, kBlock) * kBlock,
                               overlap.y - FloorDiv(overlap.y, kBlock) * kBlock, overlap.width, overlap.height);
       cv::Mat sum = b.sum(in_block), weight_sum = b.weight(in_block);
-      WarpAccumulate(bgrw, cv::Matx33d(1, 0, -overlap.x, 0, 1, -overlap.y, 0, 0, 1) * H, weight, unit, sum, weight_sum);
+      WarpAccumulate(bgrw, cv::Matx33d(1, 0, -overlap.x, 0, 1, -overlap.y, 0, 0, 1) * H, weight, unit, sum, weight_sum,
+                     ring_zero);
     }
   });
 }
