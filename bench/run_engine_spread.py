@@ -22,7 +22,7 @@ Figures go to OUT/spread.md, OUT/results.json (this run's), and OUT/results/NAME
 file per binary and kind, kept across runs on other kinds).
                              [--out bench/out/spread] [-- extra mosaic flags]
 """
-import argparse, glob, json, os, re, statistics, subprocess, sys
+import argparse, glob, json, os, re, statistics, subprocess, sys, time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_common import timed, write_report  # noqa: E402
@@ -224,6 +224,16 @@ def peer_rows(a, kind, survey):
     return rows
 
 
+def process_start(cli, runs=5):
+    """Median wall seconds of `cli --version`: what starting the program costs every command."""
+    seconds = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        subprocess.run([cli, "--version"], capture_output=True, check=True)
+        seconds.append(time.perf_counter() - t0)
+    return statistics.median(seconds)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--kinds", default=",".join(KINDS))
@@ -251,6 +261,10 @@ def main():
     results = {}
     peer_lines = ["| kind | frames | tool | frames kept | seconds | frames/s | peak RSS MB | result |",
                   "|---|---|---|---|---|---|---|---|"]
+    # The command's frames/s counts what the engine's does not: the process starting (loading
+    # its libraries), the static-overlay search over the first frames, and its exit.
+    for n, cli in enumerate(clis):
+        print(f"process start ({names[n]}, `rolamos --version`, median of 5): {process_start(cli):.3f} s", flush=True)
     seeds = [int(x) for x in a.seeds.split(",") if x.strip()]
     variants = [(k, s) for k in a.kinds.split(",") for s in [None] + seeds]
     for base, seed in variants:
