@@ -299,25 +299,23 @@ void RowSpan(const cv::Matx33d& m, int y, int cols, cv::Size size, int* begin, i
   const double w0 = m(2, 0) * -1.0 + gy, w1 = m(2, 0) * (cols + 1.0) + gy;
   if (!(w0 > 1e-12 && w1 > 1e-12)) return;
   double lo = -1.0, hi = cols + 1.0;
-  // lo_v <= (a x + b) / (g x + h) <= hi_v, with g x + h > 0 along the row: two linear bounds each.
-  const auto within = [&](int r, double lo_v, double hi_v) {
-    const double a = m(r, 0), b = m(r, 1) * y + m(r, 2), g = m(2, 0);
-    for (const double v : {lo_v, hi_v}) {
-      const double k = a - v * g, c = v * gy - b;  // a x + b - v (g x + h) = k x - c
-      const bool lower = v == lo_v;                // want k x >= c (lower) or k x <= c (upper)
-      if (std::abs(k) < 1e-12) {
-        if (lower ? 0.0 < c : 0.0 > c) lo = 1, hi = 0;
-        continue;
-      }
-      const double x = c / k;
-      if ((k > 0) == lower)
-        lo = std::max(lo, x);
-      else
-        hi = std::min(hi, x);
+  // The source coordinate r, (a x + b) / (g x + gy) with the denominator positive, at least
+  // (or at most) v: a x + b - v (g x + gy) = k x - c >= 0 (or <= 0), a bound on x.
+  const auto bound = [&](int r, double v, bool at_least) {
+    const double a = m(r, 0), b = m(r, 1) * y + m(r, 2);
+    const double k = a - v * m(2, 0), c = v * gy - b;
+    if (std::abs(k) < 1e-12) {
+      if (at_least ? c > 0 : c < 0) hi = lo - 1;  // no x
+    } else if ((k > 0) == at_least) {
+      lo = std::max(lo, c / k);
+    } else {
+      hi = std::min(hi, c / k);
     }
   };
-  within(0, -2.0, size.width + 1.0);
-  within(1, -2.0, size.height + 1.0);
+  bound(0, -2.0, true);
+  bound(0, size.width + 1.0, false);
+  bound(1, -2.0, true);
+  bound(1, size.height + 1.0, false);
   if (!(lo <= hi)) {
     *end = 0;
     return;
