@@ -290,10 +290,10 @@ __attribute__((target("avx512f"))) void WarpInsideRows(const cv::Mat& src, const
   }
 }
 
-// The columns [*begin, *end) of output row y whose source positions (through `m`) can fall
-// within two pixels of a `size` image; past them every tap is on the image's outer ring. Where
-// the map's denominator is not positive along the row, the whole row.
-void RowSpan(const cv::Matx33d& m, int y, int cols, cv::Size size, int* begin, int* end) {
+// The columns [*begin, *end) of output row y whose source positions (through `m`) do not lie
+// more than two pixels beyond a `zero` edge of a `size` image; past those every tap is on that
+// edge. Where the map's denominator is not positive along the row, the whole row.
+void RowSpan(const cv::Matx33d& m, int y, int cols, cv::Size size, const CodeEdges& zero, int* begin, int* end) {
   *begin = 0, *end = cols;
   const double gy = m(2, 1) * y + m(2, 2);
   const double w0 = m(2, 0) * -1.0 + gy, w1 = m(2, 0) * (cols + 1.0) + gy;
@@ -312,10 +312,10 @@ void RowSpan(const cv::Matx33d& m, int y, int cols, cv::Size size, int* begin, i
       hi = std::min(hi, c / k);
     }
   };
-  bound(0, -2.0, true);
-  bound(0, size.width + 1.0, false);
-  bound(1, -2.0, true);
-  bound(1, size.height + 1.0, false);
+  if (zero.left) bound(0, -2.0, true);
+  if (zero.right) bound(0, size.width + 1.0, false);
+  if (zero.top) bound(1, -2.0, true);
+  if (zero.bottom) bound(1, size.height + 1.0, false);
   if (!(lo <= hi)) {
     *end = 0;
     return;
@@ -332,7 +332,7 @@ void CheckType(const cv::Mat& src, const char* what) {
 }  // namespace
 
 void WarpAccumulate(const cv::Mat& src, const cv::Matx33d& src_to_dst, const std::array<float, 256>& weight,
-                    float unit, cv::Mat& sum, cv::Mat& weight_sum, bool ring_zero) {
+                    float unit, cv::Mat& sum, cv::Mat& weight_sum, const CodeEdges& zero) {
   CheckType(src, "bilinear warp into a canvas");
   CV_Assert(sum.type() == CV_32FC3 && weight_sum.type() == CV_32F && sum.size() == weight_sum.size());
   if (src.empty()) return;
@@ -341,9 +341,10 @@ void WarpAccumulate(const cv::Mat& src, const cv::Matx33d& src_to_dst, const std
     Fail("bilinear warp into a canvas", "a frame of " + std::to_string(src.cols) + " x " + std::to_string(src.rows) +
                                             " pixels is past 2^31 values");
   const cv::Matx33d dst_to_src = src_to_dst.inv();
+  const bool skips = zero.left || zero.right || zero.top || zero.bottom;
   for (int y = 0; y < sum.rows; ++y) {
     int begin = 0, end = sum.cols;
-    if (ring_zero) RowSpan(dst_to_src, y, sum.cols, src.size(), &begin, &end);
+    if (skips) RowSpan(dst_to_src, y, sum.cols, src.size(), zero, &begin, &end);
     if (begin >= end) continue;
     AccumulateSink sink{sum.ptr<cv::Vec3f>(y) + begin, weight_sum.ptr<float>(y) + begin, weight.data(), unit};
     if (src.depth() == CV_8U)
@@ -353,17 +354,23 @@ void WarpAccumulate(const cv::Mat& src, const cv::Matx33d& src_to_dst, const std
   }
 }
 
-bool CodeRingIsZero(const cv::Mat& bgrw) {
-  CheckType(bgrw, "the feather code's outer ring");
-  if (bgrw.empty()) return true;
+CodeEdges ZeroCodeEdges(const cv::Mat& bgrw) {
+  CheckType(bgrw, "the feather code's edges");
+  CodeEdges e;
+  if (bgrw.empty()) return e;
   const auto zero = [&](int x, int y) {
     return bgrw.depth() == CV_8U ? bgrw.at<cv::Vec4b>(y, x)[3] == 0 : bgrw.at<cv::Vec4w>(y, x)[3] == 0;
   };
-  for (int x = 0; x < bgrw.cols; ++x)
-    if (!zero(x, 0) || !zero(x, bgrw.rows - 1)) return false;
-  for (int y = 0; y < bgrw.rows; ++y)
-    if (!zero(0, y) || !zero(bgrw.cols - 1, y)) return false;
-  return true;
+  e.left = e.right = e.top = e.bottom = true;
+  for (int x = 0; x < bgrw.cols; ++x) {
+    e.top = e.top && zero(x, 0);
+    e.bottom = e.bottom && zero(x, bgrw.rows - 1);
+  }
+  for (int y = 0; y < bgrw.rows; ++y) {
+    e.left = e.left && zero(0, y);
+    e.right = e.right && zero(bgrw.cols - 1, y);
+  }
+  return e;
 }
 
 void WarpInside(const cv::Mat& src, const cv::Matx33d& dst_to_src, cv::Mat& dst) {

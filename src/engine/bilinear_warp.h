@@ -21,14 +21,19 @@ namespace rolamos {
 // `weight_sum` (CV_32F, the same size) that the frame reaches, with code = the interpolated
 // fourth channel rounded: adds weight[code] x (B, G, R) x `unit` to the sum and weight[code] to
 // the weight; code 0 (the frame's outer ring and beyond) adds nothing. The colour is not
-// rounded first. One thread: the caller splits the canvas. `ring_zero`: the code is 0 on
-// `src`'s outer ring (CodeRingIsZero, as a feather code is), so the pixels whose source lies
-// beyond the frame add nothing: they are not computed (a turned frame's bounding box is up to
-// half as large again as the frame). Otherwise every pixel is.
+// rounded first. One thread: the caller splits the canvas.
+// `zero`: the edges of `src` whose code is 0 all along (ZeroCodeEdges: a whole frame's feather
+// code, or a part of a frame where it meets the frame's edge). The pixels whose source lies
+// beyond such an edge take their taps from it and add nothing: they are not computed (a turned
+// frame's bounding box is up to half as large again as the frame). Every other pixel is.
+struct CodeEdges {
+  bool left = false, right = false, top = false, bottom = false;
+};
 void WarpAccumulate(const cv::Mat& src, const cv::Matx33d& src_to_dst, const std::array<float, 256>& weight,
-                    float unit, cv::Mat& sum, cv::Mat& weight_sum, bool ring_zero);
-// Whether the fourth channel of `bgrw` (CV_8UC4 or CV_16UC4) is 0 on its outer ring.
-bool CodeRingIsZero(const cv::Mat& bgrw);
+                    float unit, cv::Mat& sum, cv::Mat& weight_sum, const CodeEdges& zero);
+// The edges (first and last column, first and last row) along which the fourth channel of
+// `bgrw` (CV_8UC4 or CV_16UC4) is 0.
+CodeEdges ZeroCodeEdges(const cv::Mat& bgrw);
 
 // The temporal filter's warp: each pixel of `dst` (CV_8UC3) whose source position, through
 // `dst_to_src`, has its four bilinear taps inside `src` (CV_8UC3) gets the interpolated colour;

@@ -84,7 +84,7 @@ cv::Mat WarpedColour(cv::Mat src, const cv::Matx33d& m, cv::Size size) {
   ch[3].setTo(255);
   cv::merge(ch, src);
   cv::Mat sum = cv::Mat::zeros(size, CV_32FC3), weight = cv::Mat::zeros(size, CV_32F);
-  WarpAccumulate(src, m, UnitWeights(), 1.0f, sum, weight, /*ring_zero=*/false);
+  WarpAccumulate(src, m, UnitWeights(), 1.0f, sum, weight, CodeEdges{});
   EXPECT_EQ(cv::countNonZero(weight != 1.0f), 0);
   return sum;
 }
@@ -150,7 +150,7 @@ TEST(BilinearWarp, SurvivesADegeneratePlacement) {
   // Every pixel from a point at infinity.
   cv::Mat sum = cv::Mat::zeros(16, 16, CV_32FC3), weight = cv::Mat::zeros(16, 16, CV_32F);
   EXPECT_NO_THROW(WarpAccumulate(src, cv::Matx33d(1, 0, 0, 0, 1, 0, 0, 0, 1e-30), UnitWeights(), 1.0f, sum, weight,
-                                 /*ring_zero=*/false));
+                                 CodeEdges{}));
 }
 
 // Blended straight into a canvas: each pixel adds weight[code] x colour x unit, and onto what
@@ -173,13 +173,26 @@ TEST(BilinearWarp, AccumulatesWhatTheWarpedFrameWouldAdd) {
     for (const cv::Matx33d& m : kWarps) {
       const cv::Size size(260, 230);
       cv::Mat sum(size, CV_32FC3, cv::Scalar::all(1)), weight(size, CV_32F, cv::Scalar(2));
-      WarpAccumulate(src, m, table, unit, sum, weight, false);
+      WarpAccumulate(src, m, table, unit, sum, weight, CodeEdges{});
       // With the ring's code 0, the pixels beyond the frame are left out: the same sums.
-      ASSERT_TRUE(CodeRingIsZero(src));
+      const CodeEdges ring = ZeroCodeEdges(src);
+      ASSERT_TRUE(ring.left && ring.right && ring.top && ring.bottom);
       cv::Mat skipped(size, CV_32FC3, cv::Scalar::all(1)), skipped_weight(size, CV_32F, cv::Scalar(2));
-      WarpAccumulate(src, m, table, unit, skipped, skipped_weight, true);
+      WarpAccumulate(src, m, table, unit, skipped, skipped_weight, ring);
       EXPECT_EQ(cv::norm(sum.reshape(1), skipped.reshape(1), cv::NORM_INF), 0.0) << cv::typeToString(type) << " " << m;
       EXPECT_EQ(cv::norm(weight, skipped_weight, cv::NORM_INF), 0.0) << cv::typeToString(type) << " " << m;
+      // A band of the frame (rows 40 to 99: its first and last rows hold codes, its sides are
+      // the frame's), placed where the frame puts it: only beyond its sides is anything left out.
+      const cv::Mat band = src.rowRange(40, 100);
+      const CodeEdges sides = ZeroCodeEdges(band);
+      ASSERT_TRUE(sides.left && sides.right && !sides.top && !sides.bottom);
+      const cv::Matx33d band_to_canvas = m * cv::Matx33d(1, 0, 0, 0, 1, 40, 0, 0, 1);
+      cv::Mat whole(size, CV_32FC3, cv::Scalar::all(1)), whole_weight(size, CV_32F, cv::Scalar(2));
+      cv::Mat part(size, CV_32FC3, cv::Scalar::all(1)), part_weight(size, CV_32F, cv::Scalar(2));
+      WarpAccumulate(band, band_to_canvas, table, unit, whole, whole_weight, CodeEdges{});
+      WarpAccumulate(band, band_to_canvas, table, unit, part, part_weight, sides);
+      EXPECT_EQ(cv::norm(whole.reshape(1), part.reshape(1), cv::NORM_INF), 0.0) << cv::typeToString(type) << " " << m;
+      EXPECT_EQ(cv::norm(whole_weight, part_weight, cv::NORM_INF), 0.0) << cv::typeToString(type) << " " << m;
       const cv::Matx33d back = m.inv();
       int blended = 0;
       for (int y = 0; y < size.height; ++y)
@@ -202,20 +215,24 @@ TEST(BilinearWarp, AccumulatesWhatTheWarpedFrameWouldAdd) {
   }
 }
 
-TEST(BilinearWarp, TellsAZeroRingOfCodes) {
+TEST(BilinearWarp, TellsWhichEdgesHoldNoCode) {
+  const auto edges = [](const CodeEdges& e) {
+    return std::string(e.left ? "L" : "") + (e.right ? "R" : "") + (e.top ? "T" : "") + (e.bottom ? "B" : "");
+  };
   for (const int type : {CV_8UC4, CV_16UC4}) {
     cv::Mat src(40, 30, type, cv::Scalar(9, 9, 9, 7));
+    EXPECT_EQ(edges(ZeroCodeEdges(src)), "");
     src.row(0).setTo(cv::Scalar(9, 9, 9, 0));
     src.row(39).setTo(cv::Scalar(9, 9, 9, 0));
     src.col(0).setTo(cv::Scalar(9, 9, 9, 0));
-    EXPECT_FALSE(CodeRingIsZero(src)) << "the last column still holds 7";
+    EXPECT_EQ(edges(ZeroCodeEdges(src)), "LTB") << "the last column still holds 7";
     src.col(29).setTo(cv::Scalar(9, 9, 9, 0));
-    EXPECT_TRUE(CodeRingIsZero(src));
+    EXPECT_EQ(edges(ZeroCodeEdges(src)), "LRTB");
     if (type == CV_8UC4)
       src.at<cv::Vec4b>(39, 17)[3] = 1;
     else
       src.at<cv::Vec4w>(39, 17)[3] = 1;
-    EXPECT_FALSE(CodeRingIsZero(src));
+    EXPECT_EQ(edges(ZeroCodeEdges(src)), "LRT");
   }
 }
 
@@ -223,7 +240,7 @@ TEST(BilinearWarp, SaysWhichImageItCannotWarp) {
   const cv::Mat grey(10, 10, CV_8UC1, cv::Scalar(0));
   try {
     cv::Mat sum = cv::Mat::zeros(10, 10, CV_32FC3), weight = cv::Mat::zeros(10, 10, CV_32F);
-    WarpAccumulate(grey, cv::Matx33d::eye(), UnitWeights(), 1.0f, sum, weight, false);
+    WarpAccumulate(grey, cv::Matx33d::eye(), UnitWeights(), 1.0f, sum, weight, CodeEdges{});
     FAIL() << "a grey image was warped";
   } catch (const Error& e) {
     EXPECT_NE(std::string(e.what()).find("8UC1"), std::string::npos) << e.what();

@@ -227,7 +227,9 @@ void PatchCanvas::AddBlended(const cv::Mat& bgrw, const std::array<float, 256>& 
       if (!overlap.empty() && (!convex || QuadMeets(quad, overlap))) parts.emplace_back(overlap, &BlockAt(bx, by));
     }
   const float unit = bgrw.depth() == CV_16U ? 1.0f / kDeepScale : 1.0f;
-  const bool ring_zero = CodeRingIsZero(bgrw);  // a whole frame's feather code, not a band's
+  // A whole frame's feather code is 0 on all four edges; a band's part of a frame, where it
+  // meets the frame's edges.
+  const CodeEdges zero = ZeroCodeEdges(bgrw);
   cv::parallel_for_(cv::Range(0, static_cast<int>(parts.size())), [&](const cv::Range& range) {
     for (int i = range.start; i < range.end; ++i) {
       const cv::Rect& overlap = parts[static_cast<size_t>(i)].first;
@@ -236,7 +238,7 @@ void PatchCanvas::AddBlended(const cv::Mat& bgrw, const std::array<float, 256>& 
                               overlap.y - FloorDiv(overlap.y, kBlock) * kBlock, overlap.width, overlap.height);
       cv::Mat sum = b.sum(in_block), weight_sum = b.weight(in_block);
       WarpAccumulate(bgrw, cv::Matx33d(1, 0, -overlap.x, 0, 1, -overlap.y, 0, 0, 1) * H, weight, unit, sum, weight_sum,
-                     ring_zero);
+                     zero);
     }
   });
 }
