@@ -224,6 +224,51 @@ TEST(Cli, MosaicNamesTheFramesItRejected) {
   EXPECT_EQ(r.output.find("Look at it"), std::string::npos) << r.output;
 }
 
+// The launcher maps JPEG frames by itself: alone in a folder, without the full module beside it
+// (tools/main.cc). What needs OpenCV's codecs (PNG frames, a video) or another command loads the
+// module, and maps the same; without the module, such a run says what is missing.
+TEST(Cli, TheLauncherMapsJpegFramesWithoutTheFullModule) {
+  ScratchDir dir;
+  ASSERT_EQ(RunCli("synth -q -o " + (dir / "survey") + " --frames 12 --width 480 --height 360 --focal 420 --lanes 1 "
+                   "--video survey.avi --video-fps 10").exit_code, 0);
+  fs::create_directories(dir / "lone");
+  fs::copy_file(ROLAMOS_CLI, dir / "lone/rolamos");
+  const std::string lone = dir / "lone/rolamos";
+  auto jpeg = test::RunShell(lone + " mosaic -q " + (dir / "survey/frames") + " -o " + (dir / "jpeg.rolamos"));
+  ASSERT_EQ(jpeg.exit_code, 0) << jpeg.output;
+  EXPECT_NE(jpeg.output.find("12 frames, 12 stitched"), std::string::npos) << jpeg.output;
+  // Nor does it load the libraries the module brings (the dynamic loader names what it loads).
+  const auto loaded = test::RunShell("{ LD_DEBUG=files " + lone + " mosaic -q " + (dir / "survey/frames") + " -o " +
+                                     (dir / "again.rolamos") + " >/dev/null; }");
+  ASSERT_NE(loaded.output.find("file=libopencv_core"), std::string::npos) << loaded.output.substr(0, 2000);
+  for (const char* heavy : {"file=libgdal", "file=libOpenImageIO", "file=libopencv_imgcodecs", "file=libopencv_videoio"})
+    EXPECT_EQ(loaded.output.find(heavy), std::string::npos) << heavy;
+
+  auto r = test::RunShell(lone + " info " + (dir / "jpeg.rolamos"));
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("lone/librolamos_full.so: cannot be loaded"), std::string::npos) << r.output;
+  fs::create_directories(dir / "png");
+  for (const auto& e : fs::directory_iterator(dir / "survey/frames"))
+    cv::imwrite((dir / "png") + "/" + e.path().stem().string() + ".png", cv::imread(e.path().string()));
+  r = test::RunShell(lone + " mosaic -q " + (dir / "png") + " -o " + (dir / "lone.rolamos"));
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("librolamos_full.so: cannot be loaded"), std::string::npos) << r.output;
+
+  // With the module: the PNG frames (the JPEGs' pixels) map as the JPEGs did; the video maps.
+  auto png = RunCli("mosaic -q " + (dir / "png") + " -o " + (dir / "png.rolamos"));
+  ASSERT_EQ(png.exit_code, 0) << png.output;
+  const Store a = Store::Open(dir / "jpeg.rolamos"), b = Store::Open(dir / "png.rolamos");
+  ASSERT_EQ(a.patches().size(), b.patches().size());
+  for (const PatchEntry& p : a.patches()) {
+    const auto fa = a.ReadSidecar(p.id).frames, fb = b.ReadSidecar(p.id).frames;
+    ASSERT_EQ(fa.size(), fb.size());
+    for (size_t i = 0; i < fa.size(); ++i) EXPECT_EQ(fa[i].frame_to_patch, fb[i].frame_to_patch) << p.id << " " << i;
+  }
+  r = RunCli("mosaic -q " + (dir / "survey/survey.avi") + " -o " + (dir / "video.rolamos"));
+  ASSERT_EQ(r.exit_code, 0) << r.output;
+  EXPECT_NE(r.output.find("12 frames, 12 stitched"), std::string::npos) << r.output;
+}
+
 // Ctrl-C on a long `rolamos mosaic LIST` (a vehicle that held still over one frame for 3,000
 // frames): the run ends as at the end of its input, says so, and the store holds every frame read.
 // A 90-degree lens that distorts, uncalibrated: no patch fits flat ground seen through a pinhole,

@@ -5,10 +5,15 @@
 #include <CLI/CLI.hpp>
 
 #include <functional>
+#include <memory>
 #include <string>
 
 #include "rolamos/image_format.hpp"
 #include "rolamos/tiff_writer.hpp"
+
+namespace rolamos {
+class Store;
+}
 
 namespace rolamos::cli {
 
@@ -19,7 +24,17 @@ void AddInfoCommand(CLI::App& app, Runner* run);
 void AddExportCommand(CLI::App& app, Runner* run);
 void AddDemoCommand(CLI::App& app, Runner* run);
 void AddSynthCommand(CLI::App& app, Runner* run);
-void AddMosaicCommand(CLI::App& app, Runner* run);
+// `mosaic --live --serve`'s viewer: started by `start_viewer` (StartLiveViewer, in the full module
+// only: see main.cc); the handle it returns stops it when released.
+struct LiveViewerSwitches {
+  int port = -1;  // --serve (0: any free port; -1: no viewer)
+  std::string bind = "127.0.0.1";
+  std::string navigation, navigation_crs;  // georeference the live view
+  double focal_px = 0;
+};
+using LiveViewerStarter = std::function<std::shared_ptr<void>(Store& store, const LiveViewerSwitches& viewer)>;
+std::shared_ptr<void> StartLiveViewer(Store& store, const LiveViewerSwitches& viewer);
+void AddMosaicCommand(CLI::App& app, Runner* run, LiveViewerStarter start_viewer);
 void AddComposeCommand(CLI::App& app, Runner* run);
 void AddServeCommand(CLI::App& app, Runner* run);
 void AddTilesCommand(CLI::App& app, Runner* run);
@@ -44,6 +59,11 @@ TiffSwitches FromWriteOptions(const TiffWriteOptions& o);
 
 // "x,y,w,h" -> four numbers; throws rolamos::Error naming the text.
 std::array<double, 4> ParseRegion(const std::string& text);
+
+// The application every entry point parses with (its name, description and --version).
+std::unique_ptr<CLI::App> MakeApp();
+// Parses argv and runs the subcommand chosen; reports errors as the CLI does. The exit code.
+int ParseAndRun(CLI::App& app, const Runner& run, int argc, char** argv);
 
 // A library error as the user of the CLI reads it: the library names values and options
 // ("max_pixels", "their CRS must be given"); this adds the flag that sets them.

@@ -4,9 +4,36 @@
 
 #include "command.h"
 #include "rolamos/error.hpp"
+#include "rolamos/version.hpp"
 #include "util/memory.h"
 
 namespace rolamos::cli {
+
+std::unique_ptr<CLI::App> MakeApp() {
+  auto app = std::make_unique<CLI::App>("rolamos " ROLAMOS_VERSION_STRING
+                                        ": seafloor maps from downward-looking underwater cameras");
+  app->set_version_flag("--version", "rolamos " ROLAMOS_VERSION_STRING);
+  app->require_subcommand(1);
+  return app;
+}
+
+int ParseAndRun(CLI::App& app, const Runner& run, int argc, char** argv) {
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    // Help and version exit 0; any other usage error exits 2, whatever CLI11's own code.
+    return app.exit(e) == 0 ? 0 : 2;
+  }
+  try {
+    return run ? run() : 2;
+  } catch (const Error& e) {
+    std::fprintf(stderr, "rolamos: error: %s\n", WithFlagHints(e.what()).c_str());
+    return 1;
+  } catch (const std::exception& e) {
+    std::fprintf(stderr, "rolamos: internal error: %s\n", e.what());
+    return 3;
+  }
+}
 
 void AddTiffSwitches(CLI::App* cmd, TiffSwitches* s) {
   cmd->add_option("--compression", s->compression, "none, jpeg, jpeg-mask (JPEG, alpha as a 1-bit mask), deflate, zstd or webp")

@@ -17,7 +17,6 @@
 #include "rolamos/error.hpp"
 #include "rolamos/mosaicker.hpp"
 #include "rolamos/store.hpp"
-#include "rolamos/tile_server.hpp"
 #include "store/writer_lock.h"
 #include "util/files.h"
 #include "util/progress.h"
@@ -38,10 +37,7 @@ struct MosaicSwitches {
   bool fov_given = false;
   bool live = false;
   LiveOptions live_options;
-  int serve_port = -1;  // --serve: the viewer in this process (0: any free port)
-  std::string serve_bind = "127.0.0.1";
-  std::string navigation, navigation_crs;  // --serve: georeferences the live view
-  double focal_px = 0;
+  LiveViewerSwitches viewer;  // --serve
 };
 
 // SIGINT/SIGTERM end a run cleanly (the open patch is written); a second one says that the patch
@@ -118,28 +114,18 @@ static MosaickerOptions EngineOptions(const MosaicSwitches& s) {
 
 // A live run: its status in STORE/live, the viewer in this process with --serve.
 static MosaicSummary RunLive(MosaicSwitches& s, Store& store, const MosaickerOptions& o,
+                             const LiveViewerStarter& start_viewer,
                              const std::function<void(const FrameReport&, int)>& on_frame) {
   s.live_options.stop = &g_stop;
   const std::string status_dir = store.dir() + "/live";
   std::filesystem::create_directories(status_dir);
-  std::unique_ptr<TileServer> server;
-  if (s.serve_port >= 0) {
+  std::shared_ptr<void> viewer;  // stops the viewer when released
+  if (s.viewer.port >= 0) {
     // The page may open before the first frame: it sees a run that has started.
     LiveStatus starting;
     starting.running = true;
     WriteFileAtomic(status_dir + "/status.json", StatusJson(starting));
-    TileServerOptions so;
-    so.port = s.serve_port;
-    so.bind = s.serve_bind;
-    so.live = true;
-    so.navigation = s.navigation;
-    so.navigation_crs = s.navigation_crs;
-    so.focal_px = s.focal_px;
-    server = std::make_unique<TileServer>(store, so);
-    const int port = server->Start();
-    std::printf("viewer on http://%s:%d/ while the run lasts (rolamos serve %s serves it after)\n",
-                s.serve_bind.c_str(), port, store.dir().c_str());
-    std::fflush(stdout);
+    viewer = start_viewer(store, s.viewer);
   }
   std::atomic<bool> status_failed{false};
   MosaicSummary sum = MosaicLive(s.input, store, o, s.live_options,
@@ -155,7 +141,7 @@ static MosaicSummary RunLive(MosaicSwitches& s, Store& store, const MosaickerOpt
                                    }
                                  },
                                  on_frame);
-  if (server) server->Stop();
+  viewer.reset();
   return sum;
 }
 
@@ -247,15 +233,16 @@ static void PrintSummary(const MosaicSwitches& s, const MosaicSummary& sum, int 
               "-o patch1.jpg\n", s.output.c_str(), s.output.c_str());
 }
 
-static int RunMosaic(MosaicSwitches s) {
+static int RunMosaic(MosaicSwitches s, const LiveViewerStarter& start_viewer) {
   const MosaickerOptions o = EngineOptions(s);
   std::string error;
   if (!o.IsValid(&error)) Fail("mosaic", error);
   // Before the store is made: bad settings or a mistyped input must not leave an empty store.
   if (s.live && !s.live_options.IsValid(&error)) Fail("mosaic --live", error);
-  if (s.serve_port >= 0 && !s.live)
+  if (s.viewer.port >= 0 && !s.live)
     Fail("mosaic", "serving while mapping needs a live run (rolamos serve STORE serves a store once written)");
-  if (!s.navigation.empty() && s.serve_port < 0)
+  if (s.viewer.port >= 0 && !start_viewer) Fail("mosaic", "this program was built without the live viewer");
+  if (!s.viewer.navigation.empty() && s.viewer.port < 0)
     Fail("mosaic", "navigation georeferences the live view, which needs --serve (compose --navigation "
                    "georeferences the map)");
   if (!s.live) CheckMosaicInput(s.input);
@@ -277,7 +264,7 @@ static int RunMosaic(MosaicSwitches s) {
   CatchStopSignals();
   int input_frames = -1;
   const MosaicSummary sum =
-      s.live ? RunLive(s, store, o, on_frame)
+      s.live ? RunLive(s, store, o, start_viewer, on_frame)
              : MosaicInput(
                    s.input, store, o,
                    [&](const FrameReport& r, int total) {
@@ -290,7 +277,7 @@ static int RunMosaic(MosaicSwitches s) {
   return sum.stitched > 0 ? 0 : 1;
 }
 
-void AddMosaicCommand(CLI::App& app, Runner* run) {
+void AddMosaicCommand(CLI::App& app, Runner* run, LiveViewerStarter start_viewer) {
   auto s = std::make_shared<MosaicSwitches>();
   auto& o = s->options;
   auto* cmd = app.add_subcommand("mosaic", "Mosaic frames (folder, list or video) into a store, online");
@@ -302,15 +289,15 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
                 "map frames as they arrive until the stream ends, SIGINT/SIGTERM (the open patch is written) or "
                 "--idle-timeout; frames that arrive while the engine is busy are skipped; STORE/live/status.json "
                 "says where it stands");
-  cmd->add_option("--serve", s->serve_port,
+  cmd->add_option("--serve", s->viewer.port,
                   "live: serve the viewer on this port while mapping (0: any free port): the patches as they are "
                   "written, and the open patch as it grows");
-  cmd->add_option("--bind", s->serve_bind, "with --serve: address to listen on")->capture_default_str();
-  cmd->add_option("--navigation", s->navigation,
+  cmd->add_option("--bind", s->viewer.bind, "with --serve: address to listen on")->capture_default_str();
+  cmd->add_option("--navigation", s->viewer.navigation,
                   "with --serve: the vehicle's navigation CSV as it grows (compose --navigation's columns): "
                   "georeferences the live view as fixes arrive; lines that do not parse are skipped with a warning");
-  cmd->add_option("--crs", s->navigation_crs, "with --navigation: CRS of eastings/northings without an epsg column");
-  cmd->add_option("--focal", s->focal_px, "with --navigation: focal length in pixels (default: the camera's)");
+  cmd->add_option("--crs", s->viewer.navigation_crs, "with --navigation: CRS of eastings/northings without an epsg column");
+  cmd->add_option("--focal", s->viewer.focal_px, "with --navigation: focal length in pixels (default: the camera's)");
   cmd->add_option("--max-waiting", s->live_options.max_waiting,
                   "live: frames waiting or being mapped at once, at most; beyond it the oldest waiting are skipped")
       ->capture_default_str();
@@ -452,7 +439,7 @@ void AddMosaicCommand(CLI::App& app, Runner* run) {
       ->capture_default_str();
   AddTiffSwitches(cmd, &s->tiff);
   cmd->add_flag("-q,--quiet", s->quiet, "no progress");
-  cmd->callback([s, run] { *run = [s] { return RunMosaic(*s); }; });
+  cmd->callback([s, run, start_viewer] { *run = [s, start_viewer] { return RunMosaic(*s, start_viewer); }; });
 }
 
 }  // namespace rolamos::cli

@@ -7,6 +7,7 @@
 // name only when Finish() succeeds; a writer destroyed before that removes its temporary files.
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <string>
 
@@ -51,18 +52,28 @@ class PyramidTiffWriter {
   int band_height() const;
   // The next band of level 0: band_height() rows (fewer for the last), full width, layout's type.
   void WriteBand(const cv::Mat& band);
+  // GeoTIFF tags, written through GDAL when the file is complete (tiff_writer_georef.cc).
   void SetGeoref(const Georef& georef);
   // Writes the reduced levels and the georeference and moves the file to its name.
   TiffWriteStats Finish();
 
  private:
+  const std::string& path() const;
+  // Runs on the complete file (by its temporary name) before it is moved to its name.
+  void BeforeRename(std::function<void(const std::string& tmp_path)> step);
+
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
 
 // Writes an image that is already in memory (small images, tests).
-TiffWriteStats WritePyramidTiff(const std::string& path, const cv::Mat& image,
-                                const TiffWriteOptions& options,
-                                const Georef* georef = nullptr);
+// Two overloads rather than a default argument: the one without a georeference does not bring
+// GDAL into a program (tools/main.cc).
+TiffWriteStats WritePyramidTiff(const std::string& path, const cv::Mat& image, const TiffWriteOptions& options);
+TiffWriteStats WritePyramidTiff(const std::string& path, const cv::Mat& image, const TiffWriteOptions& options,
+                                const Georef* georef);
+// The writer as configured by `before_bands` (tiff_writer_georef.cc's SetGeoref).
+TiffWriteStats WritePyramidTiff(const std::string& path, const cv::Mat& image, const TiffWriteOptions& options,
+                                const std::function<void(PyramidTiffWriter&)>& before_bands);
 
 }  // namespace rolamos

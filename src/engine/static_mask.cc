@@ -3,10 +3,11 @@
 #include <algorithm>
 #include <cstdio>
 
-#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgcodecs.hpp>  // the IMREAD_ flags only: util/codecs.h reads
 #include <opencv2/imgproc.hpp>
 
 #include "rolamos/error.hpp"
+#include "util/codecs.h"
 
 namespace rolamos {
 
@@ -124,7 +125,7 @@ StaticMask EstimateStaticMask(const std::vector<cv::Mat>& frames, const StaticMa
 }
 
 cv::Mat ReadStaticMask(const std::string& path, cv::Size frame) {
-  cv::Mat m = cv::imread(path, cv::IMREAD_GRAYSCALE);
+  cv::Mat m = ReadImageFile(path, cv::IMREAD_GRAYSCALE);
   if (m.empty()) Fail(path, "cannot be read as a mask image");
   if (m.size() != frame) cv::resize(m, m, frame, 0, 0, cv::INTER_NEAREST);
   return m > 0;

@@ -27,9 +27,9 @@
 #include "engine/static_mask.h"
 #include "store/writer_lock.h"
 #include "util/cpu_time.h"
+#include "util/codecs.h"
 #include "util/files.h"
 
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include "engine/stage_options.h"
 #include "rolamos/error.hpp"
@@ -120,7 +120,7 @@ MosaickerOptions UseOverlay(const StaticMask& found, const Store& store, Mosaick
   if (!found.mask.empty()) {
     const std::string path = store.dir() + "/static_mask.png";
     std::vector<uchar> png;
-    cv::imencode(".png", found.mask, png);
+    if (!EncodeImage(".png", found.mask, &png)) Fail(path, "the overlay's mask could not be encoded as PNG");
     WriteFileAtomic(path, std::string(png.begin(), png.end()));
     options.mask = path;
     char share[64];

@@ -4,12 +4,12 @@
 #include <filesystem>
 #include <fstream>
 
-#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgcodecs.hpp>  // the IMREAD_ flags only: util/codecs.h reads
 #include <opencv2/imgproc.hpp>
-#include <opencv2/videoio.hpp>
 
 #include "input/jpeg_reader.h"
 #include "rolamos/error.hpp"
+#include "util/codecs.h"
 #include "util/files.h"
 
 namespace fs = std::filesystem;
@@ -111,7 +111,7 @@ cv::Mat ReadFrameImage(const std::string& path, std::atomic<int>* bits, std::str
     return {};
   }
   try {
-    m = ToEightBit(cv::imread(path, cv::IMREAD_COLOR | cv::IMREAD_ANYDEPTH), bits);
+    m = ToEightBit(ReadImageFile(path, cv::IMREAD_COLOR | cv::IMREAD_ANYDEPTH), bits);
   } catch (const cv::Exception& e) {
     *error = std::string("unreadable: ") + e.err;
     return {};
@@ -161,12 +161,12 @@ class FileListSource : public FrameSource {
 
 class VideoSource : public FrameSource {
  public:
-  VideoSource(const std::string& path, cv::VideoCapture cap) : path_(path), cap_(std::move(cap)) {
-    count_ = static_cast<int>(cap_.get(cv::CAP_PROP_FRAME_COUNT));
+  VideoSource(const std::string& path, std::unique_ptr<VideoReader> video) : path_(path), video_(std::move(video)) {
+    count_ = static_cast<int>(video_->FrameCount());
   }
   bool Next(InputFrame* f) override {
     cv::Mat m;
-    if (!cap_.read(m) || m.empty()) return false;
+    if (!video_->Read(&m)) return false;
     f->index = index_++;
     f->source = fs::path(path_).filename().string() + "#" + std::to_string(f->index);
     f->error.clear();
@@ -179,7 +179,7 @@ class VideoSource : public FrameSource {
 
  private:
   std::string path_;
-  cv::VideoCapture cap_;
+  std::unique_ptr<VideoReader> video_;
   int index_ = 0, count_ = -1;
 };
 
@@ -212,13 +212,13 @@ std::unique_ptr<FrameSource> FrameSource::Open(const std::string& input) {
     return std::make_unique<FileListSource>(std::move(paths));
   }
   if (IsImageName(input)) Fail(input, "is a single image; give a folder, a list (.txt) or a video");
-  cv::VideoCapture cap;
+  std::unique_ptr<VideoReader> video;
   try {
-    cap.open(input);
+    video = OpenVideo(input);
   } catch (const cv::Exception&) {
   }
-  if (!cap.isOpened()) Fail(input, "cannot be opened as a video (OpenCV/FFmpeg)");
-  return std::make_unique<VideoSource>(input, std::move(cap));
+  if (!video) Fail(input, "cannot be opened as a video (OpenCV/FFmpeg)");
+  return std::make_unique<VideoSource>(input, std::move(video));
 }
 
 }  // namespace rolamos

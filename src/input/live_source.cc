@@ -18,10 +18,11 @@
 #endif
 
 #include <opencv2/imgproc.hpp>
-#include <opencv2/videoio.hpp>
+#include <opencv2/videoio.hpp>  // the CAP_ back ends only: util/codecs.h opens
 
 #include "rolamos/error.hpp"
 #include "util/clock.h"
+#include "util/codecs.h"
 
 namespace fs = std::filesystem;
 
@@ -228,10 +229,10 @@ class GrowingFolderSource : public LiveSource {
 // stream) leaves the thread behind when the source ends, instead of holding up the end.
 class StreamSource : public LiveSource {
  public:
-  StreamSource(std::string name, cv::VideoCapture cap, const LiveOptions& o)
+  StreamSource(std::string name, std::unique_ptr<VideoReader> video, const LiveOptions& o)
       : name_(std::move(name)), options_(o), shared_(std::make_shared<Shared>()) {
     options_max_waiting_ = o.max_waiting;
-    shared_->cap = std::move(cap);
+    shared_->video = std::move(video);
     shared_->stop = o.stop;
     shared_->max_waiting = o.max_waiting;
     shared_->source = this;
@@ -280,7 +281,7 @@ class StreamSource : public LiveSource {
 
  private:
   struct Shared {
-    cv::VideoCapture cap;
+    std::unique_ptr<VideoReader> video;
     std::mutex mutex;
     std::condition_variable changed;
     // Frames waiting: image, arrival, and their number in the order they came.
@@ -297,7 +298,7 @@ class StreamSource : public LiveSource {
       cv::Mat m;
       bool ok = false;
       try {
-        ok = s->cap.read(m) && !m.empty();
+        ok = s->video->Read(&m);
       } catch (const cv::Exception&) {
         ok = false;
       }
@@ -421,18 +422,18 @@ std::unique_ptr<LiveSource> LiveSource::Open(const std::string& input, const Liv
                   "pipeline ending in appsink)");
     return std::make_unique<GrowingFolderSource>(input, options);
   }
-  cv::VideoCapture cap;
+  std::unique_ptr<VideoReader> video;
   try {
-    if (input.find(" ! ") != std::string::npos) cap.open(WithUdpReceiveBuffer(input), cv::CAP_GSTREAMER);
-    else if (input.rfind("/dev/video", 0) == 0) cap.open(input, cv::CAP_V4L2);
-    else cap.open(input, cv::CAP_FFMPEG);
-    if (!cap.isOpened() && input.find(" ! ") == std::string::npos) cap.open(input);  // any back end
+    if (input.find(" ! ") != std::string::npos) video = OpenVideo(WithUdpReceiveBuffer(input), cv::CAP_GSTREAMER);
+    else if (input.rfind("/dev/video", 0) == 0) video = OpenVideo(input, cv::CAP_V4L2);
+    else video = OpenVideo(input, cv::CAP_FFMPEG);
+    if (!video && input.find(" ! ") == std::string::npos) video = OpenVideo(input);  // any back end
   } catch (const cv::Exception& e) {
     Fail(input, std::string("cannot be opened as a stream: ") + e.err);
   }
-  if (!cap.isOpened()) Fail(input, "cannot be opened as a stream by OpenCV's GStreamer, V4L2 or FFmpeg back ends");
+  if (!video) Fail(input, "cannot be opened as a stream by OpenCV's GStreamer, V4L2 or FFmpeg back ends");
   std::string name = input.rfind("/dev/video", 0) == 0 ? fs::path(input).filename().string() : "stream";
-  return std::make_unique<StreamSource>(name, std::move(cap), options);
+  return std::make_unique<StreamSource>(name, std::move(video), options);
 }
 
 }  // namespace rolamos

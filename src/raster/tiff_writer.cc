@@ -89,7 +89,7 @@ struct PyramidTiffWriter::Impl {
   std::unique_ptr<TileEncoderPool> encoders, mask_encoders;
   std::vector<uint8_t> jpeg_tables;
   std::unique_ptr<TaskPool> pool;
-  std::optional<Georef> georef;
+  std::function<void(const std::string&)> before_rename;  // SetGeoref's tags
   bool finished = false;
   TiffWriteStats stats;
   std::atomic<long long> tiles_written{0};
@@ -293,10 +293,10 @@ void PyramidTiffWriter::WriteBand(const cv::Mat& band) {
   m.EmitBand(0, band);
 }
 
-void PyramidTiffWriter::SetGeoref(const Georef& georef) {
-  std::string error;
-  if (!georef.IsValid(&error)) Fail(impl_->path, "georeference: " + error);
-  impl_->georef = georef;
+const std::string& PyramidTiffWriter::path() const { return impl_->path; }
+
+void PyramidTiffWriter::BeforeRename(std::function<void(const std::string& tmp_path)> step) {
+  impl_->before_rename = std::move(step);
 }
 
 TiffWriteStats PyramidTiffWriter::Finish() {
@@ -331,7 +331,7 @@ TiffWriteStats PyramidTiffWriter::Finish() {
   }
   m.file->Close();
   m.Cleanup();
-  if (m.georef) WriteGeoref(m.tmp_path, *m.georef);
+  if (m.before_rename) m.before_rename(m.tmp_path);
   RenameFile(m.tmp_path, m.path);
   m.finished = true;
   m.stats.tiles = m.tiles_written;
@@ -342,15 +342,19 @@ TiffWriteStats PyramidTiffWriter::Finish() {
   return m.stats;
 }
 
-TiffWriteStats WritePyramidTiff(const std::string& path, const cv::Mat& image,
-                                const TiffWriteOptions& options, const Georef* georef) {
+TiffWriteStats WritePyramidTiff(const std::string& path, const cv::Mat& image, const TiffWriteOptions& options) {
+  return WritePyramidTiff(path, image, options, [](PyramidTiffWriter&) {});
+}
+
+TiffWriteStats WritePyramidTiff(const std::string& path, const cv::Mat& image, const TiffWriteOptions& options,
+                                const std::function<void(PyramidTiffWriter&)>& before_bands) {
   PixelLayout layout;
   layout.width = image.cols;
   layout.height = image.rows;
   layout.channels = image.channels();
   layout.bits = image.depth() == CV_16U ? 16 : (image.depth() == CV_8U ? 8 : 0);
   PyramidTiffWriter writer(path, layout, options);
-  if (georef) writer.SetGeoref(*georef);
+  before_bands(writer);
   for (int y = 0; y < image.rows; y += writer.band_height())
     writer.WriteBand(image.rowRange(y, std::min(image.rows, y + writer.band_height())));
   return writer.Finish();

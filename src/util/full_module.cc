@@ -1,0 +1,53 @@
+#include "util/full_module.h"
+
+#include <dlfcn.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <mutex>
+
+#include "rolamos/error.hpp"
+
+namespace rolamos {
+
+namespace {
+constexpr const char* kModuleName = "librolamos_full.so";
+
+std::string ProgramDirectory() {
+  std::error_code ec;
+  const std::filesystem::path self = std::filesystem::read_symlink("/proc/self/exe", ec);
+  return ec ? std::string(".") : self.parent_path().string();
+}
+}  // namespace
+
+std::string FullModulePath() {
+  const std::string dir = ProgramDirectory();
+  const std::string beside = dir + "/" + kModuleName;
+  const std::string installed = dir + "/../lib/rolamos/" + kModuleName;
+  std::error_code ec;
+  if (!std::filesystem::exists(beside, ec) && std::filesystem::exists(installed, ec)) return installed;
+  return beside;
+}
+
+void* FullModuleSymbol(const char* name) {
+  static std::mutex mutex;
+  static void* handle = nullptr;
+  std::lock_guard<std::mutex> lock(mutex);
+  const std::string path = FullModulePath();
+  if (!handle) {
+    // RTLD_LOCAL: the module's own copy of the library stays its own; only the symbols asked
+    // for here cross over.
+    handle = dlopen(path.c_str(), RTLD_NOW | RTLD_LOCAL);
+    if (!handle) {
+      const char* why = dlerror();
+      Fail(path, std::string("cannot be loaded (it holds the commands and codecs the launcher leaves out): ") +
+                     (why ? why : "unknown error"));
+    }
+  }
+  dlerror();
+  void* symbol = dlsym(handle, name);
+  if (!symbol) Fail(path, std::string("has no symbol ") + name + ": built from another version of rolamos?");
+  return symbol;
+}
+
+}  // namespace rolamos
