@@ -17,8 +17,10 @@
 
 namespace {
 
-// `mosaic --live --serve` serves the viewer, which the launcher is built without.
+// `mosaic --live --serve` serves the viewer, which the launcher is built without. `--version`
+// says what the module would say.
 bool RunsHere(int argc, char** argv) {
+  if (argc == 2 && std::strcmp(argv[1], "--version") == 0) return true;
   if (argc < 2 || std::strcmp(argv[1], "mosaic") != 0) return false;
   for (int i = 2; i < argc; ++i)
     if (std::strcmp(argv[i], "--serve") == 0 || std::strncmp(argv[i], "--serve=", 8) == 0) return false;

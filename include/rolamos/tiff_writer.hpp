@@ -7,7 +7,7 @@
 // name only when Finish() succeeds; a writer destroyed before that removes its temporary files.
 #pragma once
 
-#include <functional>
+#include <functional>  // PyramidTiffWriter::BeforeRename
 #include <memory>
 #include <string>
 
@@ -72,8 +72,5 @@ class PyramidTiffWriter {
 TiffWriteStats WritePyramidTiff(const std::string& path, const cv::Mat& image, const TiffWriteOptions& options);
 TiffWriteStats WritePyramidTiff(const std::string& path, const cv::Mat& image, const TiffWriteOptions& options,
                                 const Georef* georef);
-// The writer as configured by `before_bands` (tiff_writer_georef.cc's SetGeoref).
-TiffWriteStats WritePyramidTiff(const std::string& path, const cv::Mat& image, const TiffWriteOptions& options,
-                                const std::function<void(PyramidTiffWriter&)>& before_bands);
 
 }  // namespace rolamos

@@ -16,6 +16,7 @@
 #include "raster/tiff_file.h"
 #include "raster/tiff_tags.h"
 #include "raster/tile_encoder.h"
+#include "raster/tiff_writer_whole.h"
 #include "util/cpu_time.h"
 #include "util/files.h"
 #include "util/task_pool.h"
@@ -343,18 +344,18 @@ TiffWriteStats PyramidTiffWriter::Finish() {
 }
 
 TiffWriteStats WritePyramidTiff(const std::string& path, const cv::Mat& image, const TiffWriteOptions& options) {
-  return WritePyramidTiff(path, image, options, [](PyramidTiffWriter&) {});
+  return WriteWholeTiff(path, image, options, [](PyramidTiffWriter&) {});
 }
 
-TiffWriteStats WritePyramidTiff(const std::string& path, const cv::Mat& image, const TiffWriteOptions& options,
-                                const std::function<void(PyramidTiffWriter&)>& before_bands) {
+TiffWriteStats WriteWholeTiff(const std::string& path, const cv::Mat& image, const TiffWriteOptions& options,
+                              const std::function<void(PyramidTiffWriter&)>& configure) {
   PixelLayout layout;
   layout.width = image.cols;
   layout.height = image.rows;
   layout.channels = image.channels();
   layout.bits = image.depth() == CV_16U ? 16 : (image.depth() == CV_8U ? 8 : 0);
   PyramidTiffWriter writer(path, layout, options);
-  before_bands(writer);
+  configure(writer);
   for (int y = 0; y < image.rows; y += writer.band_height())
     writer.WriteBand(image.rowRange(y, std::min(image.rows, y + writer.band_height())));
   return writer.Finish();
