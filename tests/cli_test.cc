@@ -253,6 +253,7 @@ TEST(Cli, TheLauncherMapsJpegFramesWithoutTheFullModule) {
   r = test::RunShell(lone + " mosaic -q " + (dir / "png") + " -o " + (dir / "lone.rolamos"));
   EXPECT_EQ(r.exit_code, 1) << r.output;
   EXPECT_NE(r.output.find("librolamos_full.so: cannot be loaded"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(dir / "lone.rolamos")) << "said before the store is made";
 
   // With the module: the PNG frames (the JPEGs' pixels) map as the JPEGs did; the video maps.
   auto png = RunCli("mosaic -q " + (dir / "png") + " -o " + (dir / "png.rolamos"));

@@ -130,7 +130,10 @@ namespace {
 
 class FileListSource : public FrameSource {
  public:
-  explicit FileListSource(std::vector<std::string> paths) : paths_(std::move(paths)) {}
+  explicit FileListSource(std::vector<std::string> paths) : paths_(std::move(paths)) {
+    // Frames that are not JPEG are decoded by OpenCV's codecs: loaded here, before a store is made.
+    if (!std::all_of(paths_.begin(), paths_.end(), IsJpegName)) RequireCodecs();
+  }
   bool Next(InputFrame* f) override {
     if (next_ >= paths_.size()) return false;
     Read(next_++, f);

@@ -27,6 +27,8 @@ const CodecTable& Codecs() {
 void ProvideCodecs(const CodecTable* table) { g_linked.store(table, std::memory_order_release); }
 bool CodecsLinkedIn() { return g_linked.load(std::memory_order_acquire) != nullptr; }
 
+void RequireCodecs() { Codecs(); }
+
 cv::Mat ReadImageFile(const std::string& path, int flags) { return Codecs().read_image(path, flags); }
 
 bool EncodeImage(const std::string& extension, const cv::Mat& image, std::vector<unsigned char>* bytes) {

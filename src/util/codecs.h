@@ -30,6 +30,10 @@ class VideoReader {
 // that rejects it may throw cv::Exception.
 std::unique_ptr<VideoReader> OpenVideo(const std::string& name, int api = 0);
 
+// Loads them now (the launcher: from the full module) when they are not linked in: a run that
+// will need them fails before it writes anything when they cannot be loaded. Throws Error.
+void RequireCodecs();
+
 // The codecs a program provides (codecs_opencv.cc, registered when it is linked in).
 struct CodecTable {
   cv::Mat (*read_image)(const std::string& path, int flags);
