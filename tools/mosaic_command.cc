@@ -277,14 +277,8 @@ static int RunMosaic(MosaicSwitches s, const LiveViewerStarter& start_viewer) {
   return sum.stitched > 0 ? 0 : 1;
 }
 
-void AddMosaicCommand(CLI::App& app, Runner* run, LiveViewerStarter start_viewer) {
-  auto s = std::make_shared<MosaicSwitches>();
-  auto& o = s->options;
-  auto* cmd = app.add_subcommand("mosaic", "Mosaic frames (folder, list or video) into a store, online");
-  cmd->add_option("input", s->input,
-                  "folder of frames, .txt list of frames, or a video; with --live: a folder that grows, a camera "
-                  "(/dev/videoN), a stream (rtsp://, udp://) or a GStreamer pipeline ending in appsink")
-      ->required();
+// Live: where frames come from as they arrive, the viewer while mapping, the backlog.
+static void AddLiveSwitches(CLI::App* cmd, const std::shared_ptr<MosaicSwitches>& s) {
   cmd->add_flag("--live", s->live,
                 "map frames as they arrive until the stream ends, SIGINT/SIGTERM (the open patch is written) or "
                 "--idle-timeout; frames that arrive while the engine is busy are skipped; STORE/live/status.json "
@@ -312,6 +306,11 @@ void AddMosaicCommand(CLI::App& app, Runner* run, LiveViewerStarter start_viewer
       ->capture_default_str();
   cmd->add_option("--idle-timeout", s->live_options.idle_timeout_s, "live: end after this many seconds without a frame (0 = never)")
       ->capture_default_str();
+}
+
+// The store, the frames' overlays, lens and filters.
+static void AddFrameSwitches(CLI::App* cmd, const std::shared_ptr<MosaicSwitches>& s) {
+  auto& o = s->options;
   cmd->add_option("--checkpoint-frames", o.checkpoint_frames,
                   "close (write) the open patch after this many frames, so a crash loses at most these (default 0; "
                   "150 with --live)");
@@ -333,6 +332,11 @@ void AddMosaicCommand(CLI::App& app, Runner* run, LiveViewerStarter start_viewer
   cmd->add_flag("--no-bilateral", s->no_bilateral, "skip the bilateral filter");
   cmd->add_flag("--no-temporal", s->no_temporal, "skip the temporal filter");
   cmd->add_flag("--no-clahe", s->no_clahe, "no contrast normalisation of the detection image");
+}
+
+// Following frames (Lucas-Kanade).
+static void AddTrackingSwitches(CLI::App* cmd, const std::shared_ptr<MosaicSwitches>& s) {
+  auto& o = s->options;
   cmd->add_option("--track-pixels", o.track_pixels,
                   "frames are followed (Lucas-Kanade) halved until they hold at most this many pixels")
       ->capture_default_str();
@@ -356,6 +360,11 @@ void AddMosaicCommand(CLI::App& app, Runner* run, LiveViewerStarter start_viewer
                   "many degrees either way, before recovery by SIFT (0 = not tried; 84 places a random walk's "
                   "stills better within each patch, but makes the global map after align worse)")
       ->capture_default_str();
+}
+
+// Which frames become keyframes, are described and blended.
+static void AddKeyframeSwitches(CLI::App* cmd, const std::shared_ptr<MosaicSwitches>& s) {
+  auto& o = s->options;
   cmd->add_option("--keyframe-overlap", o.keyframe_overlap,
                   "a frame that overlaps the last keyframe less than this becomes a keyframe (adjusted with the "
                   "patch's others, its features stored); 1 = every frame")
@@ -384,6 +393,11 @@ void AddMosaicCommand(CLI::App& app, Runner* run, LiveViewerStarter start_viewer
                   "a keyframe taken right after another (stills) is blended when it overlaps the last blended "
                   "keyframe less than this; 1 = every still")
       ->capture_default_str();
+}
+
+// Features, matching and the registration's checks.
+static void AddMatchingSwitches(CLI::App* cmd, const std::shared_ptr<MosaicSwitches>& s) {
+  auto& o = s->options;
   cmd->add_option("--features", o.features, "sift, orb or akaze")->capture_default_str();
   cmd->add_option("--max-features", o.max_features, "features per frame")->capture_default_str();
   cmd->add_option("--followed-max-features", o.followed_max_features,
@@ -407,6 +421,11 @@ void AddMosaicCommand(CLI::App& app, Runner* run, LiveViewerStarter start_viewer
   cmd->add_flag("--no-recover", s->no_recover,
                 "no recovery: a frame is registered to the previous one only, never against the patch's other "
                 "frames or image, and rejected frames get no second chance");
+}
+
+// Lighting, adjustment, placing and the patches' budgets.
+static void AddPatchSwitches(CLI::App* cmd, const std::shared_ptr<MosaicSwitches>& s) {
+  auto& o = s->options;
   cmd->add_flag("--no-flat-field", s->no_flat_field,
                 "keep the lighting (vignetting, the lights' cone) the survey's frames share");
   cmd->add_flag("--no-exposure", s->no_exposure, "no matching of each frame's exposure to its neighbours'");
@@ -437,6 +456,21 @@ void AddMosaicCommand(CLI::App& app, Runner* run, LiveViewerStarter start_viewer
   cmd->add_option("--patch-memory-mb", o.patch_memory_mb, "memory budget of a patch (0 = none)");
   cmd->add_option("--max-lost", o.max_lost_frames, "failures in a row that close a patch")
       ->capture_default_str();
+}
+
+void AddMosaicCommand(CLI::App& app, Runner* run, LiveViewerStarter start_viewer) {
+  auto s = std::make_shared<MosaicSwitches>();
+  auto* cmd = app.add_subcommand("mosaic", "Mosaic frames (folder, list or video) into a store, online");
+  cmd->add_option("input", s->input,
+                  "folder of frames, .txt list of frames, or a video; with --live: a folder that grows, a camera "
+                  "(/dev/videoN), a stream (rtsp://, udp://) or a GStreamer pipeline ending in appsink")
+      ->required();
+  AddLiveSwitches(cmd, s);
+  AddFrameSwitches(cmd, s);
+  AddTrackingSwitches(cmd, s);
+  AddKeyframeSwitches(cmd, s);
+  AddMatchingSwitches(cmd, s);
+  AddPatchSwitches(cmd, s);
   AddTiffSwitches(cmd, &s->tiff);
   cmd->add_flag("-q,--quiet", s->quiet, "no progress");
   cmd->callback([s, run, start_viewer] { *run = [s, start_viewer] { return RunMosaic(*s, start_viewer); }; });
