@@ -25,7 +25,8 @@ void AddExportCommand(CLI::App& app, Runner* run);
 void AddDemoCommand(CLI::App& app, Runner* run);
 void AddSynthCommand(CLI::App& app, Runner* run);
 // `mosaic --live --serve`'s viewer: started by `start_viewer` (StartLiveViewer, in the full module
-// only: see main.cc); the handle it returns stops it when released.
+// only; the launcher reaches it through the module: main.cc); the handle it returns stops it when
+// released.
 struct LiveViewerSwitches {
   int port = -1;  // --serve (0: any free port; -1: no viewer)
   std::string bind = "127.0.0.1";

@@ -5,7 +5,7 @@
 // need OpenImageIO, GDAL and OpenCV's codecs: ~280 shared libraries, 0.18 s to load at every
 // start, 9 % of mapping 60 frames of 1292 x 964. The engine reads JPEG frames with libjpeg and
 // writes patches with libtiff: the launcher is linked without them, and loads the module only when
-// a run needs it (a video, frames that are not JPEG, a mask image, --serve).
+// a run needs it (a video, frames that are not JPEG, a mask image, the viewer of --serve).
 #include <malloc.h>
 
 #include <cstdio>
@@ -17,14 +17,18 @@
 
 namespace {
 
-// `mosaic --live --serve` serves the viewer, which the launcher is built without. `--version`
-// says what the module would say.
+// `--version` says what the module would say.
 bool RunsHere(int argc, char** argv) {
   if (argc == 2 && std::strcmp(argv[1], "--version") == 0) return true;
-  if (argc < 2 || std::strcmp(argv[1], "mosaic") != 0) return false;
-  for (int i = 2; i < argc; ++i)
-    if (std::strcmp(argv[i], "--serve") == 0 || std::strncmp(argv[i], "--serve=", 8) == 0) return false;
-  return true;
+  return argc >= 2 && std::strcmp(argv[1], "mosaic") == 0;
+}
+
+// `mosaic --serve`'s viewer, from the module (tools/mosaic_viewer.cc), loaded when a run serves.
+std::shared_ptr<void> ViewerFromModule(rolamos::Store& store, const rolamos::cli::LiveViewerSwitches& viewer) {
+  using Start = void (*)(rolamos::Store*, const rolamos::cli::LiveViewerSwitches*, std::shared_ptr<void>*);
+  std::shared_ptr<void> handle;
+  reinterpret_cast<Start>(rolamos::FullModuleSymbol("rolamos_start_live_viewer"))(&store, &viewer, &handle);
+  return handle;
 }
 
 int RunFullModule(int argc, char** argv) {
@@ -51,6 +55,6 @@ int main(int argc, char** argv) {
   if (!RunsHere(argc, argv)) return RunFullModule(argc, argv);
   const auto app = rolamos::cli::MakeApp();
   rolamos::cli::Runner run;
-  rolamos::cli::AddMosaicCommand(*app, &run, /*start_viewer=*/nullptr);
+  rolamos::cli::AddMosaicCommand(*app, &run, &ViewerFromModule);
   return rolamos::cli::ParseAndRun(*app, run, argc, argv);
 }

@@ -241,7 +241,6 @@ static int RunMosaic(MosaicSwitches s, const LiveViewerStarter& start_viewer) {
   if (s.live && !s.live_options.IsValid(&error)) Fail("mosaic --live", error);
   if (s.viewer.port >= 0 && !s.live)
     Fail("mosaic", "serving while mapping needs a live run (rolamos serve STORE serves a store once written)");
-  if (s.viewer.port >= 0 && !start_viewer) Fail("mosaic", "this program was built without the live viewer");
   if (!s.viewer.navigation.empty() && s.viewer.port < 0)
     Fail("mosaic", "navigation georeferences the live view, which needs --serve (compose --navigation "
                    "georeferences the map)");

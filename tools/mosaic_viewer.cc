@@ -1,6 +1,6 @@
-// `mosaic --live --serve`: the viewer served while mapping. In its own file because the tile
-// server brings GDAL and OpenImageIO, which the launcher's own `mosaic` is linked without
-// (main.cc): the launcher hands a run with --serve to the full module.
+// `mosaic --live --serve`: the viewer served while mapping. In its own file, in the full module
+// only, because the tile server brings GDAL and OpenImageIO, which the launcher is linked without
+// (main.cc): the launcher's `mosaic` starts it through the module (rolamos_start_live_viewer).
 #include <cstdio>
 
 #include "command.h"
@@ -25,3 +25,9 @@ std::shared_ptr<void> StartLiveViewer(Store& store, const LiveViewerSwitches& v)
 }
 
 }  // namespace rolamos::cli
+
+// For the launcher (dlsym): C linkage, the result through a pointer.
+extern "C" void rolamos_start_live_viewer(rolamos::Store* store, const rolamos::cli::LiveViewerSwitches* viewer,
+                                          std::shared_ptr<void>* handle) {
+  *handle = rolamos::cli::StartLiveViewer(*store, *viewer);
+}

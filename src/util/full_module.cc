@@ -32,9 +32,10 @@ std::string FullModulePath() {
 void* FullModuleSymbol(const char* name) {
   static std::mutex mutex;
   static void* handle = nullptr;
+  static std::string path;
   std::lock_guard<std::mutex> lock(mutex);
-  const std::string path = FullModulePath();
   if (!handle) {
+    path = FullModulePath();
     // RTLD_LOCAL: the module's own copy of the library stays its own; only the symbols asked
     // for here cross over. RTLD_DEEPBIND: the ~230 libraries it brings resolve their symbols in
     // its own scope first, heaviest first (cmake/link_order.cmake), not after the launcher's 51
