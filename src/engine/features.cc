@@ -87,9 +87,12 @@ std::vector<cv::KeyPoint> DescribeFromHalf(const FeatureOptions& options, const 
   cv::Mat half, half_mask;
   cv::resize(image, half, cv::Size((image.cols + 1) / 2, (image.rows + 1) / 2), 0, 0, cv::INTER_AREA);
   if (!mask.empty()) cv::resize(mask, half_mask, half.size(), 0, 0, cv::INTER_NEAREST);
-  auto sift = CreateDetector(options);
-  std::vector<cv::KeyPoint> keypoints;
-  sift->detect(half, keypoints, half_mask);
+  SiftOptions sift;
+  sift.features = options.max_features;
+  sift.layers = kSiftLayers;
+  sift.contrast_threshold = options.contrast_threshold;
+  sift.sigma = kSiftSigma;
+  std::vector<cv::KeyPoint> keypoints = FindSift(half, half_mask, sift, nullptr);
   // OpenCV packs (octave, layer, offset) in `octave`: the octave in the low byte, signed.
   const float sx = float(image.cols) / float(half.cols), sy = float(image.rows) / float(half.rows);
   for (auto& k : keypoints) {
@@ -156,8 +159,9 @@ Features FeatureExtractor::Extract(const cv::Mat& gray) const {
 std::vector<cv::KeyPoint> FeatureExtractor::DetectSift(const cv::Mat& image, const cv::Mat& mask,
                                                        cv::Mat* descriptors) const {
   const double base = options_.contrast_threshold;
-  if (options_.double_first_octave && FastSiftApplies()) {
-    // FindSift orients and describes only the strongest: nothing to gain from a higher threshold.
+  if (FastSiftApplies()) {
+    // FindSift orients and describes only the strongest: nothing to gain from a higher threshold
+  // (halved or not: DescribeFromHalf finds its keypoints with FindSift too).
     std::vector<cv::KeyPoint> keypoints = RunSift(options_, base, image, mask, descriptors);
     SortCanonically(&keypoints, descriptors);
     return keypoints;

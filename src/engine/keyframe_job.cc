@@ -66,12 +66,13 @@ KeyframeProducts RunKeyframeJob(const KeyframeJob& job, const KeyframeTools& too
 std::vector<FollowedBetween> FollowBack(const KeyframeJob& job, const KeyframeTools& tools) {
   std::vector<FollowedBetween> out;
   if (!job.track || !tools.tracker || job.points.empty()) return out;
-  std::shared_ptr<const LucasKanadeTemplates> windows;  // the keyframe's, made once for all
+  SharedWindows own;  // without the engine's: made once for all the frames
+  SharedWindows* windows = job.windows ? job.windows.get() : &own;
   for (const FollowedFrame& f : job.followed) {
     if (!f.track || f.track->size != job.track->size) continue;
     // Where following put both: this keyframe's pixels -> the frame's.
     const cv::Matx33d guess = (job.followed_from_to_patch * f.to_before).inv() * job.to_patch;
-    const TrackFlow flow = tools.tracker->Follow(*job.track, *f.track, job.points, guess, &windows);
+    const TrackFlow flow = tools.tracker->Follow(*job.track, *f.track, job.points, guess, windows);
     std::vector<cv::Point2f> in_frame, in_key;
     flow.Kept(job.points, &in_frame, &in_key);
     const EgomotionResult e = EstimateEgomotion(in_frame, in_key, tools.K, tools.ego);

@@ -95,6 +95,7 @@ struct KeyframeJob {
   // pyramid's pointer: the engine drops the frame's own while the job may run).
   std::shared_ptr<const TrackFrame> track;
   std::vector<cv::Point2f> points;
+  std::shared_ptr<SharedWindows> windows;  // around `points`: the engine's, when it follows from them
   // The frames followed from the keyframe before (index `followed_from`, placed at
   // `followed_from_to_patch`).
   std::vector<FollowedFrame> followed;

@@ -174,8 +174,9 @@ struct Mosaicker::Impl {
     std::shared_ptr<PreparedFrame> frame;  // kept while recent: followed from, fitted against
     std::vector<cv::Point2f> points;       // followed into the frames after it
     std::vector<long long> ids;            // their tracks
-    // The frame's windows around `points`, made on the first follow from them (tracker.h).
-    mutable std::shared_ptr<const LucasKanadeTemplates> windows;
+    // The frame's windows around `points`, made on the first follow from them (tracker.h), here
+    // or in its job (KeyframeJob::windows).
+    std::shared_ptr<SharedWindows> windows = std::make_shared<SharedWindows>();
     KeyframeFuture products;
     bool described = true;                 // its features are found (products.features)
     bool blended = true;                   // in the patch image (else it links and places only)
@@ -567,7 +568,7 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<Prepared
     const cv::Matx33d shifted = tracker.CoarseShift(*key.frame->track, *p->track, guess, &response);
     if (response > 0.05 || !predicted) guess = shifted;
   }
-  const TrackFlow flow = tracker.Follow(*key.frame->track, *p->track, key.points, guess, &key.windows);
+  const TrackFlow flow = tracker.Follow(*key.frame->track, *p->track, key.points, guess, key.windows.get());
   std::vector<cv::Point2f> from, to;
   std::vector<size_t> kept;
   flow.Kept(key.points, &from, &to, &kept);
@@ -758,7 +759,7 @@ cv::Matx33d Mosaicker::Impl::FitToKeyframes(const PreparedFrame& p, const Candid
     if (!it->frame || !it->frame->track) break;  // no longer kept: older ones are not either
     if (FootprintOverlap(guess, it->to_patch, frame_size) < 0.3) continue;
     const TrackFlow flow =
-        tracker.Follow(*it->frame->track, *p.track, it->points, guess.inv() * it->to_patch, &it->windows);
+        tracker.Follow(*it->frame->track, *p.track, it->points, guess.inv() * it->to_patch, it->windows.get());
     int n = 0;
     for (size_t i = 0; i < it->points.size(); ++i) {
       if (!flow.ok[i]) continue;
@@ -1063,6 +1064,7 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
       // Followed from the keyframe before this one, the last in `keys` until this one goes in.
       job.track = p->track;
       job.points = key.points;
+      job.windows = key.windows;
       job.followed_from = keys.back().index;
       job.followed_from_to_patch = keys.back().to_patch;
     }

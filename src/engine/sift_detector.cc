@@ -319,7 +319,8 @@ std::vector<cv::KeyPoint> FindSift(const cv::Mat& image, const cv::Mat& mask, co
   if (!FastSiftApplies()) {
     const auto sift = cv::SIFT::create(options.features, options.layers, options.contrast_threshold,
                                        options.edge_threshold, options.sigma);
-    if (mask.empty()) sift->detectAndCompute(image, cv::noArray(), keypoints, *descriptors);
+    if (!descriptors) sift->detect(image, keypoints, mask);
+    else if (mask.empty()) sift->detectAndCompute(image, cv::noArray(), keypoints, *descriptors);
     else sift->detectAndCompute(image, mask, keypoints, *descriptors);
     return keypoints;
   }
@@ -357,7 +358,7 @@ std::vector<cv::KeyPoint> FindSift(const cv::Mat& image, const cv::Mat& mask, co
     k.size *= 0.5f;
   }
   if (!mask.empty()) cv::KeyPointsFilter::runByPixelsMask(keypoints, mask);
-  DescribeSiftOn(gauss, first, keypoints, descriptors);
+  if (descriptors) DescribeSiftOn(gauss, first, keypoints, descriptors);
   return keypoints;
 }
 

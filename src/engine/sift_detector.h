@@ -37,6 +37,7 @@ struct SiftOptions {
 // Keypoints of `image` (CV_8UC1) outside `mask` (CV_8UC1, 0 = left out; empty = none), with their
 // descriptors (CV_32F, 128 per keypoint, in order), as cv::SIFT::create(features, layers,
 // contrast_threshold, edge_threshold, sigma)->detectAndCompute(image, mask, ...) gives them.
+// `descriptors` null: the keypoints alone, as cv::SIFT's detect gives them.
 std::vector<cv::KeyPoint> FindSift(const cv::Mat& image, const cv::Mat& mask, const SiftOptions& options,
                                    cv::Mat* descriptors);
 

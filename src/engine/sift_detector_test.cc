@@ -82,6 +82,10 @@ TEST(SiftDetector, LeavesOutTheMaskedPixels) {
   const auto found = FindSift(image, mask, SiftOptions(), &d);
   ASSERT_FALSE(found.empty());
   for (const auto& k : found) EXPECT_GE(k.pt.x, 159.0f);
+  // Without descriptors: the same keypoints.
+  const auto alone = FindSift(image, mask, SiftOptions(), nullptr);
+  ASSERT_EQ(alone.size(), found.size());
+  for (size_t i = 0; i < found.size(); ++i) EXPECT_EQ(alone[i].pt, found[i].pt);
   std::vector<cv::KeyPoint> theirs;
   cv::Mat theirs_d;
   cv::SIFT::create(1000, 3, 0.04)->detectAndCompute(image, mask, theirs, theirs_d);

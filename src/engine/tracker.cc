@@ -208,9 +208,15 @@ std::vector<cv::Point2f> FrameTracker::Corners(const TrackFrame& frame, const st
   return out;
 }
 
+const LucasKanadeTemplates& SharedWindows::Get(
+    const std::function<std::shared_ptr<const LucasKanadeTemplates>()>& make) {
+  std::call_once(made_, [&] { windows_ = make(); });
+  return *windows_;
+}
+
 TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, const std::vector<cv::Point2f>& points,
                                const cv::Matx33d& guess,
-                               std::shared_ptr<const LucasKanadeTemplates>* windows) const {
+                               SharedWindows* windows) const {
   TrackFlow flow;
   flow.to.resize(points.size());
   flow.ok.assign(points.size(), 0);
@@ -242,8 +248,9 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
     b = a;
   }
   if (windows) {
-    if (!*windows) *windows = PrepareLucasKanade(from.pyramid, a, win, options_.levels, kMinEigen);
-    FollowLucasKanade(**windows, from.pyramid, *target, a, &b, &forward, until);
+    const LucasKanadeTemplates& made =
+        windows->Get([&] { return PrepareLucasKanade(from.pyramid, a, win, options_.levels, kMinEigen); });
+    FollowLucasKanade(made, from.pyramid, *target, a, &b, &forward, until);
   } else {
     FollowLucasKanade(from.pyramid, *target, a, &b, &forward, win, options_.levels, until, kMinEigen);
   }

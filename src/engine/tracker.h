@@ -6,7 +6,9 @@
 // runs only where it is needed (keyframes, recovery), not on every frame.
 #pragma once
 
+#include <functional>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -107,6 +109,20 @@ struct TrackFlow {
 
 class LucasKanadeTemplates;
 
+// The windows of a keyframe around the points it hands on (LucasKanadeTemplates), made by the
+// first follow from those points, on whichever thread comes first: the engine's, following the
+// next frame, or the keyframe's job's, following the points back into the frames before it.
+// Both read the same windows; each made its own before (a fifth of the following on video).
+class SharedWindows {
+ public:
+  // The windows, made by `make` on the first call; a call meanwhile waits for them.
+  const LucasKanadeTemplates& Get(const std::function<std::shared_ptr<const LucasKanadeTemplates>()>& make);
+
+ private:
+  std::once_flag made_;
+  std::shared_ptr<const LucasKanadeTemplates> windows_;
+};
+
 class FrameTracker {
  public:
   explicit FrameTracker(const TrackerOptions& options);
@@ -122,8 +138,7 @@ class FrameTracker {
   // `windows` (optional) keeps the windows of `from` around `points` for the next follow from
   // the same points: made on the first call, read on the others.
   TrackFlow Follow(const TrackFrame& from, const TrackFrame& to, const std::vector<cv::Point2f>& points,
-                   const cv::Matx33d& guess,
-                   std::shared_ptr<const LucasKanadeTemplates>* windows = nullptr) const;
+                   const cv::Matx33d& guess, SharedWindows* windows = nullptr) const;
   // A coarse translation from `from` to `to` (full-resolution pixels) by phase correlation of
   // the pyramids' coarsest levels, after `guess`: a start when there is no prediction.
   cv::Matx33d CoarseShift(const TrackFrame& from, const TrackFrame& to, const cv::Matx33d& guess,

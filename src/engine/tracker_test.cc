@@ -1,11 +1,15 @@
 #include "engine/tracker.h"
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <cmath>
+#include <thread>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
 
+#include "engine/lucas_kanade.h"
 #include "engine/motion_gate.h"
 #include "synth/seafloor_texture.h"
 
@@ -103,6 +107,42 @@ TEST(Tracker, FollowsAKnownHomographyToSubpixel) {
     ASSERT_GT(errors.size(), 150u) << "scale " << scale;
     EXPECT_LT(Median(errors), 0.1 / scale) << "scale " << scale;
     EXPECT_EQ(flow.followed, static_cast<int>(std::count(flow.ok.begin(), flow.ok.end(), 1)));
+  }
+}
+
+// A keyframe's windows, shared by the engine and the keyframe's job (two threads at once): made
+// once, and a follow from them finds what a follow that makes its own finds.
+TEST(Tracker, WindowsSharedByTwoThreadsAreMadeOnceAndFollowTheSame) {
+  const cv::Matx33d H(0.995, -0.035, 31, 0.035, 0.995, -17, 2e-6, -3e-6, 1);
+  cv::Mat a, b;
+  FramePair({800, 600}, H, &a, &b);
+  const TrackerOptions options;
+  const FrameTracker tracker(options);
+  const auto ta = tracker.Prepare(a), tb = tracker.Prepare(b);
+  ASSERT_EQ(ta->scale, 1.0);  // tracking pixels are frame pixels
+  const std::vector<cv::Point2f> points = tracker.Corners(*ta, {}, 300);
+  ASSERT_GT(points.size(), 200u);
+  SharedWindows shared;
+  std::atomic<int> made{0};
+  const auto make = [&] {
+    ++made;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));  // the other thread asks meanwhile
+    return PrepareLucasKanade(ta->pyramid, points, cv::Size(options.window, options.window), options.levels, 1e-4);
+  };
+  const LucasKanadeTemplates* seen[2] = {nullptr, nullptr};
+  std::thread other([&] { seen[0] = &shared.Get(make); });
+  seen[1] = &shared.Get(make);
+  other.join();
+  EXPECT_EQ(made.load(), 1);
+  EXPECT_EQ(seen[0], seen[1]);
+  const TrackFlow alone = tracker.Follow(*ta, *tb, points, H);
+  const TrackFlow from_shared = tracker.Follow(*ta, *tb, points, H, &shared);
+  EXPECT_EQ(made.load(), 1);
+  ASSERT_GT(alone.followed, 200);
+  EXPECT_EQ(from_shared.followed, alone.followed);
+  for (size_t i = 0; i < points.size(); ++i) {
+    ASSERT_EQ(from_shared.ok[i], alone.ok[i]) << i;
+    if (alone.ok[i]) EXPECT_LT(cv::norm(from_shared.to[i] - alone.to[i]), 1e-3) << i;
   }
 }
 
