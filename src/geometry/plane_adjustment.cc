@@ -6,6 +6,8 @@
 
 #include <ceres/ceres.h>
 
+#include "geometry/link_transfer.h"
+
 namespace rolamos {
 
 bool PlaneAdjustmentOptions::IsValid(std::string* error) const {
@@ -22,53 +24,6 @@ bool PlaneAdjustmentOptions::IsValid(std::string* error) const {
 
 namespace {
 
-// World-to-camera rotation of a pose (yaw, pitch, roll), as plane_camera.cc, for Ceres's jets.
-template <typename T>
-void Rotation(const T* e, T R[9]) {
-  using std::cos;
-  using std::sin;
-  const T cy = cos(e[0]), sy = sin(e[0]), cp = cos(e[1]), sp = sin(e[1]), cr = cos(e[2]), sr = sin(e[2]);
-  // Rx(roll) * Ry(pitch) * Rz(yaw), multiplied out.
-  const T a[9] = {cp * cy, cp * sy, sp, -sy, cy, T(0), -sp * cy, -sp * sy, cp};  // Ry * Rz
-  R[0] = a[0];
-  R[1] = a[1];
-  R[2] = a[2];
-  R[3] = cr * a[3] - sr * a[6];
-  R[4] = cr * a[4] - sr * a[7];
-  R[5] = cr * a[5] - sr * a[8];
-  R[6] = sr * a[3] + cr * a[6];
-  R[7] = sr * a[4] + cr * a[7];
-  R[8] = sr * a[5] + cr * a[8];
-}
-
-// A pixel of frame a cast onto the plane and seen by b, against its match in b.
-// Trusted links weigh as much as kTrustedWeight links each: a group held by one link of the
-// chain against several that agree with each other goes where the chain puts it, and those are
-// left far off, to be found false.
-constexpr double kTrustedWeight = 10.0;
-double WeightOf(const PlaneLink& l) { return l.trusted ? kTrustedWeight * l.weight : l.weight; }
-
-// A pixel of frame a cast onto the plane and seen by b (world-to-camera rotations Ra, Rb), against
-// its match in b, weighted by w.
-template <typename T>
-bool TransferResidual(const T Ra[9], const T* ca, const T Rb[9], const T* cb, const T* f, cv::Point2f pa,
-                      cv::Point2f pb, double cx, double cy, double w, T* r) {
-  const T v[3] = {(T(pa.x) - T(cx)) / f[0], (T(pa.y) - T(cy)) / f[0], T(1)};
-  T d[3];  // the ray in the world: Ra^T v
-  for (int k = 0; k < 3; ++k) d[k] = Ra[k] * v[0] + Ra[3 + k] * v[1] + Ra[6 + k] * v[2];
-  if (!(d[2] > T(1e-6))) return false;  // parallel to the plane or away from it
-  const T s = -ca[2] / d[2];
-  const T X[3] = {ca[0] + s * d[0] - cb[0], ca[1] + s * d[1] - cb[1], -cb[2]};
-  T c[3];
-  for (int k = 0; k < 3; ++k) c[k] = Rb[3 * k] * X[0] + Rb[3 * k + 1] * X[1] + Rb[3 * k + 2] * X[2];
-  if (!(c[2] > T(1e-6))) return false;
-  r[0] = T(w) * (f[0] * c[0] / c[2] + T(cx) - T(pb.x));
-  r[1] = T(w) * (f[0] * c[1] / c[2] + T(cy) - T(pb.y));
-  return true;
-}
-
-double PairWeight(const PlaneLink& l, size_t i) { return i < l.pair_weight.size() ? l.pair_weight[i] : 1.0; }
-
 // How many matched pairs a link stands for: the sum of its pairs' squared weights.
 double PairCount(const PlaneLink& l) {
   if (l.pair_weight.empty()) return double(l.in_a.size());
@@ -77,54 +32,13 @@ double PairCount(const PlaneLink& l) {
   return n;
 }
 
-// Every pixel of a link at once (2 n residuals), the link's rotations made once, not once a pixel
-// (the engine's patch adjustment spent most of its time there). With a knee, each pixel is
-// discounted on its own by the robust loss (Huber or Cauchy, the knee scaled by the pixel's
-// weight): its residual r is scaled to sqrt(rho(|r|^2)) / |r|, the same sum, so the same minimum,
-// as one robust residual block a pixel. Without (knee 0), the pixels are not discounted here.
-struct LinkTransfer {
-  LinkTransfer(const PlaneLink* l, double cx, double cy, double knee = 0, bool cauchy = false)
-      : l(l), cx(cx), cy(cy), knee(knee), cauchy(cauchy) {}
-  template <typename T>
-  bool operator()(const T* ea, const T* ca, const T* eb, const T* cb, const T* f, T* r) const {
-    using std::log;
-    using std::sqrt;
-    T Ra[9], Rb[9];
-    Rotation(ea, Ra);
-    Rotation(eb, Rb);
-    for (size_t i = 0; i < l->in_a.size(); ++i) {
-      T* ri = r + 2 * i;
-      if (!TransferResidual(Ra, ca, Rb, cb, f, l->in_a[i], l->in_b[i], cx, cy, WeightOf(*l) * PairWeight(*l, i), ri))
-        return false;
-      if (!(knee > 0)) continue;
-      const double a = knee * PairWeight(*l, i), a2 = a * a;
-      const T s = ri[0] * ri[0] + ri[1] * ri[1];
-      T scale;
-      if (cauchy) {
-        if (!(s > T(1e-12 * a2))) continue;
-        scale = sqrt(T(a2) * log(T(1) + s / T(a2)) / s);
-      } else {
-        if (!(s > T(a2))) continue;
-        const T norm = sqrt(s);
-        scale = sqrt(T(2 * a) * norm - T(a2)) / norm;
-      }
-      ri[0] *= scale;
-      ri[1] *= scale;
-    }
-    return true;
-  }
-  const PlaneLink* l;
-  double cx, cy, knee;
-  bool cauchy;
-};
-
 // The ground under a frame's pixel against where navigation puts it.
 struct GroundResidual {
   GroundResidual(const GroundPrior& p, double cx, double cy) : p(p), cx(cx), cy(cy) {}
   template <typename T>
   bool operator()(const T* e, const T* c, const T* f, T* r) const {
     T R[9];
-    Rotation(e, R);
+    PlaneRotation(e, R);
     const T v[3] = {(T(p.pixel.x) - T(cx)) / f[0], (T(p.pixel.y) - T(cy)) / f[0], T(1)};
     T d[3];
     for (int k = 0; k < 3; ++k) d[k] = R[k] * v[0] + R[3 + k] * v[1] + R[6 + k] * v[2];
@@ -195,8 +109,7 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
     const PlaneLink& l = links[k];
     if (dropped[k] || l.a < 0 || l.b < 0 || size_t(l.a) >= n || size_t(l.b) >= n || l.a == l.b) continue;
     if (o.per_link && !l.in_a.empty()) {
-      auto* cost = new ceres::AutoDiffCostFunction<LinkTransfer, ceres::DYNAMIC, 3, 3, 3, 3, 1>(
-          new LinkTransfer(&l, cx, cy), 2 * static_cast<int>(l.in_a.size()));
+      auto* cost = new LinkTransferCost(&l, cx, cy);
       // The knee where the link's RMS (over the pairs it stands for) reaches loss_px.
       const double a = o.loss_px * std::sqrt(PairCount(l));
       // A trusted link is not discounted: its pull grows with how far off it is.
@@ -213,9 +126,7 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
     }
     if (!l.in_a.empty()) {
       // A trusted link is not discounted (knee 0).
-      auto* cost = new ceres::AutoDiffCostFunction<LinkTransfer, ceres::DYNAMIC, 3, 3, 3, 3, 1>(
-          new LinkTransfer(&l, cx, cy, l.trusted ? 0.0 : o.loss_px, o.loss == "cauchy"),
-          2 * static_cast<int>(l.in_a.size()));
+      auto* cost = new LinkTransferCost(&l, cx, cy, l.trusted ? 0.0 : o.loss_px, o.loss == "cauchy");
       problem.AddResidualBlock(cost, nullptr, angles[size_t(l.a)].data(), centres[size_t(l.a)].data(),
                                angles[size_t(l.b)].data(), centres[size_t(l.b)].data(), focal);
       result.residuals += static_cast<int>(l.in_a.size());
