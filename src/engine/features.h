@@ -83,6 +83,10 @@ struct Matches {
 // kNN (k = 2) both ways, ratio test, and (optionally) mutual-best check.
 Matches MatchFeatures(const Features& a, const Features& b, const FeatureOptions& options);
 
+// Float descriptors' squared distances, a's rows by b's (cv::batchDistance's NORM_L2SQR matrix;
+// for SIFT's whole-number descriptors its values to the bit).
+cv::Mat SquaredDistanceMatrix(const Features& a, const Features& b);
+
 // The distance of a's descriptor i from b's descriptor j, cv::norm(..., a.norm)'s value.
 double DescriptorDistance(const Features& a, int i, const Features& b, int j);
 

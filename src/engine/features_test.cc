@@ -181,5 +181,32 @@ TEST(DescriptorDistance, IsCvNormsToTheBit) {
   EXPECT_EQ(DescriptorDistance(a, 3, b, 7), cv::norm(a.descriptors.row(3), b.descriptors.row(7), cv::NORM_HAMMING));
 }
 
+// SIFT's descriptors are whole numbers 0..255: the matrix is OpenCV's to the bit, whatever the
+// path (16-bit dot products with VNNI, float differences with AVX-512, OpenCV's elsewhere), for
+// rows that fill whole vectors and rows that do not (37 of b's: two blocks of 16 and 5).
+TEST(SquaredDistanceMatrix, IsCvBatchDistancesToTheBit) {
+  cv::RNG rng(5);
+  Features a, b;
+  for (auto [f, rows] : {std::pair<Features*, int>{&a, 45}, {&b, 37}}) {
+    cv::Mat bytes(rows, 128, CV_8U);
+    rng.fill(bytes, cv::RNG::UNIFORM, 0, 256);
+    bytes.row(0).setTo(255);  // the largest distances: 128 x 255^2, under 2^24
+    bytes.convertTo(f->descriptors, CV_32F);
+  }
+  b.descriptors.row(1).setTo(0);
+  cv::Mat theirs;
+  cv::batchDistance(a.descriptors, b.descriptors, theirs, CV_32F, cv::noArray(), cv::NORM_L2SQR);
+  const cv::Mat ours = SquaredDistanceMatrix(a, b);
+  ASSERT_EQ(ours.size(), theirs.size());
+  EXPECT_EQ(cv::norm(ours, theirs, cv::NORM_INF), 0.0);
+  EXPECT_EQ(ours.at<float>(0, 1), 128.f * 255 * 255);
+  // Entries that are not whole numbers (not SIFT's): the float path, OpenCV's to rounding.
+  a.descriptors.row(3).copyTo(b.descriptors.row(2));
+  a.descriptors.at<float>(3, 7) += 0.25f;
+  cv::batchDistance(a.descriptors, b.descriptors, theirs, CV_32F, cv::noArray(), cv::NORM_L2SQR);
+  EXPECT_LE(cv::norm(SquaredDistanceMatrix(a, b), theirs, cv::NORM_INF), 1e-3);
+  EXPECT_EQ(SquaredDistanceMatrix(a, b).at<float>(3, 2), 0.0625f);
+}
+
 }  // namespace
 }  // namespace rolamos

@@ -26,6 +26,12 @@ inline bool CpuHasAvx512Vbmi() {
   return has;
 }
 
+// AVX-512BW with the 16-bit dot products of VNNI (SIFT's descriptor distances).
+inline bool CpuHasAvx512Vnni() {
+  static const bool has = CpuHasAvx512Bw() && __builtin_cpu_supports("avx512vnni");
+  return has;
+}
+
 // AVX2 (the Lucas-Kanade rows, the canvas's colour rows), and AVX2 with FMA (the warps).
 inline bool CpuHasAvx2() {
   static const bool has = __builtin_cpu_supports("avx2");
