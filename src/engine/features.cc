@@ -63,11 +63,9 @@ namespace {
 constexpr int kSiftLayers = 3;
 constexpr double kSiftSigma = 1.6;
 
-// A detector per call: OpenCV does not promise that one detector may run on several threads at
-// once, and creating one costs microseconds.
+// ORB's or AKAZE's detector, one per call: OpenCV does not promise that one detector may run on
+// several threads at once, and creating one costs microseconds. (SIFT is FindSift's.)
 cv::Ptr<cv::Feature2D> CreateDetector(const FeatureOptions& options) {
-  // SIFT's float descriptors: OpenCV's brute-force L2 is vectorised for float, not for 8-bit.
-  if (options.type == "sift") return cv::SIFT::create(options.max_features, kSiftLayers, options.contrast_threshold, 10, kSiftSigma);
   if (options.type == "orb")
     return cv::ORB::create(options.max_features, 1.2f, 8, 31, 0, 2, cv::ORB::HARRIS_SCORE, 31, 10);
   return cv::AKAZE::create(cv::AKAZE::DESCRIPTOR_MLDB, 0, 3, 0.0008f);
@@ -161,7 +159,7 @@ std::vector<cv::KeyPoint> FeatureExtractor::DetectSift(const cv::Mat& image, con
   const double base = options_.contrast_threshold;
   if (FastSiftApplies()) {
     // FindSift orients and describes only the strongest: nothing to gain from a higher threshold
-  // (halved or not: DescribeFromHalf finds its keypoints with FindSift too).
+    // (halved or not: DescribeFromHalf finds its keypoints with FindSift too).
     std::vector<cv::KeyPoint> keypoints = RunSift(options_, base, image, mask, descriptors);
     SortCanonically(&keypoints, descriptors);
     return keypoints;
