@@ -1,6 +1,9 @@
 #include "geometry/link_transfer.h"
 
 #include <cmath>
+#include <iterator>
+
+#include <ceres/jet.h>
 
 namespace rolamos {
 namespace {

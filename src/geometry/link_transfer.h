@@ -8,7 +8,9 @@
 // a tenth of its patch writing (the adjustment at each patch's close).
 #pragma once
 
-#include <ceres/ceres.h>
+#include <cmath>
+
+#include <ceres/cost_function.h>
 
 #include "geometry/plane_adjustment.h"
 

@@ -5,6 +5,7 @@
 #include <random>
 #include <vector>
 
+#include <ceres/ceres.h>
 #include <gtest/gtest.h>
 
 namespace rolamos {
