@@ -227,6 +227,7 @@ static void PrintSummary(const MosaicSwitches& s, const MosaicSummary& sum, int 
   if (sum.track_scale > 0)
     followed = sum.track_scale >= 1 ? "; followed at full size"
                                     : "; followed at 1/" + std::to_string(std::lround(1 / sum.track_scale)) + " size";
+  if (sum.features_ahead > 0) followed += "; " + std::to_string(sum.features_ahead) + " described ahead";
   std::printf("per frame (CPU, all threads%s): %s\n", followed.c_str(), stages.c_str());
   if (!per_key.empty()) std::printf("per keyframe: %s\n", per_key.c_str());
   std::printf("Look at it: build/rolamos info %s; build/rolamos export %s --patch 1 --scale 0.25 "

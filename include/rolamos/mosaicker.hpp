@@ -121,6 +121,13 @@ struct MosaickerOptions {
   int still_track_points = 300;
   double still_describe_overlap = 1.0;
   double still_blend_overlap = 1.0;
+  // Features found ahead, by the threads that prepare frames, while the recent frames all needed
+  // theirs and some needed them on the engine's own thread (recovery: stills that turn more
+  // than following foresees). They are the features the engine would find itself, used only
+  // when nothing that shapes them (the overlay mask, a keyframe's coarse or followed
+  // description) changed meanwhile: the same map, with SIFT off the engine's path (random-walk
+  // stills: the engine's thread was busy 79 % of the run; bench/RESULTS.md, session 39).
+  bool features_ahead = true;
   std::string features = "sift";  // sift | orb | akaze
   int max_features = 1000;
   // Features of a keyframe that frames were followed into before it (video): its links to the
@@ -264,6 +271,7 @@ struct MosaicSummary {
   int frames_skipped = 0;        // live: frames that arrived and were not mapped (busy, or left at a stop)
   int coverage_lost = 0;         // live: of those skips, the ones after which the thread broke
   int frames_shedding = 0;       // live: frames mapped while load was shed (LiveOptions::shed_describe_overlap)
+  int features_ahead = 0;        // frames whose features were found ahead (MosaickerOptions::features_ahead) and used
   std::string preview_problem;   // live: why the open patch's preview could not be written
   // MosaicInput stopped (its `stop` set) before the input ended: the frames after `frames` were
   // not mapped; the open patch was written as at the end of the input.

@@ -161,6 +161,7 @@ struct Mosaicker::Impl {
   std::mutex mask_mutex;
   std::string mask_path;  // options.mask, or a mask given mid-run (UseMask)
   cv::Mat usable, usable_small;
+  long mask_generation = 0;  // counts the changes of usable_small (features found ahead check it)
   std::atomic<bool> mask_changed{false};  // the blending weights are made again at the next frame
   std::unique_ptr<MotionGate> gate;
   // A frame of another size waits here: a second one like it means the camera changed for good.
@@ -224,6 +225,23 @@ struct Mosaicker::Impl {
   int StepsSinceLast(const PreparedFrame& p, int index) const {
     if (!last.frame) return index - last.index;
     return static_cast<int>(std::clamp<long>(p.camera_frame - last.frame->camera_frame, 1, 1 << 20));
+  }
+  // Features found ahead (MosaickerOptions::features_ahead): asked of the preparing threads while
+  // the last frames all needed theirs (described keyframes, recovery) and one of the last few
+  // needed them on this thread. Frames that only follow (video) need none.
+  std::atomic<bool> features_ahead{false};
+  std::atomic<int> features_ahead_used{0};
+  int wanted_run = 0;                 // frames in a row whose features were needed
+  int since_needed_here = 1 << 20;   // frames since one's features were needed on this thread
+  bool wanted_now = false, needed_here_now = false, keyframed_now = false;  // the frame being integrated
+  // After each frame: features found ahead that nothing will ask for (a frame placed without
+  // becoming a keyframe: only this thread reads its features) are let go.
+  void NoteFeaturesNeeded(PreparedFrame& p) {
+    if (!keyframed_now) p.ahead.reset();
+    wanted_run = wanted_now ? wanted_run + 1 : 0;
+    since_needed_here = needed_here_now ? 0 : std::min(since_needed_here + 1, 1 << 20);
+    wanted_now = needed_here_now = keyframed_now = false;
+    features_ahead = options.features_ahead && wanted_run >= 4 && since_needed_here < 8;
   }
   long long next_track = 0;
   int lost = 0;
@@ -317,7 +335,8 @@ struct Mosaicker::Impl {
   std::shared_ptr<const Features> FeaturesOf(PreparedFrame& p);
   // The frame's features by `ex`, without the static overlays and the specks the detection image
   // leaves out.
-  Features Describe(const cv::Mat& image, const FeatureExtractor& ex);
+  // `mask_seen`: the generation of the overlay mask the features were found with.
+  Features Describe(const cv::Mat& image, const FeatureExtractor& ex, long* mask_seen = nullptr);
   // Recovery's last try: the frame and the last keyframe described three times as densely.
   // `hint`: the frame's own features matched with the last keyframe's, when Recover did that.
   std::optional<Candidate> RecoverDensely(PreparedFrame& p, const Features& capped, const Matches* hint);
@@ -476,7 +495,7 @@ const FeatureExtractor& Mosaicker::Impl::ExtractorFor(const PreparedFrame& p) co
   return p.followed_features ? followed_extractor : extractor;
 }
 
-Features Mosaicker::Impl::Describe(const cv::Mat& image, const FeatureExtractor& ex) {
+Features Mosaicker::Impl::Describe(const cv::Mat& image, const FeatureExtractor& ex, long* mask_seen) {
   const double scale = ex.options().ScaleFor(image.size());
   cv::Mat specks;
   const cv::Mat detect = pre.DetectionImage(image, scale, &specks);
@@ -485,15 +504,25 @@ Features Mosaicker::Impl::Describe(const cv::Mat& image, const FeatureExtractor&
     std::lock_guard<std::mutex> lock(mask_mutex);
     if (!usable_small.empty() && usable_small.size() == detect.size())
       mask = mask.empty() ? usable_small : (mask & usable_small);
+    if (mask_seen) *mask_seen = mask_generation;
   }
   return ex.ExtractScaled(detect, scale, mask);
 }
 
 std::shared_ptr<const Features> Mosaicker::Impl::FeaturesOf(PreparedFrame& p) {
   std::call_once(p.features_once, [&] {
-    Laps lap{this, {}};
-    p.features = std::make_shared<const Features>(Describe(p.image, ExtractorFor(p)));
-    lap(kFeatures);
+    if (p.ahead && !p.coarse_features && !p.followed_features) {
+      std::lock_guard<std::mutex> lock(mask_mutex);
+      if (p.ahead_mask == mask_generation) p.features = p.ahead;
+    }
+    if (p.features) {
+      ++features_ahead_used;
+    } else {
+      Laps lap{this, {}};
+      p.features = std::make_shared<const Features>(Describe(p.image, ExtractorFor(p)));
+      lap(kFeatures);
+    }
+    p.ahead.reset();
   });
   return p.features;
 }
@@ -1014,6 +1043,10 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   const bool still = current && StillKeyframe(to_patch);
   const bool described = Describes(*p, to_patch, c, still);
   if (!described) rec.described = false;
+  // Its features are found by its job, or not at all (no job reads `ahead` before it is submitted).
+  keyframed_now = true;
+  if (described) wanted_now = true;
+  else p->ahead.reset();
   if (blend) AddToCanvas(*p, to_patch);
   else rec.blended = false;
   lap(kCanvas);
@@ -1508,11 +1541,16 @@ std::shared_ptr<PreparedFrame> Mosaicker::Prepare(const cv::Mat& input, const st
       cv::resize(m.usable, m.usable_small, cv::Size(), scale, scale, cv::INTER_NEAREST);
       // Features need a margin around an overlay: their descriptors reach out.
       cv::erode(m.usable_small, m.usable_small, cv::Mat(), cv::Point(-1, -1), 4);
+      ++m.mask_generation;
     }
     usable = m.usable;
   }
   p->track = m.tracker.Prepare(p->image, usable);
   lap(Impl::kPreprocess);
+  if (m.features_ahead) {
+    p->ahead = std::make_shared<const Features>(m.Describe(p->image, m.extractor, &p->ahead_mask));
+    lap(Impl::kFeatures);
+  }
   return p;
 }
 
@@ -1530,6 +1568,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   p->camera_frame = m.camera_frames += 1 + std::max(0, p->skipped_before);
   auto done = [&](FrameReport rep) {
     rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    if (p) m.NoteFeaturesNeeded(*p);
     return rep;
   };
   if (!p->error.empty()) return done(m.Reject(r, p->error));
@@ -1571,6 +1610,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   lap.Restart();  // Track timed itself
   // 2. The motion model arbitrates between what following and recovery found.
   if (!m.Settled(best)) {
+    m.wanted_now = m.needed_here_now = true;
     const auto f = m.FeaturesOf(*p);
     if (f->strong < m.options.min_inliers) return done(m.Lost(p, r, "featureless"));
     if (m.options.recover) {
@@ -1643,6 +1683,7 @@ void Mosaicker::UseMask(const std::string& path) {
   m.mask_path = path;
   m.usable.release();  // read again, at the frames' size, by the next frame prepared
   m.usable_small.release();
+  ++m.mask_generation;
   m.mask_changed = true;
 }
 
@@ -1694,6 +1735,7 @@ MosaicSummary Mosaicker::Finish() {
   m.summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - m.start).count();
   m.summary.cpu_seconds = ProcessCpuSeconds() - m.cpu_start;
   m.summary.peak_rss_mb = PeakRssMb();
+  m.summary.features_ahead = m.features_ahead_used;
   static const char* names[] = {"preprocess", "tracking", "egomotion", "features", "recovery",
                                 "keyframe fit", "ecc", "working canvas", "keyframe filter", "loop links"};
   m.summary.stage_seconds.clear();

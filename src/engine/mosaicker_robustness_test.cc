@@ -1092,6 +1092,39 @@ TEST(MosaickerRobustness, StillsTurnedSharplyAreFollowedFromTheTurnThatCorrelate
   EXPECT_LT(with_rms, without_rms + 0.05);
 }
 
+// The same stills, whose turns send every other one to recovery by SIFT on the engine's thread:
+// their features are then found ahead, by the threads that prepare frames, and the map is the
+// one the engine makes finding them itself (every placement equal to the bit).
+TEST(MosaickerRobustness, FeaturesFoundAheadGiveTheSameMap) {
+  test::ScratchDir dir;
+  WriteSurvey(RandomWalk(40, 40, 0.7, 5), dir / "survey");
+  auto run = [&](bool ahead, const std::string& name, std::vector<FrameRecord>* placed) {
+    MosaickerOptions o = Options();
+    o.features_ahead = ahead;
+    Store store = Store::Create(dir / name);
+    const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, o);
+    EXPECT_EQ(sum.stitched, 40) << name;
+    Store reopened = Store::Open(dir / name);
+    for (const auto& p : reopened.patches())
+      for (const auto& f : reopened.ReadSidecar(p.id).frames) placed->push_back(f);
+    return sum;
+  };
+  std::vector<FrameRecord> with, without;
+  EXPECT_TRUE(MosaickerOptions().features_ahead);
+  const MosaicSummary a = run(true, "ahead.rolamos", &with);
+  const MosaicSummary b = run(false, "here.rolamos", &without);
+  EXPECT_GE(a.features_ahead, 10);  // most of the stills after the first recoveries
+  EXPECT_EQ(b.features_ahead, 0);
+  EXPECT_EQ(a.keyframes, b.keyframes);
+  EXPECT_EQ(a.patches, b.patches);
+  ASSERT_EQ(with.size(), without.size());
+  for (size_t i = 0; i < with.size(); ++i) {
+    EXPECT_EQ(with[i].index, without[i].index);
+    EXPECT_EQ(with[i].frame_to_patch, without[i].frame_to_patch) << "frame " << with[i].index;
+    EXPECT_EQ(with[i].registered_by, without[i].registered_by) << "frame " << with[i].index;
+  }
+}
+
 // A wide lens (90 degrees) on a vehicle that rolls and pitches by 2 degrees anew at every frame,
 // over 3 degrees of slow tilt, at video overlap: two frames in a row differ by up to 8 degrees,
 // which changes the scale across the frame by up to 40 % (the plausibility gate's perspective
