@@ -365,7 +365,14 @@ struct Mosaicker::Impl {
   // correlation, or where the last frame was, moved by the correlation (the model overshot), or
   // that turned by what correlates best (a turn nothing foresaw: FrameTracker::CoarseTurn).
   enum class Start { kPredicted, kCorrelated, kUnmoved, kTurned };
-  Candidate Track(const std::shared_ptr<PreparedFrame>& p, Start start);
+  // A follow tried for the frame being integrated, under the motion model's present prediction.
+  struct Tried {
+    cv::Matx33d guess;
+    Candidate result;
+  };
+  // `tried` (optional): the follows tried before under the same prediction; one from the same
+  // guess is not followed again (the same inputs give the same candidate), and this one is added.
+  Candidate Track(const std::shared_ptr<PreparedFrame>& p, Start start, std::vector<Tried>* tried = nullptr);
   // `with_last_key`: set to the frame's matches with the last keyframe when they were made.
   std::vector<Candidate> Recover(const std::shared_ptr<PreparedFrame>& p, Laps& lap,
                                  std::optional<Matches>* with_last_key = nullptr);
@@ -579,7 +586,8 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Assess(EgomotionResult ego, const cv
 // The frame followed from the current keyframe, starting where the motion model puts it, or
 // where one phase correlation of the coarsest levels moves that (kCorrelated) or the last frame's
 // place (kUnmoved). Without a prediction all three start from the correlation.
-Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<PreparedFrame>& p, Start start) {
+Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<PreparedFrame>& p, Start start,
+                                                  std::vector<Tried>* tried) {
   Laps lap{this, {}};
   const Key& key = keys.back();
   // Where the frame is expected: the last placed frame moved by the predicted motion.
@@ -597,6 +605,10 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<Prepared
     const cv::Matx33d shifted = tracker.CoarseShift(*key.frame->track, *p->track, guess, &response);
     if (response > 0.05 || !predicted) guess = shifted;
   }
+  // A correlation too weak to move the prediction leaves the guess the predicted follow had.
+  if (tried)
+    for (const Tried& t : *tried)
+      if (t.guess == guess) return t.result;
   const TrackFlow flow = tracker.Follow(*key.frame->track, *p->track, key.points, guess, key.windows.get());
   std::vector<cv::Point2f> from, to;
   std::vector<size_t> kept;
@@ -610,6 +622,7 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<Prepared
     c.at.push_back(from[size_t(i)]);
   }
   lap(kEgomotion);
+  if (tried) tried->push_back({guess, c});
   return c;
 }
 
@@ -1592,11 +1605,12 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   //    recovered; 12 now, bench/RESULTS.md, session 18). Without a prediction the tries would
   //    be the same one.
   using Start = Impl::Start;
-  Impl::Candidate best = m.Track(p, Start::kPredicted);
+  std::vector<Impl::Tried> tried;
+  Impl::Candidate best = m.Track(p, Start::kPredicted, &tried);
   const bool predicted = m.gate->Predicted().has_value();
   for (Start start : {Start::kCorrelated, Start::kUnmoved}) {
     if (!predicted || (m.Usable(best) && best.support.strong)) break;
-    Impl::Candidate again = m.Track(p, start);
+    Impl::Candidate again = m.Track(p, start, &tried);
     if (m.Usable(again) && (!m.Usable(best) || again.support.strong)) best = std::move(again);
   }
   //    Last, when asked (MosaickerOptions::track_turn_search_deg), turned by what correlates
