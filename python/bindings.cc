@@ -183,7 +183,7 @@ const OptionTable<MosaickerOptions>& MosaickerTable() {
         .Number("video_track_pixels", &O::video_track_pixels).Integer("track_points", &O::track_points)
         .Number("track_turn_deg", &O::track_turn_deg).Number("track_turn_search_deg", &O::track_turn_search_deg)
         .Number("keyframe_overlap", &O::keyframe_overlap).Number("keyframe_min_overlap", &O::keyframe_min_overlap)
-        .Flag("follow_back", &O::follow_back)
+        .Flag("follow_back", &O::follow_back).Flag("features_ahead", &O::features_ahead)
         .Number("describe_overlap", &O::describe_overlap).Number("blend_overlap", &O::blend_overlap)
         .Integer("still_track_points", &O::still_track_points).Number("still_describe_overlap", &O::still_describe_overlap)
         .Number("still_blend_overlap", &O::still_blend_overlap).Text("features", &O::features)

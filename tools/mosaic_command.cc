@@ -31,7 +31,7 @@ struct MosaicSwitches {
   TiffSwitches tiff = FromWriteOptions(MosaickerOptions::PatchWriteOptions());
   bool no_bilateral = false, no_temporal = false, no_clahe = false, no_sift_upsample = false, no_fundamental = false,
        no_kalman = false, no_ecc = false, no_cross_check = false, no_recover = false, no_patch_fit = false, no_adjust = false,
-       no_follow_back = false, fixed_focal = false,
+       no_follow_back = false, no_features_ahead = false, fixed_focal = false,
        no_flat_field = false, no_exposure = false, no_water_colour = false;
   bool quiet = false;
   bool fov_given = false;
@@ -101,6 +101,7 @@ static MosaickerOptions EngineOptions(const MosaicSwitches& s) {
   o.recover = !s.no_recover;
   o.patch_fit = !s.no_patch_fit;
   o.follow_back = !s.no_follow_back;
+  o.features_ahead = !s.no_features_ahead;
   o.adjust_patches = !s.no_adjust;
   o.estimate_focal = !s.fixed_focal;
   o.flat_field = !s.no_flat_field;
@@ -443,6 +444,9 @@ static void AddPatchSwitches(CLI::App* cmd, const std::shared_ptr<MosaicSwitches
   cmd->add_flag("--no-follow-back", s->no_follow_back,
                 "place a frame followed between two keyframes from the one before alone, not also from the next "
                 "(its points followed back into it)");
+  cmd->add_flag("--no-features-ahead", s->no_features_ahead,
+                "find a frame's features on the engine's thread when it needs them, not ahead on the threads that "
+                "read frames (the same map; ahead only while the recent frames all needed theirs)");
   cmd->add_flag("--no-patch-fit", s->no_patch_fit,
                 "place each frame from its previous frame alone, not fitted against every patch frame it overlaps");
   cmd->add_flag("--no-ecc", s->no_ecc, "no ECC refinement");
