@@ -60,6 +60,13 @@ __attribute__((target("avx2"))) inline __m256 Load2(const uint16_t* a, const uin
   const __m128i hi = _mm_loadl_epi64(reinterpret_cast<const __m128i*>(b));
   return _mm256_cvtepi32_ps(_mm256_cvtepu16_epi32(_mm_unpacklo_epi64(lo, hi)));
 }
+// Two neighbouring pixels' four channels (8 values from `a`) as eight floats.
+__attribute__((target("avx2"))) inline __m256 LoadPair(const uint8_t* a) {
+  return _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(a))));
+}
+__attribute__((target("avx2"))) inline __m256 LoadPair(const uint16_t* a) {
+  return _mm256_cvtepi32_ps(_mm256_cvtepu16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(a))));
+}
 // Four positions along one axis: (a x + b) / w in 1/256 px, clamped (max(v, lo) is lo when v
 // is not a number), rounded.
 __attribute__((target("avx2,fma"))) inline __m128i Axis4(__m256d a, __m256d b, __m256d scale, __m256d xs,
@@ -122,8 +129,14 @@ __attribute__((target("avx2,fma"))) void RowAvx2(const cv::Mat& src, const cv::M
     for (int i = 0; i < n; ++i) {
       const T* r0 = base + t.top[i];
       const T* r1 = base + t.bottom[i];
-      const __m256 upper = Load2(r0 + t.left[i], r0 + t.right[i]);
-      const __m256 lower = Load2(r1 + t.left[i], r1 + t.right[i]);
+      __m256 upper, lower;
+      if (t.right[i] == t.left[i] + 4) {  // the two taps side by side: one load a row
+        upper = LoadPair(r0 + t.left[i]);
+        lower = LoadPair(r1 + t.left[i]);
+      } else {
+        upper = Load2(r0 + t.left[i], r0 + t.right[i]);
+        lower = Load2(r1 + t.left[i], r1 + t.right[i]);
+      }
       const __m256 v = _mm256_fmadd_ps(_mm256_sub_ps(lower, upper), _mm256_set1_ps(t.ay[i]), upper);
       const __m128 left = _mm256_castps256_ps128(v), right = _mm256_extractf128_ps(v, 1);
       _mm_store_ps(values[i], _mm_fmadd_ps(_mm_sub_ps(right, left), _mm_set1_ps(t.ax[i]), left));
