@@ -8,32 +8,11 @@
 // a tenth of its patch writing (the adjustment at each patch's close).
 #pragma once
 
-#include <cmath>
-
 #include <ceres/cost_function.h>
 
 #include "geometry/plane_adjustment.h"
 
 namespace rolamos {
-
-// World-to-camera rotation of a pose (yaw, pitch, roll), as plane_camera.cc, for Ceres's jets:
-// Rx(roll) * Ry(pitch) * Rz(yaw).
-template <typename T>
-void PlaneRotation(const T* e, T R[9]) {
-  using std::cos;
-  using std::sin;
-  const T cy = cos(e[0]), sy = sin(e[0]), cp = cos(e[1]), sp = sin(e[1]), cr = cos(e[2]), sr = sin(e[2]);
-  const T a[9] = {cp * cy, cp * sy, sp, -sy, cy, T(0), -sp * cy, -sp * sy, cp};  // Ry * Rz
-  R[0] = a[0];
-  R[1] = a[1];
-  R[2] = a[2];
-  R[3] = cr * a[3] - sr * a[6];
-  R[4] = cr * a[4] - sr * a[7];
-  R[5] = cr * a[5] - sr * a[8];
-  R[6] = sr * a[3] + cr * a[6];
-  R[7] = sr * a[4] + cr * a[7];
-  R[8] = sr * a[5] + cr * a[8];
-}
 
 // Trusted links weigh as much as kTrustedWeight links each: a group held by one link of the
 // chain against several that agree with each other goes where the chain puts it, and those are

@@ -162,5 +162,17 @@ TEST(LinkTransferCost, FailsWhereARayMissesThePlaneOrTheGroundIsBehindB) {
   EXPECT_FALSE(cost.Evaluate(behind, r, nullptr));
 }
 
+// The adjustment's rotation (for jets) is the one the rest of the engine places frames with.
+TEST(PlaneRotation, IsWorldToCamera) {
+  for (const PlanePose& pose : {PlanePose{0, 0, 0, {0, 0, -1}}, PlanePose{0.3, 0.02, -0.05, {0, 0, -1}},
+                                PlanePose{-2.9, -0.4, 0.7, {0, 0, -1}}, PlanePose{1.6, 1.2, -1.5, {0, 0, -1}}}) {
+    const double e[3] = {pose.yaw, pose.pitch, pose.roll};
+    double R[9];
+    PlaneRotation(e, R);
+    const cv::Matx33d want = WorldToCamera(pose);
+    for (int k = 0; k < 9; ++k) EXPECT_NEAR(R[k], want(k / 3, k % 3), 1e-15) << "entry " << k;
+  }
+}
+
 }  // namespace
 }  // namespace rolamos

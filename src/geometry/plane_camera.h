@@ -12,6 +12,7 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 
 #include <opencv2/core.hpp>
 
@@ -28,6 +29,26 @@ struct PlanePose {
 cv::Matx33d CameraMatrix(double focal, cv::Size size);
 
 cv::Matx33d WorldToCamera(const PlanePose& pose);
+
+// WorldToCamera's rotation from a pose's (yaw, pitch, roll), multiplied out for Ceres's jets
+// (the plane adjustment's residuals): Rx(roll) * Ry(pitch) * Rz(yaw), row-major.
+template <typename T>
+void PlaneRotation(const T* e, T R[9]) {
+  using std::cos;
+  using std::sin;
+  const T cy = cos(e[0]), sy = sin(e[0]), cp = cos(e[1]), sp = sin(e[1]), cr = cos(e[2]), sr = sin(e[2]);
+  const T a[9] = {cp * cy, cp * sy, sp, -sy, cy, T(0), -sp * cy, -sp * sy, cp};  // Ry * Rz
+  R[0] = a[0];
+  R[1] = a[1];
+  R[2] = a[2];
+  R[3] = cr * a[3] - sr * a[6];
+  R[4] = cr * a[4] - sr * a[7];
+  R[5] = cr * a[5] - sr * a[8];
+  R[6] = sr * a[3] + cr * a[6];
+  R[7] = sr * a[4] + cr * a[7];
+  R[8] = sr * a[5] + cr * a[8];
+}
+
 // Map (plane) pixel -> frame pixel, and back.
 cv::Matx33d PlaneToFrame(const PlanePose& pose, const cv::Matx33d& K);
 cv::Matx33d FrameToPlane(const PlanePose& pose, const cv::Matx33d& K);
