@@ -518,7 +518,7 @@ Features Mosaicker::Impl::Describe(const cv::Mat& image, const FeatureExtractor&
 
 std::shared_ptr<const Features> Mosaicker::Impl::FeaturesOf(PreparedFrame& p) {
   std::call_once(p.features_once, [&] {
-    if (p.ahead && !p.coarse_features && !p.followed_features) {
+    if (p.ahead && p.ahead_by == &ExtractorFor(p)) {
       std::lock_guard<std::mutex> lock(mask_mutex);
       if (p.ahead_mask == mask_generation) p.features = p.ahead;
     }
@@ -1561,7 +1561,8 @@ std::shared_ptr<PreparedFrame> Mosaicker::Prepare(const cv::Mat& input, const st
   p->track = m.tracker.Prepare(p->image, usable);
   lap(Impl::kPreprocess);
   if (m.features_ahead) {
-    p->ahead = std::make_shared<const Features>(m.Describe(p->image, m.extractor, &p->ahead_mask));
+    p->ahead_by = &m.extractor;
+    p->ahead = std::make_shared<const Features>(m.Describe(p->image, *p->ahead_by, &p->ahead_mask));
     lap(Impl::kFeatures);
   }
   return p;

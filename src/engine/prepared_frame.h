@@ -24,9 +24,11 @@ struct PreparedFrame {
   std::once_flag features_once;
   std::shared_ptr<const Features> features;
   // Found ahead by the thread that prepared the frame (MosaickerOptions::features_ahead), with
-  // the generation of the overlay mask they saw: taken by the first to ask for `features` when
-  // they are what it would find (neither coarse nor followed, the same mask), else dropped.
+  // the extractor and the generation of the overlay mask they were found with: taken by the first
+  // to ask for `features` when they are what it would find (the frame's extractor, the same
+  // mask), else dropped.
   std::shared_ptr<const Features> ahead;
+  const FeatureExtractor* ahead_by = nullptr;
   long ahead_mask = -1;
   // Described three times as densely, when recovery's last try needed it (engine thread only):
   // kept, for the frame may be tried again as the keyframe the next one is matched with.
