@@ -477,17 +477,35 @@ std::shared_ptr<const LucasKanadeTemplates> PrepareLucasKanade(const std::vector
 
 void FollowLucasKanade(const LucasKanadeTemplates& windows, const std::vector<cv::Mat>& from,
                        const std::vector<cv::Mat>& to, const std::vector<cv::Point2f>& points,
-                       std::vector<cv::Point2f>* found, std::vector<uchar>* status, const cv::TermCriteria& until) {
+                       std::vector<cv::Point2f>* found, std::vector<uchar>* status, const cv::TermCriteria& until,
+                       const std::vector<int>* only) {
   CV_Assert(windows.points == points.size() && found->size() == points.size());
+  status->resize(points.size(), 0);
   std::vector<ToLevel> b = windows.levels < 0 ? std::vector<ToLevel>() : ToLevels(to, windows.window, windows.levels);
   if (b.empty()) {
-    OpenCvFollow(from, to, points, found, status, windows.window, windows.requested_levels, until, windows.min_eigen);
+    if (!only) {
+      OpenCvFollow(from, to, points, found, status, windows.window, windows.requested_levels, until, windows.min_eigen);
+      return;
+    }
+    std::vector<cv::Point2f> some, there;
+    std::vector<uchar> ok;
+    for (int i : *only) {
+      some.push_back(points[size_t(i)]);
+      there.push_back((*found)[size_t(i)]);
+    }
+    OpenCvFollow(from, to, some, &there, &ok, windows.window, windows.requested_levels, until, windows.min_eigen);
+    for (size_t k = 0; k < only->size(); ++k) {
+      (*found)[size_t((*only)[k])] = there[k];
+      (*status)[size_t((*only)[k])] = ok[k];
+    }
     return;
   }
   const Settings s = SettingsFor(windows.window, until, windows.min_eigen, true);
-  status->assign(points.size(), 1);
-  cv::parallel_for_(cv::Range(0, int(points.size())), [&](const cv::Range& r) {
-    for (int i = r.start; i < r.end; ++i) {
+  const int n = only ? int(only->size()) : int(points.size());
+  cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& r) {
+    for (int k = r.start; k < r.end; ++k) {
+      const int i = only ? (*only)[size_t(k)] : k;
+      (*status)[size_t(i)] = 1;
       const TemplateSource prepared = [&](int level, Window* win) {
         *win = windows.At(size_t(i), level);
         return windows.moments[windows.Slot(size_t(i), level)];

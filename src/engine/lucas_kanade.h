@@ -35,10 +35,13 @@ std::shared_ptr<const LucasKanadeTemplates> PrepareLucasKanade(const std::vector
                                                                const std::vector<cv::Point2f>& points,
                                                                cv::Size window, int levels, double min_eigen);
 // As above, from windows made by PrepareLucasKanade (for `points`, with the same window, levels and
-// smallest eigenvalue; `from` is the pyramid they were made from).
+// smallest eigenvalue; `from` is the pyramid they were made from). `only` (optional): the indices
+// of the points to follow; the others' `found` and `status` are left as they are. Each point is
+// followed on its own: following some, then the rest, gives what following all at once does.
 void FollowLucasKanade(const LucasKanadeTemplates& windows, const std::vector<cv::Mat>& from,
                        const std::vector<cv::Mat>& to, const std::vector<cv::Point2f>& points,
-                       std::vector<cv::Point2f>* found, std::vector<uchar>* status, const cv::TermCriteria& until);
+                       std::vector<cv::Point2f>* found, std::vector<uchar>* status, const cv::TermCriteria& until,
+                       const std::vector<int>* only = nullptr);
 
 // Whether FollowLucasKanade runs its own vectorised kernel on this CPU (else OpenCV's).
 bool LucasKanadeVectorised();

@@ -369,10 +369,35 @@ struct Mosaicker::Impl {
   struct Tried {
     cv::Matx33d guess;
     Candidate result;
+    bool cut_short = false;  // its follow gave up after its sample
   };
   // `tried` (optional): the follows tried before under the same prediction; one from the same
   // guess is not followed again (the same inputs give the same candidate), and this one is added.
-  Candidate Track(const std::shared_ptr<PreparedFrame>& p, Start start, std::vector<Tried>* tried = nullptr);
+  // `may_give_up`: the follow gives up after a sample that failed (FrameTracker::Follow); else a
+  // follow tried before that gave up is followed whole.
+  Candidate Track(const std::shared_ptr<PreparedFrame>& p, Start start, std::vector<Tried>* tried = nullptr,
+                  bool may_give_up = false);
+  // 1. in Integrate: the frame followed from each start in turn until one holds; `far`:
+  // PredictionFarOff's answer for it.
+  Candidate FollowStarts(const std::shared_ptr<PreparedFrame>& p, bool far, std::vector<Tried>* tried,
+                         bool may_give_up);
+  // Where following starts (key -> frame pixels), before any correlation: the last frame's
+  // place, moved by the motion model's prediction unless the start is from the last frame.
+  cv::Matx33d StartGuess(Start start) const;
+  // The coarse correlation's shift of `guess` for the frame being integrated: made once a frame
+  // (the predicted and correlated starts share it), kept in `correlated`.
+  struct Correlated {
+    long frame = -1, key = -1;  // the frame (summary.frames when it was integrated), the keyframe
+    cv::Matx33d guess, shifted;
+    double response = 0;
+  };
+  Correlated correlated;
+  const Correlated& Correlate(const PreparedFrame& p, const cv::Matx33d& guess);
+  // Whether the predicted start is so far from where the frame correlates that following from
+  // it is not worth trying first (see kFarShiftPx). Asked only while predictions have been
+  // failing (jittered stills), so frames the model foresees (video) pay no correlation.
+  bool PredictionFarOff(const PreparedFrame& p);
+  int since_prediction_failed = 1 << 20;  // frames since the predicted start did not hold
   // `with_last_key`: set to the frame's matches with the last keyframe when they were made.
   std::vector<Candidate> Recover(const std::shared_ptr<PreparedFrame>& p, Laps& lap,
                                  std::optional<Matches>* with_last_key = nullptr);
@@ -587,29 +612,29 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Assess(EgomotionResult ego, const cv
 // where one phase correlation of the coarsest levels moves that (kCorrelated) or the last frame's
 // place (kUnmoved). Without a prediction all three start from the correlation.
 Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<PreparedFrame>& p, Start start,
-                                                  std::vector<Tried>* tried) {
+                                                  std::vector<Tried>* tried, bool may_give_up) {
   Laps lap{this, {}};
   const Key& key = keys.back();
-  // Where the frame is expected: the last placed frame moved by the predicted motion.
-  const bool from_last = start == Start::kUnmoved || start == Start::kTurned;
-  const std::optional<FrameMotion> predicted = from_last ? std::nullopt : gate->Predicted();
-  cv::Matx33d frame_to_key = key.to_patch.inv() * last.to_patch;
-  if (predicted) frame_to_key = frame_to_key * HomographyOf(*predicted, frame_size);
-  cv::Matx33d guess = frame_to_key.inv();  // key -> frame
+  const bool predicted = start != Start::kUnmoved && start != Start::kTurned && gate->Predicted();
+  cv::Matx33d guess = StartGuess(start);
   if (start == Start::kTurned) {
     double response = 0;
     guess = tracker.CoarseTurn(*key.frame->track, *p->track, guess, &response);
     if (!(response > 0.05)) return Candidate{};  // no turn correlates: nothing to follow from
   } else if (start != Start::kPredicted || !predicted) {
-    double response = 0;
-    const cv::Matx33d shifted = tracker.CoarseShift(*key.frame->track, *p->track, guess, &response);
-    if (response > 0.05 || !predicted) guess = shifted;
+    const Correlated& c = Correlate(*p, guess);
+    if (c.response > 0.05 || !predicted) guess = c.shifted;
   }
   // A correlation too weak to move the prediction leaves the guess the predicted follow had.
+  Tried* again = nullptr;
   if (tried)
-    for (const Tried& t : *tried)
-      if (t.guess == guess) return t.result;
-  const TrackFlow flow = tracker.Follow(*key.frame->track, *p->track, key.points, guess, key.windows.get());
+    for (Tried& t : *tried)
+      if (t.guess == guess) {
+        if (!t.cut_short || may_give_up) return t.result;
+        again = &t;
+      }
+  const TrackFlow flow =
+      tracker.Follow(*key.frame->track, *p->track, key.points, guess, key.windows.get(), may_give_up);
   std::vector<cv::Point2f> from, to;
   std::vector<size_t> kept;
   flow.Kept(key.points, &from, &to, &kept);
@@ -622,8 +647,67 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<Prepared
     c.at.push_back(from[size_t(i)]);
   }
   lap(kEgomotion);
-  if (tried) tried->push_back({guess, c});
+  if (again) *again = {guess, c, flow.cut_short};
+  else if (tried) tried->push_back({guess, c, flow.cut_short});
   return c;
+}
+
+Mosaicker::Impl::Candidate Mosaicker::Impl::FollowStarts(const std::shared_ptr<PreparedFrame>& p, bool far,
+                                                         std::vector<Tried>* tried, bool may_give_up) {
+  const bool predicted = gate->Predicted().has_value();
+  Candidate best = far ? Candidate{} : Track(p, Start::kPredicted, tried, may_give_up);
+  auto held = [&] { return Usable(best) && best.support.strong; };
+  for (Start start : {Start::kCorrelated, Start::kUnmoved, Start::kPredicted}) {
+    if (!predicted || held()) break;
+    if (start == Start::kPredicted && !far) break;
+    Candidate again = Track(p, start, tried, may_give_up);
+    if (Usable(again) && (!Usable(best) || again.support.strong)) best = std::move(again);
+  }
+  //    Last, when asked (MosaickerOptions::track_turn_search_deg), turned by what correlates
+  //    best, before SIFT is: a random walk's stills turn by up to 40 degrees, which no start
+  //    above foresees (random: 133 of 300 stills recovered by SIFT, 56 with it; bench/RESULTS.md,
+  //    session 33).
+  if (options.track_turn_search_deg > 0 && !Settled(best)) {
+    Candidate again = Track(p, Start::kTurned, tried, may_give_up);
+    if (Settled(again)) best = std::move(again);
+  }
+  return best;
+}
+
+cv::Matx33d Mosaicker::Impl::StartGuess(Start start) const {
+  // Where the frame is expected: the last placed frame moved by the predicted motion.
+  const bool from_last = start == Start::kUnmoved || start == Start::kTurned;
+  const std::optional<FrameMotion> predicted = from_last ? std::nullopt : gate->Predicted();
+  cv::Matx33d frame_to_key = keys.back().to_patch.inv() * last.to_patch;
+  if (predicted) frame_to_key = frame_to_key * HomographyOf(*predicted, frame_size);
+  return frame_to_key.inv();  // key -> frame
+}
+
+const Mosaicker::Impl::Correlated& Mosaicker::Impl::Correlate(const PreparedFrame& p, const cv::Matx33d& guess) {
+  const Key& key = keys.back();
+  if (correlated.frame != summary.frames || correlated.key != key.index || correlated.guess != guess) {
+    correlated.frame = summary.frames;
+    correlated.key = key.index;
+    correlated.guess = guess;
+    correlated.shifted = tracker.CoarseShift(*key.frame->track, *p.track, guess, &correlated.response);
+  }
+  return correlated;
+}
+
+// A follow from a start this far (tracking pixels) from where the frame correlates confidently
+// held on 5 of ~930 frames of the 28 kinds of bench/run_engine_spread.py that were so; nearer,
+// many hold (30-40: a third). Those far ones were each followed twice, the first time in vain:
+// half the frames of jittered stills (bench/RESULTS.md, session 40).
+constexpr double kFarShiftPx = 40;
+constexpr double kFarResponse = 0.3;
+
+bool Mosaicker::Impl::PredictionFarOff(const PreparedFrame& p) {
+  if (since_prediction_failed >= 8 || !gate->Predicted()) return false;
+  const cv::Matx33d guess = StartGuess(Start::kPredicted);
+  const Correlated& c = Correlate(p, guess);
+  const cv::Point2d centre(frame_size.width / 2.0, frame_size.height / 2.0);
+  const double shift = p.track->scale * cv::norm(ApplyHomography(c.shifted, centre) - ApplyHomography(guess, centre));
+  return c.response >= kFarResponse && shift >= kFarShiftPx;
 }
 
 // The frame against the patch's keyframes (features: rotation and scale do not matter) and the
@@ -1597,31 +1681,26 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   if (!m.canvas) return done(m.OpenPatch(p, r, lap));
   m.gate->Predict(m.StepsSinceLast(*p, r.index));
   // 1. Followed from the current keyframe, from where the motion model expects it; again from a
-  //    coarse correlation when that failed. (Correlating first saves a second follow on half the
-  //    frames of a jittered survey, 3-7 % of the time, but places frames slightly worse: 0.40 ->
-  //    0.45 px on lawn-984, 0.32 -> 0.37 on lanes-apart. Not worth it.)
+  //    coarse correlation when that failed. (Correlating first everywhere saves a second follow
+  //    on half the frames of a jittered survey, but places frames slightly worse: 0.40 -> 0.45 px
+  //    on lawn-984, 0.32 -> 0.37 on lanes-apart. So only where predictions have lately failed and
+  //    the frame correlates confidently far from the prediction, from where a follow almost
+  //    never holds, is the predicted start tried last instead: PredictionFarOff.)
   //    Then from where the last frame was: in turns that change from frame to frame (a random
   //    walk) the model overshoots by a turn Lucas-Kanade's square windows cannot follow, and
   //    recovery by SIFT made one frame in six a keyframe (video-1292-random: 50 of 300 frames
   //    recovered; 12 now, bench/RESULTS.md, session 18). Without a prediction the tries would
   //    be the same one.
+  //    Each start's follow gives up after a sample that failed. When recovery finds nothing
+  //    strong, those are followed whole after all: a weak follow the motion model agrees with
+  //    places a frame on faint ground (MosaickerRobustness.RealLowContrastStills...).
   using Start = Impl::Start;
   std::vector<Impl::Tried> tried;
-  Impl::Candidate best = m.Track(p, Start::kPredicted, &tried);
-  const bool predicted = m.gate->Predicted().has_value();
-  for (Start start : {Start::kCorrelated, Start::kUnmoved}) {
-    if (!predicted || (m.Usable(best) && best.support.strong)) break;
-    Impl::Candidate again = m.Track(p, start, &tried);
-    if (m.Usable(again) && (!m.Usable(best) || again.support.strong)) best = std::move(again);
-  }
-  //    Last, when asked (MosaickerOptions::track_turn_search_deg), turned by what correlates
-  //    best, before SIFT is: a random walk's stills turn by up to 40 degrees, which no start
-  //    above foresees (random: 133 of 300 stills recovered by SIFT, 56 with it; bench/RESULTS.md,
-  //    session 33).
-  if (m.options.track_turn_search_deg > 0 && !m.Settled(best)) {
-    Impl::Candidate again = m.Track(p, Start::kTurned);
-    if (m.Settled(again)) best = std::move(again);
-  }
+  const bool far = m.PredictionFarOff(*p);
+  Impl::Candidate best = m.FollowStarts(p, far, &tried, true);
+  const bool gave_up = std::any_of(tried.begin(), tried.end(), [](const Impl::Tried& t) { return t.cut_short; });
+  const bool predicted_held = !far && !tried.empty() && tried.front().result.support.strong && m.Usable(tried.front().result);
+  m.since_prediction_failed = predicted_held ? std::min(m.since_prediction_failed + 1, 1 << 20) : 0;
   lap.Restart();  // Track timed itself
   // 2. The motion model arbitrates between what following and recovery found.
   if (!m.Settled(best)) {
@@ -1631,6 +1710,8 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
     if (m.options.recover) {
       std::optional<Matches> with_last_key;
       std::vector<Impl::Candidate> more = m.Recover(p, lap, &with_last_key);
+      if (gave_up && std::none_of(more.begin(), more.end(), [](const Impl::Candidate& c) { return c.support.strong; }))
+        best = m.FollowStarts(p, far, &tried, false);
       if (best.ego.ok) more.push_back(best);
       if (const Impl::Candidate* pick = m.Pick(more)) best = *pick;
       // 3. Frames that overlap little (stills from an AUV, a lane joined without a turn): of a
@@ -1644,6 +1725,7 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
           return done(*rep);
     }
   }
+  if (gave_up && !m.options.recover && !m.Usable(best)) best = m.FollowStarts(p, far, &tried, false);
   if (!m.Usable(best)) {
     const std::string reason = best.ego.ok ? (best.verdict.consistent ? best.support.weakness : "kalman_gate")
                                            : best.ego.failure;

@@ -41,6 +41,10 @@ bool TrackerOptions::IsValid(std::string* error) const {
     *error = "tracker thresholds must be positive (corner quality below 1)";
     return false;
   }
+  if (!(give_up_below >= 0 && give_up_below < 1)) {
+    *error = "share of a sample a follow gives up below, " + std::to_string(give_up_below) + ", is outside 0..1";
+    return false;
+  }
   if (!(turn_deg >= 0 && turn_deg <= 180)) {
     *error = "tracking turn " + std::to_string(turn_deg) + " degrees is outside 0..180";
     return false;
@@ -215,8 +219,7 @@ const LucasKanadeTemplates& SharedWindows::Get(
 }
 
 TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, const std::vector<cv::Point2f>& points,
-                               const cv::Matx33d& guess,
-                               SharedWindows* windows) const {
+                               const cv::Matx33d& guess, SharedWindows* windows, bool may_give_up) const {
   TrackFlow flow;
   flow.to.resize(points.size());
   flow.ok.assign(points.size(), 0);
@@ -230,7 +233,7 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
     a.push_back(ToTrack(p, s));
     b.push_back(cv::Point2f(ApplyHomography(G, a.back())));
   }
-  std::vector<uchar> forward, backward;
+  std::vector<uchar> forward(points.size(), 0);
   const cv::Size win(options_.WindowFor(from.size), options_.WindowFor(from.size));
   const cv::TermCriteria until(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, options_.max_iterations,
                                options_.min_step_px);
@@ -247,39 +250,67 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
     target = &turned;
     b = a;
   }
-  if (windows) {
-    const LucasKanadeTemplates& made =
-        windows->Get([&] { return PrepareLucasKanade(from.pyramid, a, win, options_.levels, kMinEigen); });
-    FollowLucasKanade(made, from.pyramid, *target, a, &b, &forward, until);
-  } else {
-    FollowLucasKanade(from.pyramid, *target, a, &b, &forward, win, options_.levels, until, kMinEigen);
-  }
-  // Where the points landed in `to` (`b` is in the target's pixels, which are `from`'s if turned).
-  std::vector<cv::Point2f> in_to = b;
-  if (target == &turned)
-    for (auto& q : in_to) q = cv::Point2f(ApplyHomography(G, q));
-  // Back only from where the forward pass landed on usable ground: the others are lost anyway.
   const cv::Size t = to.pyramid[0].size();
-  std::vector<size_t> landed;
-  std::vector<cv::Point2f> from_b, to_a;
-  for (size_t i = 0; i < points.size(); ++i) {
-    flow.to[i] = ToFull(in_to[i], to.scale);
-    const cv::Point2f q = in_to[i];
-    const bool inside = q.x >= 0 && q.y >= 0 && q.x <= t.width - 1 && q.y <= t.height - 1;
-    const bool overlay = inside && !to.usable.empty() && !to.usable.at<uchar>(cv::Point(q));
-    if (!forward[i] || !inside || overlay) continue;
-    landed.push_back(i);
-    from_b.push_back(b[i]);
-    to_a.push_back(a[i]);
+  // The points `which` (indices into `points`) followed forward, then back from where they landed.
+  auto follow = [&](const std::vector<int>& which) {
+    if (windows) {
+      const LucasKanadeTemplates& made =
+          windows->Get([&] { return PrepareLucasKanade(from.pyramid, a, win, options_.levels, kMinEigen); });
+      FollowLucasKanade(made, from.pyramid, *target, a, &b, &forward, until, &which);
+    } else {
+      std::vector<cv::Point2f> some, there;
+      std::vector<uchar> ok;
+      for (int i : which) {
+        some.push_back(a[size_t(i)]);
+        there.push_back(b[size_t(i)]);
+      }
+      FollowLucasKanade(from.pyramid, *target, some, &there, &ok, win, options_.levels, until, kMinEigen);
+      for (size_t k = 0; k < which.size(); ++k) {
+        b[size_t(which[k])] = there[k];
+        forward[size_t(which[k])] = ok[k];
+      }
+    }
+    // Back only from where the forward pass landed on usable ground: the others are lost anyway.
+    std::vector<size_t> landed;
+    std::vector<cv::Point2f> from_b, to_a;
+    for (int w : which) {
+      const size_t i = size_t(w);
+      // Where the point landed in `to` (`b` is in the target's pixels, which are `from`'s if turned).
+      const cv::Point2f q = target == &turned ? cv::Point2f(ApplyHomography(G, b[i])) : b[i];
+      flow.to[i] = ToFull(q, to.scale);
+      const bool inside = q.x >= 0 && q.y >= 0 && q.x <= t.width - 1 && q.y <= t.height - 1;
+      const bool overlay = inside && !to.usable.empty() && !to.usable.at<uchar>(cv::Point(q));
+      if (!forward[i] || !inside || overlay) continue;
+      landed.push_back(i);
+      from_b.push_back(b[i]);
+      to_a.push_back(a[i]);
+    }
+    if (landed.empty()) return;
+    std::vector<cv::Point2f> back = to_a;
+    std::vector<uchar> backward;
+    FollowLucasKanade(*target, from.pyramid, from_b, &back, &backward, win, options_.levels, until, kMinEigen);
+    for (size_t k = 0; k < landed.size(); ++k) {
+      const float dx = back[k].x - to_a[k].x, dy = back[k].y - to_a[k].y;
+      flow.ok[landed[k]] = backward[k] && dx * dx + dy * dy <= options_.max_fb_px * options_.max_fb_px;
+      flow.followed += flow.ok[landed[k]];
+    }
+  };
+  // A sample first when asked: most of a failing start's cost is saved, a holding one's is not raised.
+  constexpr size_t kEvery = 4, kMinSample = 32;
+  const bool sampled = may_give_up && options_.give_up_below > 0;
+  std::vector<int> sample, rest;
+  for (size_t i = 0; i < points.size(); ++i) (sampled && i % kEvery == 0 ? sample : rest).push_back(int(i));
+  if (sample.size() >= kMinSample) {
+    follow(sample);
+    if (flow.followed < options_.give_up_below * double(sample.size())) {
+      flow.cut_short = true;
+      return flow;
+    }
+  } else {
+    rest.insert(rest.end(), sample.begin(), sample.end());
+    std::sort(rest.begin(), rest.end());
   }
-  if (landed.empty()) return flow;
-  std::vector<cv::Point2f> back = to_a;
-  FollowLucasKanade(*target, from.pyramid, from_b, &back, &backward, win, options_.levels, until, kMinEigen);
-  for (size_t k = 0; k < landed.size(); ++k) {
-    const float dx = back[k].x - to_a[k].x, dy = back[k].y - to_a[k].y;
-    flow.ok[landed[k]] = backward[k] && dx * dx + dy * dy <= options_.max_fb_px * options_.max_fb_px;
-    flow.followed += flow.ok[landed[k]];
-  }
+  follow(rest);
   return flow;
 }
 

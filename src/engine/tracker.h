@@ -69,6 +69,12 @@ struct TrackerOptions {
   // engine's default: MosaickerOptions::track_turn_search_deg).
   double turn_search_deg = 0.0;
   double turn_search_step_deg = 12.0;
+  // A follow that may give up (Follow's `may_give_up`: a start, where another may hold) follows
+  // every fourth point first, and the others only when at least this share of those was. Starts
+  // that fail keep 0-22 % of their points (median 5 %), those that hold at least 12 % (the 28
+  // kinds of bench/run_engine_spread.py, ~9,400 follows; bench/RESULTS.md, session 40). 0 = the
+  // whole follow always.
+  double give_up_below = 0.05;
   // Shi-Tomasi, relative to the frame's 30th strongest corner (a few bright specks, marine snow,
   // do not set the scale for the rest).
   double corner_quality = 0.01;
@@ -101,6 +107,8 @@ struct TrackFlow {
   std::vector<cv::Point2f> to;
   std::vector<uchar> ok;  // followed both ways and back to where it started
   int followed = 0;
+  // Given up after a sample (Follow's `give_up_below`): only the sample's points were followed.
+  bool cut_short = false;
   // The points followed (`ok`): where they landed, and where they started (`points` as given to
   // Follow); `which` (optional), their indices in `points`.
   void Kept(const std::vector<cv::Point2f>& points, std::vector<cv::Point2f>* landed,
@@ -137,8 +145,11 @@ class FrameTracker {
   // `points` of `from` followed into `to`, starting where `guess` (from -> to pixels) puts them.
   // `windows` (optional) keeps the windows of `from` around `points` for the next follow from
   // the same points: made on the first call, read on the others.
+  // `may_give_up`: a sample is followed first, the rest only if enough of it was
+  // (TrackerOptions::give_up_below); else the flow is cut short. The points followed are
+  // followed as without it (each point is followed on its own).
   TrackFlow Follow(const TrackFrame& from, const TrackFrame& to, const std::vector<cv::Point2f>& points,
-                   const cv::Matx33d& guess, SharedWindows* windows = nullptr) const;
+                   const cv::Matx33d& guess, SharedWindows* windows = nullptr, bool may_give_up = false) const;
   // A coarse translation from `from` to `to` (full-resolution pixels) by phase correlation of
   // the pyramids' coarsest levels, after `guess`: a start when there is no prediction.
   cv::Matx33d CoarseShift(const TrackFrame& from, const TrackFrame& to, const cv::Matx33d& guess,

@@ -146,6 +146,42 @@ TEST(Tracker, WindowsSharedByTwoThreadsAreMadeOnceAndFollowTheSame) {
   }
 }
 
+// A follow that may give up: from a good start, every point is followed exactly as by the whole
+// follow (the sample first, then the rest), with shared windows and without; into a frame of
+// open water, where the whole follow keeps almost nothing, it gives up after the sample.
+TEST(Tracker, AFollowThatMayGiveUpFollowsTheSameOrGivesUpAfterItsSample) {
+  const cv::Matx33d H(0.995, -0.035, 31, 0.035, 0.995, -17, 2e-6, -3e-6, 1);
+  cv::Mat a, b;
+  FramePair({800, 600}, H, &a, &b);
+  const FrameTracker tracker(TrackerOptions{});
+  const auto ta = tracker.Prepare(a), tb = tracker.Prepare(b);
+  const std::vector<cv::Point2f> points = tracker.Corners(*ta, {}, 300);
+  ASSERT_GT(points.size(), 200u);
+  const cv::Matx33d off(1, 0, 3.5, 0, 1, -2.5, 0, 0, 1);
+  for (const bool shared_windows : {false, true}) {
+    SharedWindows shared;
+    const TrackFlow whole = tracker.Follow(*ta, *tb, points, off * H);
+    const TrackFlow sampled = tracker.Follow(*ta, *tb, points, off * H, shared_windows ? &shared : nullptr, true);
+    EXPECT_FALSE(sampled.cut_short);
+    ASSERT_GT(whole.followed, 200);
+    EXPECT_EQ(sampled.followed, whole.followed);
+    for (size_t i = 0; i < points.size(); ++i) {
+      ASSERT_EQ(sampled.ok[i], whole.ok[i]) << i;
+      if (whole.ok[i]) EXPECT_EQ(sampled.to[i], whole.to[i]) << i;
+    }
+  }
+  // Open water: the follow finds next to nothing.
+  const auto other = tracker.Prepare(cv::Mat(600, 800, CV_8UC1, cv::Scalar(90)));
+  const TrackFlow whole = tracker.Follow(*ta, *other, points, H);
+  const TrackFlow sampled = tracker.Follow(*ta, *other, points, H, nullptr, true);
+  ASSERT_LT(whole.followed, 0.05 * double(points.size())) << "open water is followed";
+  EXPECT_TRUE(sampled.cut_short);
+  EXPECT_LE(sampled.followed, whole.followed);
+  // Only the sample (every fourth point) was followed.
+  for (size_t i = 0; i < points.size(); ++i)
+    if (i % 4 != 0) EXPECT_FALSE(sampled.ok[i]) << i;
+}
+
 // Turned by 20 degrees (a vehicle's turn a few frames from its keyframe), with the guess off by
 // a few pixels: square windows that do not turn lose points and place the rest worse; followed in
 // the frame turned back (the default), as many points as unturned are followed, to a tenth of a
