@@ -71,10 +71,11 @@ struct TrackerOptions {
   double turn_search_step_deg = 12.0;
   // A follow that may give up (Follow's `may_give_up`: a start, where another may hold) follows
   // every fourth point first, and the others only when at least this share of those was. Starts
-  // that fail keep 0-22 % of their points (median 5 %), those that hold at least 12 % (the 28
-  // kinds of bench/run_engine_spread.py, ~9,400 follows; bench/RESULTS.md, session 40). 0 = the
-  // whole follow always.
-  double give_up_below = 0.05;
+  // that fail keep 0-22 % of their points (median 5 %; 80 % of them under 8 %), those that hold
+  // at least 12 % (the 28 kinds of bench/run_engine_spread.py, ~9,400 follows): by the sample's
+  // chance, less than one of those ~6,900 holding follows would be given up (bench/RESULTS.md,
+  // session 40). 0 = the whole follow always.
+  double give_up_below = 0.08;
   // Shi-Tomasi, relative to the frame's 30th strongest corner (a few bright specks, marine snow,
   // do not set the scale for the rest).
   double corner_quality = 0.01;
