@@ -211,7 +211,10 @@ def peer_rows(a, kind, survey):
     patches = int(re.search(r"(\d+) patches", r.stdout).group(1))
     rows = [f"| {kind} | {len(frames)} | rolamos mosaic | {kept} | {t:.1f} | {len(frames) / t:.1f} | {m:.0f} | "
             f"{patches} patches, full resolution |"]
-    peer = os.path.join(os.path.dirname(a.cli), "stitcher_peer_bench")
+    # Beside the CLI (a build directory), else in this checkout's build/ (a CLI copied elsewhere).
+    peer = next((p for p in (os.path.join(os.path.dirname(os.path.realpath(a.cli)), "stitcher_peer_bench"),
+                             os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "build",
+                                          "stitcher_peer_bench")) if os.path.exists(p)), "stitcher_peer_bench")
     r, t, m = timed([peer, os.path.join(survey, "frames"), str(len(frames))], timeout=600)
     if r is None:
         return rows + [f"| {kind} | {len(frames)} | cv::Stitcher SCANS | – | > 600 | – | – | not finished in 600 s (stopped) |"]
