@@ -1710,8 +1710,10 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
     if (m.options.recover) {
       std::optional<Matches> with_last_key;
       std::vector<Impl::Candidate> more = m.Recover(p, lap, &with_last_key);
-      if (gave_up && std::none_of(more.begin(), more.end(), [](const Impl::Candidate& c) { return c.support.strong; }))
+      if (gave_up && std::none_of(more.begin(), more.end(), [](const Impl::Candidate& c) { return c.support.strong; })) {
         best = m.FollowStarts(p, far, &tried, false);
+        lap.Restart();  // Track timed itself
+      }
       if (best.ego.ok) more.push_back(best);
       if (const Impl::Candidate* pick = m.Pick(more)) best = *pick;
       // 3. Frames that overlap little (stills from an AUV, a lane joined without a turn): of a
@@ -1725,7 +1727,10 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
           return done(*rep);
     }
   }
-  if (gave_up && !m.options.recover && !m.Usable(best)) best = m.FollowStarts(p, far, &tried, false);
+  if (gave_up && !m.options.recover && !m.Usable(best)) {
+    best = m.FollowStarts(p, far, &tried, false);
+    lap.Restart();
+  }
   if (!m.Usable(best)) {
     const std::string reason = best.ego.ok ? (best.verdict.consistent ? best.support.weakness : "kalman_gate")
                                            : best.ego.failure;
