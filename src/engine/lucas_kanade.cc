@@ -405,6 +405,25 @@ void OpenCvFollow(const std::vector<cv::Mat>& from, const std::vector<cv::Mat>& 
                            cv::OPTFLOW_USE_INITIAL_FLOW, min_eigen);
 }
 
+// `follow` (points, found, status) run on the points `only` picks out, its results put back in
+// their places; the others' `found` and `status` left as they are.
+template <typename Follow>
+void FollowSome(const std::vector<cv::Point2f>& points, std::vector<cv::Point2f>* found, std::vector<uchar>* status,
+                const std::vector<int>& only, const Follow& follow) {
+  status->resize(points.size(), 0);
+  std::vector<cv::Point2f> some, there;
+  std::vector<uchar> ok;
+  for (int i : only) {
+    some.push_back(points[size_t(i)]);
+    there.push_back((*found)[size_t(i)]);
+  }
+  follow(some, &there, &ok);
+  for (size_t k = 0; k < only.size(); ++k) {
+    (*found)[size_t(only[k])] = there[k];
+    (*status)[size_t(only[k])] = ok[k];
+  }
+}
+
 void Follow(const std::vector<cv::Mat>& from, const std::vector<cv::Mat>& to, const std::vector<cv::Point2f>& points,
             std::vector<cv::Point2f>* found, std::vector<uchar>* status, cv::Size window, int levels,
             const cv::TermCriteria& until, double min_eigen, bool vectorised) {
@@ -480,26 +499,17 @@ void FollowLucasKanade(const LucasKanadeTemplates& windows, const std::vector<cv
                        std::vector<cv::Point2f>* found, std::vector<uchar>* status, const cv::TermCriteria& until,
                        const std::vector<int>* only) {
   CV_Assert(windows.points == points.size() && found->size() == points.size());
-  status->resize(points.size(), 0);
   std::vector<ToLevel> b = windows.levels < 0 ? std::vector<ToLevel>() : ToLevels(to, windows.window, windows.levels);
   if (b.empty()) {
-    if (!only) {
-      OpenCvFollow(from, to, points, found, status, windows.window, windows.requested_levels, until, windows.min_eigen);
-      return;
-    }
-    std::vector<cv::Point2f> some, there;
-    std::vector<uchar> ok;
-    for (int i : *only) {
-      some.push_back(points[size_t(i)]);
-      there.push_back((*found)[size_t(i)]);
-    }
-    OpenCvFollow(from, to, some, &there, &ok, windows.window, windows.requested_levels, until, windows.min_eigen);
-    for (size_t k = 0; k < only->size(); ++k) {
-      (*found)[size_t((*only)[k])] = there[k];
-      (*status)[size_t((*only)[k])] = ok[k];
-    }
+    const auto opencv = [&](const std::vector<cv::Point2f>& some, std::vector<cv::Point2f>* there,
+                            std::vector<uchar>* ok) {
+      OpenCvFollow(from, to, some, there, ok, windows.window, windows.requested_levels, until, windows.min_eigen);
+    };
+    if (only) FollowSome(points, found, status, *only, opencv);
+    else opencv(points, found, status);
     return;
   }
+  status->resize(points.size(), 0);
   const Settings s = SettingsFor(windows.window, until, windows.min_eigen, true);
   const int n = only ? int(only->size()) : int(points.size());
   cv::parallel_for_(cv::Range(0, n), [&](const cv::Range& r) {
@@ -520,12 +530,14 @@ bool LucasKanadeVectorised() { return CpuHasAvx2(); }
 void FollowLucasKanade(const std::vector<cv::Mat>& from, const std::vector<cv::Mat>& to,
                        const std::vector<cv::Point2f>& points, std::vector<cv::Point2f>* found,
                        std::vector<uchar>* status, cv::Size window, int levels, const cv::TermCriteria& until,
-                       double min_eigen) {
-  if (!CpuHasAvx2()) {
-    OpenCvFollow(from, to, points, found, status, window, levels, until, min_eigen);
-    return;
-  }
-  Follow(from, to, points, found, status, window, levels, until, min_eigen, true);
+                       double min_eigen, const std::vector<int>* only) {
+  const auto follow = [&](const std::vector<cv::Point2f>& some, std::vector<cv::Point2f>* there,
+                          std::vector<uchar>* ok) {
+    if (CpuHasAvx2()) Follow(from, to, some, there, ok, window, levels, until, min_eigen, true);
+    else OpenCvFollow(from, to, some, there, ok, window, levels, until, min_eigen);
+  };
+  if (only) FollowSome(points, found, status, *only, follow);
+  else follow(points, found, status);
 }
 
 namespace detail {

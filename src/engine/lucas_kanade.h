@@ -20,11 +20,13 @@ namespace rolamos {
 // built with `window` (their borders must be at least a window wide). `found` holds each
 // point's starting place in `to` on entry (OPTFLOW_USE_INITIAL_FLOW) and where it was followed
 // to on return; `status` is 1 where the point was followed at every level. Only `from`'s
-// derivatives are read.
+// derivatives are read. `only` (optional): the indices of the points to follow; the others'
+// `found` and `status` are left as they are. Each point is followed on its own: following some,
+// then the rest, gives what following all at once does.
 void FollowLucasKanade(const std::vector<cv::Mat>& from, const std::vector<cv::Mat>& to,
                        const std::vector<cv::Point2f>& points, std::vector<cv::Point2f>* found,
                        std::vector<uchar>* status, cv::Size window, int levels, const cv::TermCriteria& until,
-                       double min_eigen);
+                       double min_eigen, const std::vector<int>* only = nullptr);
 
 // The windows of fixed points in a first image at every level (its intensities and derivatives
 // interpolated, their second-moment matrix), made once and read by every follow from those points:
@@ -35,9 +37,7 @@ std::shared_ptr<const LucasKanadeTemplates> PrepareLucasKanade(const std::vector
                                                                const std::vector<cv::Point2f>& points,
                                                                cv::Size window, int levels, double min_eigen);
 // As above, from windows made by PrepareLucasKanade (for `points`, with the same window, levels and
-// smallest eigenvalue; `from` is the pyramid they were made from). `only` (optional): the indices
-// of the points to follow; the others' `found` and `status` are left as they are. Each point is
-// followed on its own: following some, then the rest, gives what following all at once does.
+// smallest eigenvalue; `from` is the pyramid they were made from). `only` as above.
 void FollowLucasKanade(const LucasKanadeTemplates& windows, const std::vector<cv::Mat>& from,
                        const std::vector<cv::Mat>& to, const std::vector<cv::Point2f>& points,
                        std::vector<cv::Point2f>* found, std::vector<uchar>* status, const cv::TermCriteria& until,

@@ -1707,13 +1707,14 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
     m.wanted_now = m.needed_here_now = true;
     const auto f = m.FeaturesOf(*p);
     if (f->strong < m.options.min_inliers) return done(m.Lost(p, r, "featureless"));
+    std::optional<Matches> with_last_key;
+    std::vector<Impl::Candidate> more;
+    if (m.options.recover) more = m.Recover(p, lap, &with_last_key);
+    if (gave_up && std::none_of(more.begin(), more.end(), [](const Impl::Candidate& c) { return c.support.strong; })) {
+      best = m.FollowStarts(p, far, &tried, false);
+      lap.Restart();  // Track timed itself
+    }
     if (m.options.recover) {
-      std::optional<Matches> with_last_key;
-      std::vector<Impl::Candidate> more = m.Recover(p, lap, &with_last_key);
-      if (gave_up && std::none_of(more.begin(), more.end(), [](const Impl::Candidate& c) { return c.support.strong; })) {
-        best = m.FollowStarts(p, far, &tried, false);
-        lap.Restart();  // Track timed itself
-      }
       if (best.ego.ok) more.push_back(best);
       if (const Impl::Candidate* pick = m.Pick(more)) best = *pick;
       // 3. Frames that overlap little (stills from an AUV, a lane joined without a turn): of a
@@ -1726,10 +1727,6 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
         if (auto rep = m.RecoverAcrossThinOverlap(p, *f, best, r, with_last_key ? &*with_last_key : nullptr, lap))
           return done(*rep);
     }
-  }
-  if (gave_up && !m.options.recover && !m.Usable(best)) {
-    best = m.FollowStarts(p, far, &tried, false);
-    lap.Restart();
   }
   if (!m.Usable(best)) {
     const std::string reason = best.ego.ok ? (best.verdict.consistent ? best.support.weakness : "kalman_gate")

@@ -258,17 +258,7 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
           windows->Get([&] { return PrepareLucasKanade(from.pyramid, a, win, options_.levels, kMinEigen); });
       FollowLucasKanade(made, from.pyramid, *target, a, &b, &forward, until, &which);
     } else {
-      std::vector<cv::Point2f> some, there;
-      std::vector<uchar> ok;
-      for (int i : which) {
-        some.push_back(a[size_t(i)]);
-        there.push_back(b[size_t(i)]);
-      }
-      FollowLucasKanade(from.pyramid, *target, some, &there, &ok, win, options_.levels, until, kMinEigen);
-      for (size_t k = 0; k < which.size(); ++k) {
-        b[size_t(which[k])] = there[k];
-        forward[size_t(which[k])] = ok[k];
-      }
+      FollowLucasKanade(from.pyramid, *target, a, &b, &forward, win, options_.levels, until, kMinEigen, &which);
     }
     // Back only from where the forward pass landed on usable ground: the others are lost anyway.
     std::vector<size_t> landed;
@@ -297,18 +287,16 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
   };
   // A sample first when asked: most of a failing start's cost is saved, a holding one's is not raised.
   constexpr size_t kEvery = 4, kMinSample = 32;
-  const bool sampled = may_give_up && options_.give_up_below > 0;
+  const bool sampled =
+      may_give_up && options_.give_up_below > 0 && (points.size() + kEvery - 1) / kEvery >= kMinSample;
   std::vector<int> sample, rest;
   for (size_t i = 0; i < points.size(); ++i) (sampled && i % kEvery == 0 ? sample : rest).push_back(int(i));
-  if (sample.size() >= kMinSample) {
+  if (sampled) {
     follow(sample);
     if (flow.followed < options_.give_up_below * double(sample.size())) {
       flow.cut_short = true;
       return flow;
     }
-  } else {
-    rest.insert(rest.end(), sample.begin(), sample.end());
-    std::sort(rest.begin(), rest.end());
   }
   follow(rest);
   return flow;

@@ -108,7 +108,7 @@ struct TrackFlow {
   std::vector<cv::Point2f> to;
   std::vector<uchar> ok;  // followed both ways and back to where it started
   int followed = 0;
-  // Given up after a sample (Follow's `give_up_below`): only the sample's points were followed.
+  // Given up after a failed sample (Follow's `may_give_up`): only the sample's points were followed.
   bool cut_short = false;
   // The points followed (`ok`): where they landed, and where they started (`points` as given to
   // Follow); `which` (optional), their indices in `points`.
