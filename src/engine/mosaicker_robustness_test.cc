@@ -18,6 +18,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "engine/patch_adjustment.h"
 #include "engine/static_mask.h"
 #include "rolamos/error.hpp"
 #include "rolamos/global_align.hpp"
@@ -1155,6 +1156,7 @@ TEST(MosaickerRobustness, AFrameTiltedFarFromTheOneBeforeIsPlacedNotRejected) {
     const auto& adjustment = s.extra["adjustment"];
     if (s.frames.size() >= 8) {
       EXPECT_TRUE(adjustment.value("focal_estimated", false)) << "patch " << p.id;
+      EXPECT_EQ(adjustment.value("robust_loss_px", 0.0), PatchAdjustmentOptions().robust_loss_px) << "patch " << p.id;
       // At least half way from the assumed one (343 px) to the camera's (240).
       const double assumed = 0.5 * so.frame_width / std::tan(35 * CV_PI / 180);
       EXPECT_LT(std::abs(adjustment.value("focal_px", 0.0) - so.Focal()), 0.5 * std::abs(assumed - so.Focal()))

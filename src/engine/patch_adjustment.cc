@@ -12,8 +12,8 @@ namespace rolamos {
 
 bool PatchAdjustmentOptions::IsValid(std::string* error) const {
   if (!solver.IsValid(error)) return false;
-  if (max_pairs_per_link < 8 || !(max_rms_px > 0)) {
-    *error = "patch adjustment needs at least 8 pairs a link and a positive error bound";
+  if (max_pairs_per_link < 8 || !(max_rms_px > 0) || !(robust_loss_px >= 0)) {
+    *error = "patch adjustment needs at least 8 pairs a link, a positive error bound and a robust loss of 0 px or more";
     return false;
   }
   return true;
@@ -151,6 +151,17 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
   PlaneAdjustmentOptions held = o.solver;
   held.refine_focal = false;
   out.stats = AdjustPlanePoses(&poses, &f, frame, plane_links, 0, {}, {}, held);
+  if (out.stats.ok && o.robust_loss_px > 0) {
+    PlaneAdjustmentOptions robust = held;
+    robust.loss = "cauchy";
+    robust.loss_px = o.robust_loss_px;
+    std::vector<PlanePose> trial = poses;
+    const PlaneAdjustment again = AdjustPlanePoses(&trial, &f, frame, plane_links, 0, {}, {}, robust);
+    if (again.ok) {
+      poses = trial;
+      out.stats = again;
+    }
+  }
   if (!out.stats.ok) {
     out.miss = PatchAdjustment::Miss::kFailed;
     out.note = "adjustment failed: " + out.stats.message;

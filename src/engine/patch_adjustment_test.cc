@@ -150,6 +150,46 @@ TEST(PatchAdjustment, AFocalLengthFoundKeepsThePatchAtTheFramesResolution) {
     EXPECT_LT(CornerError(first.inv() * adjusted.frame_to_patch[size_t(i)], online[size_t(i)]), 0.5) << "frame " << i;
 }
 
+// Links as a codec's frames give them: most pairs within a tenth of a pixel, a sixth of them a
+// pixel and a half to three off, the same way within a link (blocks, a corner followed onto its
+// neighbour). The patch's last solve, with a Cauchy loss from half a pixel, leaves those pairs
+// out; the Huber loss from a pixel alone let each pull in proportion to how far off it was, and
+// the lane bent by them.
+TEST(PatchAdjustment, PairsOffByAPixelOrMoreDoNotBendTheLane) {
+  std::vector<int> indices;
+  std::vector<cv::Matx33d> online;
+  Lane(10, &indices, &online);
+  cv::RNG rng(41);
+  std::vector<FrameLink> links;
+  for (int i = 1; i < 10; ++i)
+    for (int j = std::max(0, i - 3); j < i; ++j) {
+      FrameLink l = LinkOf(i, j);
+      const double angle = rng.uniform(0.0, 2 * CV_PI);
+      const cv::Point2f off(float(std::cos(angle)), float(std::sin(angle)));
+      for (auto& p : l.in_b) {
+        p += cv::Point2f(float(rng.gaussian(0.1)), float(rng.gaussian(0.1)));
+        if (rng.uniform(0.0, 1.0) < 1.0 / 6) p += off * float(rng.uniform(1.5, 3.0));
+      }
+      links.push_back(std::move(l));
+    }
+  auto worst = [&](const PatchAdjustmentOptions& o) {
+    const PatchAdjustment adjusted = AdjustPatch(indices, online, links, Focal70(), kFrame, o);
+    EXPECT_TRUE(adjusted.used) << adjusted.note;
+    double error = 0;
+    for (int i = 1; i < 10; ++i)
+      error = std::max(error, CornerError(adjusted.frame_to_patch[0].inv() * adjusted.frame_to_patch[size_t(i)], Truth(i)));
+    return error;
+  };
+  const PatchAdjustmentOptions robust;
+  EXPECT_GT(robust.robust_loss_px, 0);
+  PatchAdjustmentOptions huber;
+  huber.robust_loss_px = 0;
+  const double ours = worst(robust), theirs = worst(huber);
+  std::printf("worst corner error over the lane: Cauchy from 0.5 px %.3f px, Huber from 1 px alone %.3f px\n", ours, theirs);
+  EXPECT_LT(ours, 0.5);
+  EXPECT_LT(ours, 0.5 * theirs);
+}
+
 // Why an adjustment was not used, as a code callers act on: the command suggests a calibration
 // for frames that fit no flat ground seen through a pinhole (a lens bends every link the same
 // way), not for a patch too small to adjust.

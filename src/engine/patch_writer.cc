@@ -301,7 +301,8 @@ void PatchWriter::Write(PatchJob& job) {
                                    {"links_dropped", adjusted.stats.links_dropped},
                                    {"ties", adjusted.ties},
                                    {"focal_px", adjusted.focal},
-                                   {"focal_estimated", job.adjust.solver.refine_focal}};
+                                   {"focal_estimated", job.adjust.solver.refine_focal},
+                                   {"robust_loss_px", job.adjust.robust_loss_px}};
   } else if (job.adjust.enabled) {
     sidecar.extra["adjustment"] = {{"skipped", adjusted.note}};
   }
