@@ -90,6 +90,32 @@ int TieUnlinked(const std::vector<cv::Matx33d>& online, cv::Size frame, std::vec
   return ties;
 }
 
+// The poses over every pair at the focal length `f`: under the solver's Huber loss, then under
+// a Cauchy loss from robust_loss_px. Poses the focal length's search solved already start the
+// Cauchy solve themselves (a third less of the patch's adjustment); the online chain's first
+// go through the Huber one, so that links it left pixels off are not discounted before the poses
+// come near them. The statistics are the last solve's, from where the first started.
+PlaneAdjustment SolveOverEveryPair(std::vector<PlanePose>* poses, double* f, cv::Size frame,
+                                   const std::vector<PlaneLink>& links, bool solved,
+                                   const PatchAdjustmentOptions& o) {
+  PlaneAdjustmentOptions huber = o.solver;
+  huber.refine_focal = false;
+  PlaneAdjustment first;
+  if (!solved || o.robust_loss_px <= 0) {
+    first = AdjustPlanePoses(poses, f, frame, links, 0, {}, {}, huber);
+    if (!first.ok || o.robust_loss_px <= 0) return first;
+  }
+  PlaneAdjustmentOptions cauchy = huber;
+  cauchy.loss = "cauchy";
+  cauchy.loss_px = o.robust_loss_px;
+  std::vector<PlanePose> trial = *poses;
+  PlaneAdjustment last = AdjustPlanePoses(&trial, f, frame, links, 0, {}, {}, cauchy);
+  if (!last.ok) return solved ? AdjustPlanePoses(poses, f, frame, links, 0, {}, {}, huber) : first;
+  *poses = trial;
+  if (!solved) last.initial_rms_px = first.initial_rms_px;
+  return last;
+}
+
 }  // namespace
 
 PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<cv::Matx33d>& online,
@@ -137,6 +163,7 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
   // is held to the frame before it by its online placement.
   out.ties = TieUnlinked(online, frame, &plane_links);
   double f = focal;
+  bool searched = false;  // the poses come from the focal length's search, not the online chain
   if (o.solver.refine_focal) {
     // The focal length, with the poses, from the thinned links: where the attitudes hardly change
     // it is barely observable and the solve creeps along it, at a twelfth of the residuals. The
@@ -145,23 +172,11 @@ PatchAdjustment AdjustPatch(const std::vector<int>& indices, const std::vector<c
     PlaneAdjustmentOptions search = o.solver;
     search.rounds = 1;  // links found false are the full solve's to judge
     std::vector<PlanePose> trial = poses;
-    if (AdjustPlanePoses(&trial, &f, frame, focal_links, 0, {}, {}, search).ok) poses = trial;
+    searched = AdjustPlanePoses(&trial, &f, frame, focal_links, 0, {}, {}, search).ok;
+    if (searched) poses = trial;
     else f = focal;
   }
-  PlaneAdjustmentOptions held = o.solver;
-  held.refine_focal = false;
-  out.stats = AdjustPlanePoses(&poses, &f, frame, plane_links, 0, {}, {}, held);
-  if (out.stats.ok && o.robust_loss_px > 0) {
-    PlaneAdjustmentOptions robust = held;
-    robust.loss = "cauchy";
-    robust.loss_px = o.robust_loss_px;
-    std::vector<PlanePose> trial = poses;
-    const PlaneAdjustment again = AdjustPlanePoses(&trial, &f, frame, plane_links, 0, {}, {}, robust);
-    if (again.ok) {
-      poses = trial;
-      out.stats = again;
-    }
-  }
+  out.stats = SolveOverEveryPair(&poses, &f, frame, plane_links, searched, o);
   if (!out.stats.ok) {
     out.miss = PatchAdjustment::Miss::kFailed;
     out.note = "adjustment failed: " + out.stats.message;

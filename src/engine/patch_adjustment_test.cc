@@ -188,6 +188,14 @@ TEST(PatchAdjustment, PairsOffByAPixelOrMoreDoNotBendTheLane) {
   std::printf("worst corner error over the lane: Cauchy from 0.5 px %.3f px, Huber from 1 px alone %.3f px\n", ours, theirs);
   EXPECT_LT(ours, 0.5);
   EXPECT_LT(ours, 0.5 * theirs);
+  // The same from the focal length's search (the engine's default without a calibration file),
+  // whose poses start the Cauchy solve themselves.
+  PatchAdjustmentOptions searched = robust, searched_huber = huber;
+  searched.solver.refine_focal = searched_huber.solver.refine_focal = true;
+  const double ours_searched = worst(searched), theirs_searched = worst(searched_huber);
+  std::printf("with the focal length searched: %.3f px, Huber alone %.3f px\n", ours_searched, theirs_searched);
+  EXPECT_LT(ours_searched, 0.5);
+  EXPECT_LT(ours_searched, 0.5 * theirs_searched);
 }
 
 // Why an adjustment was not used, as a code callers act on: the command suggests a calibration
