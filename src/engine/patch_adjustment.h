@@ -25,14 +25,16 @@ struct PatchAdjustmentOptions {
   // With solver.refine_focal, the focal length is found first with the poses over links thinned
   // to kFocalPairs pairs, then the poses over every pair at that focal length.
   PlaneAdjustmentOptions solver;
-  // The poses are then solved once more with a Cauchy loss from this many pixels (0 = not): a
-  // link's matches hold a tail of pairs a pixel or more off (a codec's blocks, a corner followed
-  // onto its neighbour, SIFT's guided matches kept within 3 px), and under the solver's Huber
-  // loss from a pixel each of them pulled in proportion to how far off it was. The Huber solve
-  // comes first, so that links the online chain left pixels off are not discounted before the
-  // poses come near them. Per-patch error on 44 surveys of bench/run_engine_spread.py, one draw
-  // each: a geometric mean of 0.87 of Huber's alone, 38 better, 5 worse (bench/RESULTS.md,
-  // session 41).
+  // The poses are solved last under a Cauchy loss from this many pixels (0 = the solver's Huber
+  // loss from a pixel alone). After the Huber solve a link's pairs are off by a median of 0.3-0.7
+  // px, with a long tail (a codec's blocks, a corner followed onto its neighbour, SIFT's guided
+  // matches kept within 3 px), and every pair pulled, up to a pixel in proportion to how far off
+  // it was. Under Cauchy from half a pixel the pairs that agree with each other place the frames.
+  // From the online chain a Huber solve comes first (links it left pixels off are not discounted
+  // before the poses come near them); poses the focal length's search solved start the Cauchy
+  // solve themselves. Per-patch error on 46 surveys of bench/run_engine_spread.py, one draw
+  // each: a geometric mean of 0.87 of Huber's alone, 39 better, 6 worse (small-degraded +15 %
+  // over four draws; bench/RESULTS.md, session 41).
   double robust_loss_px = 0.5;
   static constexpr int kFocalPairs = 32;
   int max_pairs_per_link = 400;  // every pair counts: thinner links cost accuracy
