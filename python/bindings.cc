@@ -193,6 +193,7 @@ const OptionTable<MosaickerOptions>& MosaickerTable() {
         .Number("epipolar_threshold", &O::epipolar_threshold).Number("homography_threshold", &O::homography_threshold)
         .Integer("min_inliers", &O::min_inliers).Flag("kalman", &O::kalman).Flag("recover", &O::recover)
         .Flag("patch_fit", &O::patch_fit).Flag("adjust", &O::adjust_patches).Flag("estimate_focal", &O::estimate_focal)
+        .Number("patch_robust_loss_px", &O::patch_robust_loss_px)
         .Number("patch_frames_mb", &O::patch_frames_mb).Flag("ecc", &O::ecc).Number("ecc_scale", &O::ecc_scale)
         .Text("ecc_motion", &O::ecc_motion).Number("feather_sigma", &O::feather_sigma)
         .Flag("flat_field", &O::flat_field).Flag("exposure", &O::exposure).Flag("water_colour", &O::water_colour)

@@ -437,6 +437,10 @@ static void AddPatchSwitches(CLI::App* cmd, const std::shared_ptr<MosaicSwitches
   cmd->add_flag("--fixed-focal", s->fixed_focal,
                 "adjust each patch with the focal length of --fov as given, instead of estimating it with the poses "
                 "(a calibration file's is always held)");
+  cmd->add_option("--patch-robust-loss", o.patch_robust_loss_px,
+                  "pixels beyond which the patch adjustment's last solve discounts a link's pairs (Cauchy); 0 = the "
+                  "Huber loss from a pixel alone, as before session 41")
+      ->capture_default_str();
   cmd->add_option("--patch-frames-mb", o.patch_frames_mb,
                   "memory for a patch's keyframes (images and features) until it is written (a patch closes when "
                   "full); the engine holds at most three patches' worth")

@@ -171,6 +171,11 @@ struct MosaickerOptions {
   // session 21); where they do not, it stays about where it starts, which then does no harm. A
   // calibration file's focal length is held, unless it was only assumed (below).
   bool estimate_focal = true;
+  // The adjustment's last solve discounts the pairs a link holds beyond this many pixels by a
+  // Cauchy loss (0 = the Huber loss from a pixel alone, as engines before session 41): the
+  // pairs that agree with each other place the frames (13 % less error within each patch over
+  // 46 surveys; bench/RESULTS.md, session 41).
+  double patch_robust_loss_px = 0.5;
   // Whether the calibration file's focal length was measured (held) or only assumed, as in the
   // file --calibration auto writes (0.9 x the width, where its radial distortion is found from):
   // that one is where the adjustment starts, as the field of view is without a file.

@@ -98,6 +98,8 @@ def test_errors_name_the_file_and_bad_options_name_the_option(tmp_path):
         rolamos.Mosaicker(str(tmp_path / "z.rolamos"), max_features=-5)
     with pytest.raises(ValueError, match="followed keyframes"):
         rolamos.Mosaicker(str(tmp_path / "w.rolamos"), followed_max_features=10)
+    with pytest.raises(ValueError, match="robust loss"):
+        rolamos.Mosaicker(str(tmp_path / "v.rolamos"), patch_robust_loss_px=-1)
 
 
 def test_align_then_compose_and_export_from_python(store, tmp_path):

@@ -55,6 +55,10 @@ bool MosaickerOptions::IsValid(std::string* error) const {
       !ToPreprocessOptions(*this).IsValid(error) || !ToEccOptions(*this).IsValid(error) ||
       !ToTrackerOptions(*this).IsValid(error))
     return false;
+  if (!(patch_robust_loss_px >= 0 && patch_robust_loss_px <= 10)) {
+    *error = "the patch adjustment's robust loss " + std::to_string(patch_robust_loss_px) + " px must be in [0, 10]";
+    return false;
+  }
   if (track_halve != "auto" && track_halve != "always" && track_halve != "never") {
     *error = "tracking halving \"" + track_halve + "\" is none of auto, always, never";
     return false;
@@ -282,6 +286,7 @@ struct Mosaicker::Impl {
         ecc_options(ToEccOptions(o)),
         writer(s, o.tiff) {
     adjust_options.enabled = o.adjust_patches;
+    adjust_options.robust_loss_px = o.patch_robust_loss_px;
     // ("auto" never reaches the engine: MosaicInput replaces it by the file it writes, or by none.)
     adjust_options.solver.refine_focal = o.estimate_focal && (o.calibration.empty() || !o.calibration_focal_measured);
     ColourOptions co;
