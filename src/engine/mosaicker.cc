@@ -53,12 +53,8 @@ std::string SizeText(cv::Size s) { return std::to_string(s.width) + "x" + std::t
 bool MosaickerOptions::IsValid(std::string* error) const {
   if (!ToFeatureOptions(*this).IsValid(error) || !ToEgomotionOptions(*this).IsValid(error) ||
       !ToPreprocessOptions(*this).IsValid(error) || !ToEccOptions(*this).IsValid(error) ||
-      !ToTrackerOptions(*this).IsValid(error))
+      !ToTrackerOptions(*this).IsValid(error) || !ToPatchAdjustmentOptions(*this).IsValid(error))
     return false;
-  if (!(patch_robust_loss_px >= 0 && patch_robust_loss_px <= 10)) {
-    *error = "the patch adjustment's robust loss " + std::to_string(patch_robust_loss_px) + " px must be in [0, 10]";
-    return false;
-  }
   if (track_halve != "auto" && track_halve != "always" && track_halve != "never") {
     *error = "tracking halving \"" + track_halve + "\" is none of auto, always, never";
     return false;
@@ -285,10 +281,7 @@ struct Mosaicker::Impl {
         ego_options(ToEgomotionOptions(o)),
         ecc_options(ToEccOptions(o)),
         writer(s, o.tiff) {
-    adjust_options.enabled = o.adjust_patches;
-    adjust_options.robust_loss_px = o.patch_robust_loss_px;
-    // ("auto" never reaches the engine: MosaicInput replaces it by the file it writes, or by none.)
-    adjust_options.solver.refine_focal = o.estimate_focal && (o.calibration.empty() || !o.calibration_focal_measured);
+    adjust_options = ToPatchAdjustmentOptions(o);
     ColourOptions co;
     co.lighting = o.flat_field;
     co.exposure = o.exposure;
@@ -372,6 +365,7 @@ struct Mosaicker::Impl {
   enum class Start { kPredicted, kCorrelated, kUnmoved, kTurned };
   // A follow tried for the frame being integrated, under the motion model's present prediction.
   struct Tried {
+    Start start;
     cv::Matx33d guess;
     Candidate result;
     bool cut_short = false;  // its follow gave up after its sample
@@ -652,8 +646,8 @@ Mosaicker::Impl::Candidate Mosaicker::Impl::Track(const std::shared_ptr<Prepared
     c.at.push_back(from[size_t(i)]);
   }
   lap(kEgomotion);
-  if (again) *again = {guess, c, flow.cut_short};
-  else if (tried) tried->push_back({guess, c, flow.cut_short});
+  if (again) *again = {again->start, guess, c, flow.cut_short};
+  else if (tried) tried->push_back({start, guess, c, flow.cut_short});
   return c;
 }
 
@@ -1704,7 +1698,10 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   const bool far = m.PredictionFarOff(*p);
   Impl::Candidate best = m.FollowStarts(p, far, &tried, true);
   const bool gave_up = std::any_of(tried.begin(), tried.end(), [](const Impl::Tried& t) { return t.cut_short; });
-  const bool predicted_held = !far && !tried.empty() && tried.front().result.support.strong && m.Usable(tried.front().result);
+  const auto from_prediction = std::find_if(tried.begin(), tried.end(),
+                                            [](const Impl::Tried& t) { return t.start == Start::kPredicted; });
+  const bool predicted_held = !far && from_prediction != tried.end() && from_prediction->result.support.strong &&
+                              m.Usable(from_prediction->result);
   m.since_prediction_failed = predicted_held ? std::min(m.since_prediction_failed + 1, 1 << 20) : 0;
   lap.Restart();  // Track timed itself
   // 2. The motion model arbitrates between what following and recovery found.

@@ -12,8 +12,12 @@ namespace rolamos {
 
 bool PatchAdjustmentOptions::IsValid(std::string* error) const {
   if (!solver.IsValid(error)) return false;
-  if (max_pairs_per_link < 8 || !(max_rms_px > 0) || !(robust_loss_px >= 0)) {
-    *error = "patch adjustment needs at least 8 pairs a link, a positive error bound and a robust loss of 0 px or more";
+  if (max_pairs_per_link < 8 || !(max_rms_px > 0)) {
+    *error = "patch adjustment needs at least 8 pairs a link and a positive error bound";
+    return false;
+  }
+  if (!(robust_loss_px >= 0 && robust_loss_px <= 10)) {
+    *error = "the patch adjustment's robust loss " + std::to_string(robust_loss_px) + " px must be in [0, 10]";
     return false;
   }
   return true;

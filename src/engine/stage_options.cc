@@ -73,4 +73,13 @@ TrackerOptions ToTrackerOptions(const MosaickerOptions& o) {
   return t;
 }
 
+PatchAdjustmentOptions ToPatchAdjustmentOptions(const MosaickerOptions& o) {
+  PatchAdjustmentOptions a;
+  a.enabled = o.adjust_patches;
+  a.robust_loss_px = o.patch_robust_loss_px;
+  // ("auto" never reaches the engine: MosaicInput replaces it by the file it writes, or by none.)
+  a.solver.refine_focal = o.estimate_focal && (o.calibration.empty() || !o.calibration_focal_measured);
+  return a;
+}
+
 }  // namespace rolamos

@@ -4,6 +4,7 @@
 #include "engine/ecc_refine.h"
 #include "engine/egomotion.h"
 #include "engine/features.h"
+#include "engine/patch_adjustment.h"
 #include "engine/preprocess.h"
 #include "engine/tracker.h"
 #include "rolamos/mosaicker.hpp"
@@ -21,5 +22,6 @@ EgomotionOptions ToEgomotionOptions(const MosaickerOptions& o);
 PreprocessOptions ToPreprocessOptions(const MosaickerOptions& o);
 EccOptions ToEccOptions(const MosaickerOptions& o);
 TrackerOptions ToTrackerOptions(const MosaickerOptions& o);
+PatchAdjustmentOptions ToPatchAdjustmentOptions(const MosaickerOptions& o);
 
 }  // namespace rolamos

@@ -253,12 +253,14 @@ TrackFlow FrameTracker::Follow(const TrackFrame& from, const TrackFrame& to, con
   const cv::Size t = to.pyramid[0].size();
   // The points `which` (indices into `points`) followed forward, then back from where they landed.
   auto follow = [&](const std::vector<int>& which) {
+    // All of them: no index list (OpenCV's fallback would gather and scatter every point).
+    const std::vector<int>* only = which.size() == points.size() ? nullptr : &which;
     if (windows) {
       const LucasKanadeTemplates& made =
           windows->Get([&] { return PrepareLucasKanade(from.pyramid, a, win, options_.levels, kMinEigen); });
-      FollowLucasKanade(made, from.pyramid, *target, a, &b, &forward, until, &which);
+      FollowLucasKanade(made, from.pyramid, *target, a, &b, &forward, until, only);
     } else {
-      FollowLucasKanade(from.pyramid, *target, a, &b, &forward, win, options_.levels, until, kMinEigen, &which);
+      FollowLucasKanade(from.pyramid, *target, a, &b, &forward, win, options_.levels, until, kMinEigen, only);
     }
     // Back only from where the forward pass landed on usable ground: the others are lost anyway.
     std::vector<size_t> landed;
