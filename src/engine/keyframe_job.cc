@@ -45,7 +45,12 @@ KeyframeProducts RunKeyframeJob(const KeyframeJob& job, const KeyframeTools& too
   if (job.blend) job.frame->image.release();
   cpu.Restart();  // the features are timed where they are found
   // Loop closures within the patch: the older keyframes under this one (their jobs ran before).
+  // An earlier lane may lie further off than the guided search reaches: one loop candidate per
+  // keyframe is searched over all its features, and where that finds the lane, the rest are
+  // guided from the placement it implies.
   if (out.features && !out.features->empty()) {
+    cv::Matx33d to_patch = job.to_patch;
+    bool searched = false;
     for (const auto& older : job.older) {
       const KeyframeProducts& theirs = older.products.get();
       if (!theirs.features || theirs.features->empty()) continue;
@@ -53,8 +58,15 @@ KeyframeProducts RunKeyframeJob(const KeyframeJob& job, const KeyframeTools& too
       f.index = older.index;
       f.to_patch = older.to_patch;
       f.features = theirs.features;
-      if (auto link = LinkPair(job.index, *out.features, job.to_patch, f, tools.fit))
+      const bool wide = older.loop && !searched;
+      cv::Matx33d placed = to_patch;
+      if (auto link = LinkPair(job.index, *out.features, older.loop ? to_patch : job.to_patch, f, tools.fit,
+                               wide ? job.frame->size : cv::Size(), &placed)) {
         out.loop_links.push_back(std::move(*link));
+        to_patch = placed;
+      } else {
+        searched = searched || wide;
+      }
     }
   }
   out.link_seconds = 1e-9 * cpu.Lap();

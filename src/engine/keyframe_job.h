@@ -77,6 +77,7 @@ struct OlderKeyframe {
   int index = 0;
   cv::Matx33d to_patch;
   KeyframeFuture products;
+  bool loop = false;  // of an earlier lane (not among the recent keyframes): a loop closure
 };
 
 struct KeyframeJob {

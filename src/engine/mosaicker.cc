@@ -1083,7 +1083,7 @@ std::vector<OlderKeyframe> Mosaicker::Impl::LinkCandidates(const cv::Matx33d& to
   }
   const auto under = OlderUnder(to_patch, current);
   for (size_t k = 0; k < under.size() && k < size_t(fit_options.max_loop_frames); ++k)
-    out.push_back({under[k].second->index, under[k].second->to_patch, under[k].second->products});
+    out.push_back({under[k].second->index, under[k].second->to_patch, under[k].second->products, true});
   return out;
 }
 

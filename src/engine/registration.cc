@@ -25,7 +25,8 @@ bool SupportOptions::IsValid(std::string* error) const {
 
 bool PatchFitOptions::IsValid(std::string* error) const {
   if (max_frames < 0 || !(min_overlap > 0 && min_overlap < 1) || !(search_radius > 0) ||
-      !(ratio > 0.3 && ratio < 1) || !(inlier_px > 0) || !(max_correction_px > 0)) {
+      !(ratio > 0.3 && ratio < 1) || !(inlier_px > 0) || !(max_correction_px > 0) ||
+      !(loop_drift >= 0 && loop_drift <= 1)) {
     *error = "patch fit settings are out of range";
     return false;
   }
@@ -152,23 +153,86 @@ double FootprintOverlap(const cv::Matx33d& a_to_patch, const cv::Matx33d& b_to_p
   return std::max(0.0, double(common)) / area;
 }
 
-std::optional<FrameLink> LinkPair(int index, const Features& frame, const cv::Matx33d& to_patch,
-                                 const PatchFrame& older, const PatchFitOptions& o) {
-  if (!older.features) return std::nullopt;
-  const Matches m = MatchGuided(frame, *older.features, older.to_patch.inv() * to_patch, o.loop_radius, o.ratio);
-  if (m.from.size() < 20) return std::nullopt;
-  std::vector<uchar> inlier;
-  const cv::Mat H = cv::findHomography(m.from, m.to, cv::RANSAC, 3.0, inlier, 2000, 0.999);
-  if (H.empty()) return std::nullopt;
+namespace {
+
+// The pairs of `m` that a RANSAC homography (3 px) fits, as a link of `index` with `older`.
+FrameLink VerifiedLink(int index, int older, const Matches& m, cv::Matx33d* H = nullptr) {
   FrameLink l;
   l.a = index;
-  l.b = older.index;
+  l.b = older;
+  if (m.from.size() < 4) return l;
+  std::vector<uchar> inlier;
+  const cv::Mat found = cv::findHomography(m.from, m.to, cv::RANSAC, 3.0, inlier, 2000, 0.999);
+  if (found.empty()) return l;
+  if (H) *H = cv::Matx33d(found);
   for (size_t i = 0; i < inlier.size(); ++i)
     if (inlier[i]) {
       l.in_a.push_back(m.from[i]);
       l.in_b.push_back(m.to[i]);
     }
+  return l;
+}
+
+// Whether `found` (frame -> older) is where the placements put the frame, within `drift` of the
+// frame's diagonal at its centre, and the same motion otherwise (scale, turn and shear within
+// a tenth).
+bool NearPrediction(const cv::Matx33d& found, const cv::Matx33d& predicted, cv::Size size, double drift) {
+  const cv::Point2d c((size.width - 1) / 2.0, (size.height - 1) / 2.0);
+  const cv::Point2d a = Apply(found, c), b = Apply(predicted, c);
+  if (!(std::hypot(a.x - b.x, a.y - b.y) <= drift * std::hypot(size.width, size.height))) return false;
+  // The found motion undone by the predicted one: near the identity, up to the shift.
+  const cv::Matx22d J = HomographyJacobian(predicted.inv() * found, c);
+  return std::abs(J(0, 0) - 1) < 0.1 && std::abs(J(1, 1) - 1) < 0.1 && std::abs(J(0, 1)) < 0.1 &&
+         std::abs(J(1, 0)) < 0.1;
+}
+
+}  // namespace
+
+// The features of `f` whose points `to_other` maps within `margin` pixels of a frame of `size`.
+Features WithinFrame(const Features& f, const cv::Matx33d& to_other, cv::Size size, double margin) {
+  Features out;
+  out.norm = f.norm;
+  std::vector<int> rows;
+  for (size_t i = 0; i < f.points.size(); ++i) {
+    const cv::Point2d q = Apply(to_other, f.points[i]);
+    if (q.x >= -margin && q.y >= -margin && q.x <= size.width - 1 + margin && q.y <= size.height - 1 + margin) {
+      rows.push_back(static_cast<int>(i));
+      out.points.push_back(f.points[i]);
+    }
+  }
+  out.descriptors.create(static_cast<int>(rows.size()), f.descriptors.cols, f.descriptors.type());
+  for (size_t r = 0; r < rows.size(); ++r) f.descriptors.row(rows[r]).copyTo(out.descriptors.row(static_cast<int>(r)));
+  return out;
+}
+
+std::optional<FrameLink> LinkPair(int index, const Features& frame, const cv::Matx33d& to_patch,
+                                 const PatchFrame& older, const PatchFitOptions& o, cv::Size size,
+                                 cv::Matx33d* placed) {
+  if (!older.features) return std::nullopt;
+  const cv::Matx33d predicted = older.to_patch.inv() * to_patch;
+  const Matches m = MatchGuided(frame, *older.features, predicted, o.loop_radius, o.ratio);
+  if (m.from.size() >= 20) {
+    FrameLink l = VerifiedLink(index, older.index, m);
+    if (l.in_a.size() >= 20) return l;
+  }
+  if (!(o.loop_drift > 0) || size.empty()) return std::nullopt;
+  // Along a lane the chain drifts, and the lane before may lie further off than the guided
+  // search reaches: a degraded survey's lanes drift a hundred pixels apart before they close.
+  // Matched over all their features where the two may overlap, the frames tell where they
+  // meet; the guided match then looks again from there.
+  const double drift = o.loop_drift * std::hypot(size.width, size.height);
+  FeatureOptions wide;
+  wide.ratio = 0.8;
+  wide.cross_check = true;
+  cv::Matx33d found;
+  const FrameLink coarse = VerifiedLink(index, older.index,
+                                        MatchFeatures(WithinFrame(frame, predicted, size, drift),
+                                                      WithinFrame(*older.features, predicted.inv(), size, drift), wide),
+                                        &found);
+  if (coarse.in_a.size() < 20 || !NearPrediction(found, predicted, size, o.loop_drift)) return std::nullopt;
+  FrameLink l = VerifiedLink(index, older.index, MatchGuided(frame, *older.features, found, o.search_radius, o.ratio));
   if (l.in_a.size() < 20) return std::nullopt;
+  if (placed) *placed = older.to_patch * found;
   return l;
 }
 
@@ -187,7 +251,7 @@ std::vector<FrameLink> LinkOlderFrames(int index, const Features& frame, cv::Siz
   std::sort(under.begin(), under.end(), [](const auto& x, const auto& y) { return x.first > y.first; });
   for (const auto& [overlap, f] : under) {
     if (static_cast<int>(out.size()) >= o.max_loop_frames) break;
-    if (auto l = LinkPair(index, frame, to_patch, *f, o)) out.push_back(std::move(*l));
+    if (auto l = LinkPair(index, frame, to_patch, *f, o, size, nullptr)) out.push_back(std::move(*l));
   }
   return out;
 }

@@ -76,6 +76,9 @@ struct PatchFitOptions {
   // older frames it overlaps are linked to it for the adjustment at closing instead.
   int recent_frames = 6;
   double loop_radius = 48.0;     // guided matching radius against the older frames, pixels
+  // How far (a fraction of the frame's diagonal) the chain may have drifted from an older lane
+  // for a loop link found by matching all features to be kept; 0 = guided loop links only.
+  double loop_drift = 0.3;
   int max_loop_frames = 2;
   double min_overlap = 0.12;     // a patch frame is used when it covers this much of the new one
   double search_radius = 12.0;   // guided matching radius, pixels
@@ -95,10 +98,14 @@ struct PatchFit {
   std::vector<FrameLink> links;  // the inlier matches with each patch frame (a = the new frame)
 };
 
-// The matches of a frame placed at `to_patch` with an older patch frame under it, guided by the
-// placements and verified by a RANSAC homography; none when fewer than 20 agree.
+// The matches of a frame (of `size`) placed at `to_patch` with an older patch frame under it,
+// guided by the placements and verified by a RANSAC homography; none when fewer than 20 agree.
+// Where the guided search finds too few, the two frames are matched over all their features
+// that may overlap, and a link within PatchFitOptions::loop_drift of the placements is kept,
+// with the frame's placement it implies in `placed` (an empty `size`: guided only).
 std::optional<FrameLink> LinkPair(int index, const Features& frame, const cv::Matx33d& to_patch,
-                                 const PatchFrame& older, const PatchFitOptions& options);
+                                 const PatchFrame& older, const PatchFitOptions& options, cv::Size size,
+                                 cv::Matx33d* placed);
 
 // Links of a new frame (placed at `to_patch`) with the older patch frames under it (not among the
 // recent ones), each verified by a RANSAC homography: loop closures within the patch, for the

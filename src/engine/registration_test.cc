@@ -4,6 +4,8 @@
 
 #include <gtest/gtest.h>
 
+#include <opencv2/core.hpp>
+
 namespace rolamos {
 namespace {
 
@@ -45,6 +47,75 @@ TEST(Registration, MirrorsFoldsAndWildPerspectiveAreNot) {
   // Too much zoom, too much shear.
   EXPECT_FALSE(IsPlausibleMotion(cv::Matx33d(2, 0, 0, 0, 2, 0, 0, 0, 1), frame, o));
   EXPECT_FALSE(IsPlausibleMotion(cv::Matx33d(1, 0.8, 0, 0, 1, 0, 0, 0, 1), frame, o));
+}
+
+
+// Two frames' features over the same ground: frame b is frame a moved by `a_to_b`. Each of a's
+// points that lands in b is found there too (its descriptor a little changed, its place off by
+// a tenth of a pixel), and each frame has as many features again of its own.
+void TwoViews(const cv::Matx33d& a_to_b, cv::Size size, Features* a, Features* b) {
+  cv::RNG rng(7);
+  auto descriptor = [&](cv::Mat row) {
+    rng.fill(row, cv::RNG::UNIFORM, 0, 120);
+    row.convertTo(row, CV_32F);
+  };
+  std::vector<cv::Mat> da, db;
+  for (int i = 0; i < 600; ++i) {
+    const cv::Point2f p(rng.uniform(0.f, size.width - 1.f), rng.uniform(0.f, size.height - 1.f));
+    const cv::Vec3d q = a_to_b * cv::Vec3d(p.x, p.y, 1);
+    const cv::Point2f in_b(float(q[0] / q[2]) + rng.uniform(-0.1f, 0.1f), float(q[1] / q[2]) + rng.uniform(-0.1f, 0.1f));
+    cv::Mat d(1, 128, CV_32F);
+    descriptor(d);
+    a->points.push_back(p);
+    da.push_back(d);
+    if (in_b.x >= 0 && in_b.y >= 0 && in_b.x < size.width && in_b.y < size.height) {
+      cv::Mat noisy = d.clone();
+      for (int k = 0; k < 128; k += 16) noisy.at<float>(0, k) += 3;
+      b->points.push_back(in_b);
+      db.push_back(noisy);
+    }
+    cv::Mat own(1, 128, CV_32F);
+    descriptor(own);
+    b->points.emplace_back(rng.uniform(0.f, size.width - 1.f), rng.uniform(0.f, size.height - 1.f));
+    db.push_back(own);
+  }
+  cv::vconcat(da, a->descriptors);
+  cv::vconcat(db, b->descriptors);
+}
+
+TEST(Registration, ALoopLinkIsFoundWhereTheChainHasDriftedFromTheLaneBefore) {
+  const cv::Size size(640, 480);
+  // Frame 80 lies beside frame 39 of the lane before: 40 % of it across (b = 39's pixels).
+  const cv::Matx33d truth(0.999, -0.02, 384, 0.02, 0.999, 12, 0, 0, 1);
+  auto a = std::make_shared<Features>(), b = std::make_shared<Features>();
+  TwoViews(truth, size, a.get(), b.get());
+  PatchFrame older;
+  older.index = 39;
+  older.features = b;
+  // The chain has placed frame 80 110 px along the lane from where it lies.
+  const cv::Matx33d drifted = cv::Matx33d(1, 0, 0, 0, 1, 110, 0, 0, 1) * truth;
+  const PatchFitOptions o;
+  // The guided search alone (an empty size) looks within 48 px of the drifted placement.
+  EXPECT_FALSE(LinkPair(80, *a, drifted, older, o, cv::Size(), nullptr));
+  cv::Matx33d placed;
+  const auto link = LinkPair(80, *a, drifted, older, o, size, &placed);
+  ASSERT_TRUE(link);
+  EXPECT_EQ(link->a, 80);
+  EXPECT_EQ(link->b, 39);
+  EXPECT_GE(link->in_a.size(), 100u);
+  for (size_t i = 0; i < link->in_a.size(); ++i) {
+    const cv::Vec3d q = truth * cv::Vec3d(link->in_a[i].x, link->in_a[i].y, 1);
+    EXPECT_LT(std::hypot(q[0] / q[2] - link->in_b[i].x, q[1] / q[2] - link->in_b[i].y), 0.5) << i;
+  }
+  // The placement the link implies is the true one.
+  const cv::Vec3d c = placed * cv::Vec3d(319.5, 239.5, 1), t = truth * cv::Vec3d(319.5, 239.5, 1);
+  EXPECT_LT(std::hypot(c[0] / c[2] - t[0] / t[2], c[1] / c[2] - t[1] / t[2]), 0.5);
+  // A lane further off than loop_drift (0.3 of the diagonal: 240 px) is not taken for this one.
+  const cv::Matx33d far = cv::Matx33d(1, 0, 0, 0, 1, 300, 0, 0, 1) * truth;
+  EXPECT_FALSE(LinkPair(80, *a, far, older, o, size, nullptr));
+  PatchFitOptions guided_only;
+  guided_only.loop_drift = 0;
+  EXPECT_FALSE(LinkPair(80, *a, drifted, older, guided_only, size, nullptr));
 }
 
 }  // namespace
