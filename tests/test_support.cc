@@ -42,6 +42,36 @@ ScratchDir::~ScratchDir() {
   fs::remove_all(path_, ec);
 }
 
+void TwoFeatureViews(const cv::Matx33d& a_to_b, cv::Size size, Features* a, Features* b) {
+  cv::RNG rng(7);
+  auto descriptor = [&](cv::Mat row) {
+    rng.fill(row, cv::RNG::UNIFORM, 0, 120);
+    row.convertTo(row, CV_32F);
+  };
+  std::vector<cv::Mat> da, db;
+  for (int i = 0; i < 600; ++i) {
+    const cv::Point2f p(rng.uniform(0.f, size.width - 1.f), rng.uniform(0.f, size.height - 1.f));
+    const cv::Vec3d q = a_to_b * cv::Vec3d(p.x, p.y, 1);
+    const cv::Point2f in_b(float(q[0] / q[2]) + rng.uniform(-0.1f, 0.1f), float(q[1] / q[2]) + rng.uniform(-0.1f, 0.1f));
+    cv::Mat d(1, 128, CV_32F);
+    descriptor(d);
+    a->points.push_back(p);
+    da.push_back(d);
+    if (in_b.x >= 0 && in_b.y >= 0 && in_b.x < size.width && in_b.y < size.height) {
+      cv::Mat noisy = d.clone();
+      for (int k = 0; k < 128; k += 16) noisy.at<float>(0, k) += 3;
+      b->points.push_back(in_b);
+      db.push_back(noisy);
+    }
+    cv::Mat own(1, 128, CV_32F);
+    descriptor(own);
+    b->points.emplace_back(rng.uniform(0.f, size.width - 1.f), rng.uniform(0.f, size.height - 1.f));
+    db.push_back(own);
+  }
+  cv::vconcat(da, a->descriptors);
+  cv::vconcat(db, b->descriptors);
+}
+
 cv::Mat MakeImage(int width, int height, int channels, int bits, uint32_t seed) {
   SeafloorTextureOptions o;
   o.seed = seed;

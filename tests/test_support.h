@@ -6,6 +6,7 @@
 
 #include <opencv2/core.hpp>
 
+#include "engine/features.h"
 #include "rolamos/store.hpp"
 #include "rolamos/survey.hpp"
 
@@ -22,6 +23,11 @@ class ScratchDir {
  private:
   std::string path_;
 };
+
+// Two frames' SIFT-like features over the same ground: frame b is frame a (of `size`) moved by
+// `a_to_b`. Each of a's 600 points that lands in b is found there too (its descriptor a little
+// changed, its place off by up to a tenth of a pixel), and b has 600 features of its own.
+void TwoFeatureViews(const cv::Matx33d& a_to_b, cv::Size size, Features* a, Features* b);
 
 // A textured test image (procedural seafloor), BGR, optionally with a transparent border.
 cv::Mat MakeImage(int width, int height, int channels = 3, int bits = 8, uint32_t seed = 1);

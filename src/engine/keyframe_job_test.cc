@@ -3,7 +3,10 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgproc.hpp>
 
+#include <future>
+
 #include "synth/seafloor_texture.h"
+#include "test_support.h"
 #include "util/homography.h"
 
 namespace rolamos {
@@ -89,6 +92,57 @@ TEST(FollowBack, LeavesOutFramesItCannotRegister) {
   ASSERT_EQ(between.size(), 1u);
   EXPECT_EQ(between[0].index, 7);
   EXPECT_LT(MaxCornerShift(between[0].to_after, s.after.inv() * s.frame, kFrame), 0.3);
+}
+
+KeyframeFuture Ready(std::shared_ptr<const Features> features) {
+  std::promise<KeyframeProducts> made;
+  KeyframeProducts products;
+  products.features = std::move(features);
+  made.set_value(std::move(products));
+  return made.get_future().share();
+}
+
+// A keyframe beside two keyframes of the lane before, 110 px from where the chain has put it,
+// beyond the guided search's reach: as loop candidates both are linked, with the true pairs; as
+// recent ones (guided only) neither.
+TEST(RunKeyframeJob, LinksTheLaneBeforeWhereTheChainHasDriftedFromIt) {
+  const cv::Size size(640, 480);
+  const cv::Matx33d to_39(0.999, -0.02, 384, 0.02, 0.999, 12, 0, 0, 1);
+  const cv::Matx33d to_40 = cv::Matx33d(1, 0, -144, 0, 1, 0, 0, 0, 1) * to_39;
+  auto frame = std::make_shared<Features>(), again = std::make_shared<Features>();
+  auto k39 = std::make_shared<Features>(), k40 = std::make_shared<Features>();
+  test::TwoFeatureViews(to_39, size, frame.get(), k39.get());
+  test::TwoFeatureViews(to_40, size, again.get(), k40.get());
+  const cv::Matx33d patch_39(1, 0, 2000, 0, 1, 900, 0, 0, 1);
+  const cv::Matx33d patch_40 = patch_39 * to_39 * to_40.inv();
+  const cv::Matx33d truth = patch_39 * to_39;
+
+  KeyframeJob job;
+  job.index = 80;
+  job.blend = false;
+  job.frame = std::make_shared<PreparedFrame>();
+  job.frame->size = size;
+  job.to_patch = cv::Matx33d(1, 0, 0, 0, 1, 110, 0, 0, 1) * truth;
+  KeyframeTools tools;
+  tools.features = [&](PreparedFrame&) { return std::shared_ptr<const Features>(frame); };
+  for (bool loop : {true, false}) {
+    job.older = {{39, patch_39, Ready(k39), loop}, {40, patch_40, Ready(k40), loop}};
+    const KeyframeProducts out = RunKeyframeJob(job, tools);
+    if (!loop) {
+      EXPECT_TRUE(out.loop_links.empty());
+      continue;
+    }
+    ASSERT_EQ(out.loop_links.size(), 2u);
+    for (const FrameLink& l : out.loop_links) {
+      const cv::Matx33d to_older = l.b == 39 ? to_39 : to_40;
+      EXPECT_EQ(l.a, 80);
+      EXPECT_GE(l.in_a.size(), 100u) << l.b;
+      double worst = 0;
+      for (size_t i = 0; i < l.in_a.size(); ++i)
+        worst = std::max(worst, cv::norm(ApplyHomography(to_older, cv::Point2d(l.in_a[i])) - cv::Point2d(l.in_b[i])));
+      EXPECT_LT(worst, 0.5) << l.b;
+    }
+  }
 }
 
 TEST(BlendHomographies, PutsEachCornerBetweenTheTwoPlacements) {

@@ -107,13 +107,6 @@ std::optional<FrameLink> LinkPair(int index, const Features& frame, const cv::Ma
                                  const PatchFrame& older, const PatchFitOptions& options, cv::Size size,
                                  cv::Matx33d* placed);
 
-// Links of a new frame (placed at `to_patch`) with the older patch frames under it (not among the
-// recent ones), each verified by a RANSAC homography: loop closures within the patch, for the
-// adjustment when it closes.
-std::vector<FrameLink> LinkOlderFrames(int index, const Features& frame, cv::Size size,
-                                       const cv::Matx33d& to_patch, const std::vector<PatchFrame>& patch,
-                                       const PatchFitOptions& options);
-
 // The new frame's placement in the patch from its matches to the previous frame (`from_prev` in
 // the new frame, `to_prev` in the previous one) and to the other patch frames it overlaps.
 PatchFit FitToPatch(int index, const Features& frame, cv::Size size, const cv::Matx33d& guess,

@@ -6,6 +6,8 @@
 
 #include <opencv2/core.hpp>
 
+#include "test_support.h"
+
 namespace rolamos {
 namespace {
 
@@ -50,45 +52,12 @@ TEST(Registration, MirrorsFoldsAndWildPerspectiveAreNot) {
 }
 
 
-// Two frames' features over the same ground: frame b is frame a moved by `a_to_b`. Each of a's
-// points that lands in b is found there too (its descriptor a little changed, its place off by
-// a tenth of a pixel), and each frame has as many features again of its own.
-void TwoViews(const cv::Matx33d& a_to_b, cv::Size size, Features* a, Features* b) {
-  cv::RNG rng(7);
-  auto descriptor = [&](cv::Mat row) {
-    rng.fill(row, cv::RNG::UNIFORM, 0, 120);
-    row.convertTo(row, CV_32F);
-  };
-  std::vector<cv::Mat> da, db;
-  for (int i = 0; i < 600; ++i) {
-    const cv::Point2f p(rng.uniform(0.f, size.width - 1.f), rng.uniform(0.f, size.height - 1.f));
-    const cv::Vec3d q = a_to_b * cv::Vec3d(p.x, p.y, 1);
-    const cv::Point2f in_b(float(q[0] / q[2]) + rng.uniform(-0.1f, 0.1f), float(q[1] / q[2]) + rng.uniform(-0.1f, 0.1f));
-    cv::Mat d(1, 128, CV_32F);
-    descriptor(d);
-    a->points.push_back(p);
-    da.push_back(d);
-    if (in_b.x >= 0 && in_b.y >= 0 && in_b.x < size.width && in_b.y < size.height) {
-      cv::Mat noisy = d.clone();
-      for (int k = 0; k < 128; k += 16) noisy.at<float>(0, k) += 3;
-      b->points.push_back(in_b);
-      db.push_back(noisy);
-    }
-    cv::Mat own(1, 128, CV_32F);
-    descriptor(own);
-    b->points.emplace_back(rng.uniform(0.f, size.width - 1.f), rng.uniform(0.f, size.height - 1.f));
-    db.push_back(own);
-  }
-  cv::vconcat(da, a->descriptors);
-  cv::vconcat(db, b->descriptors);
-}
-
 TEST(Registration, ALoopLinkIsFoundWhereTheChainHasDriftedFromTheLaneBefore) {
   const cv::Size size(640, 480);
   // Frame 80 lies beside frame 39 of the lane before: 40 % of it across (b = 39's pixels).
   const cv::Matx33d truth(0.999, -0.02, 384, 0.02, 0.999, 12, 0, 0, 1);
   auto a = std::make_shared<Features>(), b = std::make_shared<Features>();
-  TwoViews(truth, size, a.get(), b.get());
+  test::TwoFeatureViews(truth, size, a.get(), b.get());
   PatchFrame older;
   older.index = 39;
   older.features = b;
