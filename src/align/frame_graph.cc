@@ -67,10 +67,13 @@ double Median(std::vector<double> v) {
 
 namespace {
 
-Features AsFeatures(const GraphNode& n) {
+// The node's primary features, or all of them.
+Features AsFeatures(const GraphNode& n, bool all = false) {
+  const int size = static_cast<int>(n.points.size());
+  const int count = all || n.primary <= 0 ? size : std::min(n.primary, size);
   Features f;
-  f.points = n.points;
-  n.descriptors.convertTo(f.descriptors, CV_32F);
+  f.points.assign(n.points.begin(), n.points.begin() + count);
+  if (count > 0) n.descriptors.rowRange(0, count).convertTo(f.descriptors, CV_32F);
   f.norm = cv::NORM_L2;
   return f;
 }
@@ -106,6 +109,7 @@ void LoadNodes(const Store& store, FrameGraph& g) {
       if (it != stored.end()) {
         n.points = it->second->points;
         n.descriptors = it->second->descriptors.clone();
+        n.primary = std::min<int>(static_cast<int>(n.points.size()), kPrimaryStoredFeatures);
       }
       g.node_of[{id, n.index}] = g.size();
       g.nodes.push_back(std::move(n));
@@ -138,6 +142,7 @@ int DescribeMissing(FrameGraph& g, const AlignOptions& o, const ParallelForOptio
     const Features f = DescribeStoredFrame(path, extractor);
     n.points = f.points;
     f.descriptors.convertTo(n.descriptors, CV_8U);
+    n.primary = 0;  // all
     ++described;
   }, pfo);
   return described;
@@ -201,7 +206,9 @@ std::pair<int, int> AddAppearanceEdges(FrameGraph& g, const AlignOptions& o, int
                                        const std::function<bool(int, int)>& allowed, const ParallelForOptions& pfo) {
   if (g.appearance.empty()) {
     std::vector<cv::Mat> descriptors;
-    for (const auto& n : g.nodes) descriptors.push_back(n.descriptors);
+    for (const auto& n : g.nodes)
+      descriptors.push_back(n.primary > 0 && n.primary < n.descriptors.rows ? n.descriptors.rowRange(0, n.primary)
+                                                                             : n.descriptors);
     RetrievalOptions ro;
     ro.words = o.vocabulary;
     g.appearance = DescribeFrames(descriptors, ro);
@@ -253,13 +260,11 @@ void AddRejoiningEdges(FrameGraph& g, const AlignOptions& o, AlignSummary* summa
       }, pfo);
 }
 
-bool VerifyPair(const GraphNode& a, const GraphNode& b, const cv::Matx33d* guess, cv::Size frame, const AlignOptions& o,
-                GraphEdge* out) {
-  if (a.points.size() < size_t(o.min_inliers) || b.points.size() < size_t(o.min_inliers)) return false;
-  const Features fa = AsFeatures(a), fb = AsFeatures(b);
-  FeatureOptions fo;
-  Matches m = guess ? MatchGuided(fa, fb, *guess, 60.0, 0.85) : MatchFeatures(fa, fb, fo);
-  if (guess && m.from.size() < size_t(o.min_inliers)) m = MatchFeatures(fa, fb, fo);
+namespace {
+
+// The pairs of `m` that a RANSAC homography fits, when they are enough, the homography is one a
+// camera over the seafloor makes, and they cover some of the frame (not one cluster).
+bool VerifyMatches(const Matches& m, cv::Size frame, const AlignOptions& o, GraphEdge* out) {
   if (m.from.size() < size_t(o.min_inliers)) return false;
   std::vector<uchar> inlier;
   const cv::Mat H = cv::findHomography(m.from, m.to, cv::RANSAC, 3.0, inlier, 2000, 0.999);
@@ -276,12 +281,30 @@ bool VerifyPair(const GraphNode& a, const GraphNode& b, const cv::Matx33d* guess
       e.in_b.push_back(m.to[i]);
     }
   if (e.in_a.size() < size_t(o.min_inliers)) return false;
-  // The inliers must cover some of the frame, not one cluster.
   std::vector<cv::Point2f> hull;
   cv::convexHull(e.in_a, hull);
   if (cv::contourArea(hull) < 0.02 * frame.area()) return false;
   *out = std::move(e);
   return true;
+}
+
+}  // namespace
+
+bool VerifyPair(const GraphNode& a, const GraphNode& b, const cv::Matx33d* guess, cv::Size frame, const AlignOptions& o,
+                GraphEdge* out) {
+  if (a.points.size() < size_t(o.min_inliers) || b.points.size() < size_t(o.min_inliers)) return false;
+  // Guided by where the frames are, then over all their features: the guess may be further off
+  // than the guided search reaches (a degraded survey's lanes drift 100 px and more apart), and
+  // then its matches are many and wrong. The primary features first, then all.
+  const auto has_more = [](const GraphNode& n) { return n.primary > 0 && n.points.size() > size_t(n.primary); };
+  const bool more = has_more(a) || has_more(b);
+  for (bool all : {false, true}) {
+    if (all && !more) break;
+    const Features fa = AsFeatures(a, all), fb = AsFeatures(b, all);
+    if (guess && VerifyMatches(MatchGuided(fa, fb, *guess, 60.0, 0.85), frame, o, out)) return true;
+    if (VerifyMatches(MatchFeatures(fa, fb, FeatureOptions()), frame, o, out)) return true;
+  }
+  return false;
 }
 
 }  // namespace rolamos

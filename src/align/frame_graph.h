@@ -26,6 +26,9 @@ struct GraphNode {
   cv::Matx33d to_patch;  // the online placement
   std::vector<cv::Point2f> points;
   cv::Mat descriptors;   // CV_8U, n x 128
+  // The first `primary` features are matched first (and describe the frame for retrieval); the
+  // rest only where those do not link a pair (kPrimaryStoredFeatures). 0 = all of them.
+  int primary = 0;
 };
 
 enum EdgeKind { kOnline = 0, kRetrieval = 1, kLoop = 2 };
@@ -108,7 +111,8 @@ GraphEdge MeasureEdge(GraphEdge e, const AlignOptions& o, cv::Size frame);
 
 // Two frames that see the same ground, for real: matches one RANSAC homography explains, a motion
 // a camera over the seafloor can make, enough inliers covering some of the frame. `guess`
-// (a -> b), when given, guides the matching.
+// (a -> b), when given, guides the matching. The frames' primary features are matched first,
+// all of them when those find no such matches.
 bool VerifyPair(const GraphNode& a, const GraphNode& b, const cv::Matx33d* guess, cv::Size frame, const AlignOptions& o,
                 GraphEdge* out);
 

@@ -56,9 +56,11 @@ LinkSummary LinkPatches(Store store, const LinkOptions& options, const ProgressF
       for (const auto& f : ReadFrameFeatures((std::filesystem::path(store.dir()) / *s.frame_features).string())) {
         auto r = record.find(f.index);
         if (r == record.end()) continue;
+        // Its primary features: as many as the patches' links were found with before.
+        const int n = std::min<int>(static_cast<int>(f.points.size()), kPrimaryStoredFeatures);
         Features g;
-        g.points = f.points;
-        f.descriptors.convertTo(g.descriptors, CV_32F);
+        g.points.assign(f.points.begin(), f.points.begin() + n);
+        f.descriptors.rowRange(0, n).convertTo(g.descriptors, CV_32F);
         described[{s.id, r->second}] = std::move(g);
       }
       it = described.find(key);

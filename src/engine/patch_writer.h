@@ -30,7 +30,7 @@ PatchSidecar AssemblePatchSidecar(int id, const cv::Rect& rect, std::vector<Fram
                                   long long pixel_budget, cv::Size frame_size);
 
 // A frame's features as the store keeps them: at most `count`, spread over the frame.
-StoredFeatures ToStored(int index, const Features& f, cv::Size frame, int count = 400);
+StoredFeatures ToStored(int index, const Features& f, cv::Size frame, int count = kStoredFeatures);
 
 // The frame that opens the next patch when the pixel budget closed this one: adjusted with this
 // patch's keyframes (not blended) to tie the two patches together.

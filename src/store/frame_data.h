@@ -27,6 +27,15 @@ struct StoredLink {
   std::vector<cv::Point2f> in_a, in_b;  // pixels of the (rectified) frames
 };
 
+// How many keypoints a frame keeps: its strongest, spread over the frame, in rounds (each round
+// the next strongest of each of 8 x 8 cells). The first kPrimaryStoredFeatures are what stores
+// before session 42 kept, and what the global map matches first; the rest (the next rounds) only
+// link pairs those leave unlinked. On degraded frames (noise, particles, backscatter) the strip
+// two lanes share held too few of 400 to link them: the global map of small-degraded 1.63 ->
+// 0.85 px (bench/RESULTS.md, session 42).
+inline constexpr int kStoredFeatures = 800;
+inline constexpr int kPrimaryStoredFeatures = 400;
+
 struct StoredFeatures {
   int index = 0;                     // the frame's sequence number (its patch is the file's)
   std::vector<cv::Point2f> points;   // full-resolution pixels
