@@ -45,9 +45,10 @@ KeyframeProducts RunKeyframeJob(const KeyframeJob& job, const KeyframeTools& too
   if (job.blend) job.frame->image.release();
   cpu.Restart();  // the features are timed where they are found
   // Loop closures within the patch: the older keyframes under this one (their jobs ran before).
-  // An earlier lane may lie further off than the guided search reaches: one loop candidate per
-  // keyframe is searched over all its features, and where that finds the lane, the rest are
-  // guided from the placement it implies.
+  // An earlier lane may lie further off than the guided search reaches: a loop candidate the
+  // guided search does not link is searched over all the features the two may share, until one
+  // such search fails (each costs a match of all against all); where one finds the lane, the
+  // candidates after it are guided from the placement it implies.
   if (out.features && !out.features->empty()) {
     cv::Matx33d to_patch = job.to_patch;
     bool searched = false;

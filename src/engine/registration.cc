@@ -190,8 +190,6 @@ bool NearPrediction(const cv::Matx33d& found, const cv::Matx33d& predicted, cv::
          std::abs(J(0, 1)) < kLoopDistortion && std::abs(J(1, 0)) < kLoopDistortion;
 }
 
-}  // namespace
-
 // The features of `f` whose points `to_other` maps within `margin` pixels of a frame of `size`.
 Features WithinFrame(const Features& f, const cv::Matx33d& to_other, cv::Size size, double margin) {
   Features out;
@@ -208,6 +206,8 @@ Features WithinFrame(const Features& f, const cv::Matx33d& to_other, cv::Size si
   for (size_t r = 0; r < rows.size(); ++r) f.descriptors.row(rows[r]).copyTo(out.descriptors.row(static_cast<int>(r)));
   return out;
 }
+
+}  // namespace
 
 std::optional<FrameLink> LinkPair(int index, const Features& frame, const cv::Matx33d& to_patch,
                                  const PatchFrame& older, const PatchFitOptions& o, cv::Size size,
