@@ -264,7 +264,15 @@ namespace {
 
 // The pairs of `m` that a RANSAC homography fits, when they are enough, the homography is one a
 // camera over the seafloor makes, and they cover some of the frame (not one cluster).
-bool VerifyMatches(const Matches& m, cv::Size frame, const AlignOptions& o, GraphEdge* out) {
+// Pairs whose primary features give fewer matches than this (ratio test and mutual) share no
+// ground worth matching all the features for. 10 keeps every link the second tier found on
+// five surveys (degraded, light-cone, 984 stills) for a third less of align's CPU on 984 stills,
+// and 40 % less where lanes share no ground; at 15 or 20 degraded lanes lose links
+// (bench/RESULTS.md, session 42).
+constexpr size_t kSecondTierMatches = 10;
+
+bool VerifyMatches(const Matches& m, cv::Size frame, const AlignOptions& o, GraphEdge* out, size_t* seen) {
+  *seen = std::max(*seen, m.from.size());
   if (m.from.size() < size_t(o.min_inliers)) return false;
   std::vector<uchar> inlier;
   const cv::Mat H = cv::findHomography(m.from, m.to, cv::RANSAC, 3.0, inlier, 2000, 0.999);
@@ -295,14 +303,16 @@ bool VerifyPair(const GraphNode& a, const GraphNode& b, const cv::Matx33d* guess
   if (a.points.size() < size_t(o.min_inliers) || b.points.size() < size_t(o.min_inliers)) return false;
   // Guided by where the frames are, then over all their features: the guess may be further off
   // than the guided search reaches (a degraded survey's lanes drift 100 px and more apart), and
-  // then its matches are many and wrong. The primary features first, then all.
+  // then its matches are many and wrong. The primary features first, then all, where the
+  // primary ones gave some matches.
   const auto has_more = [](const GraphNode& n) { return n.primary > 0 && n.points.size() > size_t(n.primary); };
   const bool more = has_more(a) || has_more(b);
+  size_t seen = 0;  // the most matches the primary features gave
   for (bool all : {false, true}) {
-    if (all && !more) break;
+    if (all && (!more || seen < kSecondTierMatches)) break;
     const Features fa = AsFeatures(a, all), fb = AsFeatures(b, all);
-    if (guess && VerifyMatches(MatchGuided(fa, fb, *guess, 60.0, 0.85), frame, o, out)) return true;
-    if (VerifyMatches(MatchFeatures(fa, fb, FeatureOptions()), frame, o, out)) return true;
+    if (guess && VerifyMatches(MatchGuided(fa, fb, *guess, 60.0, 0.85), frame, o, out, &seen)) return true;
+    if (VerifyMatches(MatchFeatures(fa, fb, FeatureOptions()), frame, o, out, &seen)) return true;
   }
   return false;
 }

@@ -112,7 +112,7 @@ GraphEdge MeasureEdge(GraphEdge e, const AlignOptions& o, cv::Size frame);
 // Two frames that see the same ground, for real: matches one RANSAC homography explains, a motion
 // a camera over the seafloor can make, enough inliers covering some of the frame. `guess`
 // (a -> b), when given, guides the matching. The frames' primary features are matched first,
-// all of them when those find no such matches.
+// all of them when those give some matches (10) but no such verified pairs.
 bool VerifyPair(const GraphNode& a, const GraphNode& b, const cv::Matx33d* guess, cv::Size frame, const AlignOptions& o,
                 GraphEdge* out);
 
