@@ -44,10 +44,7 @@ ScratchDir::~ScratchDir() {
 
 void TwoFeatureViews(const cv::Matx33d& a_to_b, cv::Size size, Features* a, Features* b) {
   cv::RNG rng(7);
-  auto descriptor = [&](cv::Mat row) {
-    rng.fill(row, cv::RNG::UNIFORM, 0, 120);
-    row.convertTo(row, CV_32F);
-  };
+  auto descriptor = [&](cv::Mat row) { rng.fill(row, cv::RNG::UNIFORM, 0, 120); };
   std::vector<cv::Mat> da, db;
   for (int i = 0; i < 600; ++i) {
     const cv::Point2f p(rng.uniform(0.f, size.width - 1.f), rng.uniform(0.f, size.height - 1.f));

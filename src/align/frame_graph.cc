@@ -262,8 +262,6 @@ void AddRejoiningEdges(FrameGraph& g, const AlignOptions& o, AlignSummary* summa
 
 namespace {
 
-// The pairs of `m` that a RANSAC homography fits, when they are enough, the homography is one a
-// camera over the seafloor makes, and they cover some of the frame (not one cluster).
 // Pairs whose primary features give fewer matches than this (ratio test and mutual) share no
 // ground worth matching all the features for. 10 keeps every link the second tier found on
 // five surveys (degraded, light-cone, 984 stills) for a third less of align's CPU on 984 stills,
@@ -271,24 +269,20 @@ namespace {
 // (bench/RESULTS.md, session 42).
 constexpr size_t kSecondTierMatches = 10;
 
-bool VerifyMatches(const Matches& m, cv::Size frame, const AlignOptions& o, GraphEdge* out, size_t* seen) {
+// The pairs of `m` that a RANSAC homography fits, when they are enough, the homography is one a
+// camera over the seafloor makes, and they cover some of the frame (not one cluster). `seen`:
+// the most matches any call was given.
+bool VerifyMatches(Matches m, cv::Size frame, const AlignOptions& o, GraphEdge* out, size_t* seen) {
   *seen = std::max(*seen, m.from.size());
-  if (m.from.size() < size_t(o.min_inliers)) return false;
-  std::vector<uchar> inlier;
-  const cv::Mat H = cv::findHomography(m.from, m.to, cv::RANSAC, 3.0, inlier, 2000, 0.999);
-  if (H.empty()) return false;
+  const VerifiedMatch v = VerifyByHomography(std::move(m), o.min_inliers);
+  if (!v.inliers) return false;
   SupportOptions plausible;
   plausible.max_scale_change = 2.0;
   plausible.max_anisotropy = 1.5;
   plausible.max_perspective = 0.5;
-  if (!IsPlausibleMotion(cv::Matx33d(H), frame, plausible)) return false;
+  if (!IsPlausibleMotion(v.H, frame, plausible)) return false;
   GraphEdge e;
-  for (size_t i = 0; i < inlier.size(); ++i)
-    if (inlier[i]) {
-      e.in_a.push_back(m.from[i]);
-      e.in_b.push_back(m.to[i]);
-    }
-  if (e.in_a.size() < size_t(o.min_inliers)) return false;
+  v.Inliers(&e.in_a, &e.in_b);
   std::vector<cv::Point2f> hull;
   cv::convexHull(e.in_a, hull);
   if (cv::contourArea(hull) < 0.02 * frame.area()) return false;

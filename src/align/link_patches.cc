@@ -7,6 +7,7 @@
 
 
 #include "align/stored_frames.h"
+#include "engine/registration.h"
 #include "rolamos/error.hpp"
 #include "store/frame_data.h"
 #include "store/writer_lock.h"

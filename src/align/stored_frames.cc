@@ -26,17 +26,4 @@ Features DescribeStoredFrame(const std::string& path, const FeatureExtractor& ex
   return extractor.ExtractScaled(pre.DetectionImage(image, scale), scale);
 }
 
-VerifiedMatch MatchVerified(const Features& a, const Features& b, const FeatureOptions& options, int min_inliers) {
-  VerifiedMatch v;
-  v.matches = MatchFeatures(a, b, options);
-  if (static_cast<int>(v.matches.from.size()) < min_inliers) return v;
-  const cv::Mat H = cv::findHomography(v.matches.from, v.matches.to, cv::RANSAC, 3.0, v.inlier, 2000, 0.999);
-  int count = 0;
-  for (uchar x : v.inlier) count += x;
-  if (H.empty() || count < min_inliers) return v;
-  v.inliers = count;
-  v.H = cv::Matx33d(H);
-  return v;
-}
-
 }  // namespace rolamos

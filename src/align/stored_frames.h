@@ -22,15 +22,4 @@ std::string StoredFramePath(const std::string& source, const std::string& frames
 // The frame's features; throws Error naming the file (and --frames) when it cannot be read.
 Features DescribeStoredFrame(const std::string& path, const FeatureExtractor& extractor);
 
-struct VerifiedMatch {
-  int inliers = 0;          // 0: no homography verified the matches
-  cv::Matx33d H;            // a's pixels -> b's pixels
-  Matches matches;
-  std::vector<uchar> inlier;  // per match
-};
-
-// Ratio- and mutual-checked matches of a against b, verified by a RANSAC homography (3 px);
-// inliers stays 0 when fewer than `min_inliers` survive.
-VerifiedMatch MatchVerified(const Features& a, const Features& b, const FeatureOptions& options, int min_inliers);
-
 }  // namespace rolamos

@@ -153,25 +153,32 @@ double FootprintOverlap(const cv::Matx33d& a_to_patch, const cv::Matx33d& b_to_p
   return std::max(0.0, double(common)) / area;
 }
 
-namespace {
-
-// The pairs of `m` that a RANSAC homography (3 px) fits, as a link of `index` with `older`.
-FrameLink VerifiedLink(int index, int older, const Matches& m, cv::Matx33d* H = nullptr) {
-  FrameLink l;
-  l.a = index;
-  l.b = older;
-  if (m.from.size() < 4) return l;
-  std::vector<uchar> inlier;
-  const cv::Mat found = cv::findHomography(m.from, m.to, cv::RANSAC, 3.0, inlier, 2000, 0.999);
-  if (found.empty()) return l;
-  if (H) *H = cv::Matx33d(found);
+void VerifiedMatch::Inliers(std::vector<cv::Point2f>* a, std::vector<cv::Point2f>* b) const {
   for (size_t i = 0; i < inlier.size(); ++i)
     if (inlier[i]) {
-      l.in_a.push_back(m.from[i]);
-      l.in_b.push_back(m.to[i]);
+      a->push_back(matches.from[i]);
+      b->push_back(matches.to[i]);
     }
-  return l;
 }
+
+VerifiedMatch VerifyByHomography(Matches m, int min_inliers) {
+  VerifiedMatch v;
+  v.matches = std::move(m);
+  if (static_cast<int>(v.matches.from.size()) < std::max(min_inliers, 4)) return v;
+  const cv::Mat H = cv::findHomography(v.matches.from, v.matches.to, cv::RANSAC, 3.0, v.inlier, 2000, 0.999);
+  int count = 0;
+  for (uchar x : v.inlier) count += x;
+  if (H.empty() || count < min_inliers) return v;
+  v.inliers = count;
+  v.H = cv::Matx33d(H);
+  return v;
+}
+
+VerifiedMatch MatchVerified(const Features& a, const Features& b, const FeatureOptions& options, int min_inliers) {
+  return VerifyByHomography(MatchFeatures(a, b, options), min_inliers);
+}
+
+namespace {
 
 // How far a loop link found over all features may differ from the placements in scale, turn and
 // shear: a degraded lane's chain shears by up to 0.16 against the lane before over 30 stills
@@ -213,31 +220,29 @@ std::optional<FrameLink> LinkPair(int index, const Features& frame, const cv::Ma
                                  const PatchFrame& older, const PatchFitOptions& o, cv::Size size,
                                  cv::Matx33d* placed) {
   if (!older.features) return std::nullopt;
+  const auto link_of = [&](const VerifiedMatch& v) {
+    FrameLink l;
+    l.a = index;
+    l.b = older.index;
+    v.Inliers(&l.in_a, &l.in_b);
+    return l;
+  };
   const cv::Matx33d predicted = older.to_patch.inv() * to_patch;
-  const Matches m = MatchGuided(frame, *older.features, predicted, o.loop_radius, o.ratio);
-  if (m.from.size() >= 20) {
-    FrameLink l = VerifiedLink(index, older.index, m);
-    if (l.in_a.size() >= 20) return l;
-  }
+  const VerifiedMatch guided = VerifyByHomography(MatchGuided(frame, *older.features, predicted, o.loop_radius, o.ratio), 20);
+  if (guided.inliers) return link_of(guided);
   if (!(o.loop_drift > 0) || size.empty()) return std::nullopt;
   // Along a lane the chain drifts, and the lane before may lie further off than the guided
   // search reaches: a degraded survey's lanes drift a hundred pixels apart before they close.
   // Matched over all their features where the two may overlap, the frames tell where they
   // meet; the guided match then looks again from there.
   const double drift = o.loop_drift * std::hypot(size.width, size.height);
-  FeatureOptions wide;
-  wide.ratio = 0.8;
-  wide.cross_check = true;
-  cv::Matx33d found;
-  const FrameLink coarse = VerifiedLink(index, older.index,
-                                        MatchFeatures(WithinFrame(frame, predicted, size, drift),
-                                                      WithinFrame(*older.features, predicted.inv(), size, drift), wide),
-                                        &found);
-  if (coarse.in_a.size() < 20 || !NearPrediction(found, predicted, size, o.loop_drift)) return std::nullopt;
-  FrameLink l = VerifiedLink(index, older.index, MatchGuided(frame, *older.features, found, o.search_radius, o.ratio));
-  if (l.in_a.size() < 20) return std::nullopt;
-  if (placed) *placed = older.to_patch * found;
-  return l;
+  const VerifiedMatch coarse = MatchVerified(WithinFrame(frame, predicted, size, drift),
+                                             WithinFrame(*older.features, predicted.inv(), size, drift), FeatureOptions(), 20);
+  if (!coarse.inliers || !NearPrediction(coarse.H, predicted, size, o.loop_drift)) return std::nullopt;
+  const VerifiedMatch fine = VerifyByHomography(MatchGuided(frame, *older.features, coarse.H, o.search_radius, o.ratio), 20);
+  if (!fine.inliers) return std::nullopt;
+  if (placed) *placed = older.to_patch * coarse.H;
+  return link_of(fine);
 }
 
 PatchFit FitToPatch(int index, const Features& frame, cv::Size size, const cv::Matx33d& guess,

@@ -51,6 +51,22 @@ bool IsPlausibleMotion(const cv::Matx33d& H, cv::Size frame, const SupportOption
 Matches MatchGuided(const Features& a, const Features& b, const cv::Matx33d& a_to_b, double radius,
                     double ratio);
 
+// Matches verified by a RANSAC homography (3 px).
+struct VerifiedMatch {
+  int inliers = 0;          // 0: no homography verified the matches
+  cv::Matx33d H;            // a's pixels -> b's pixels
+  Matches matches;
+  std::vector<uchar> inlier;  // per match
+  // The pairs the homography fits.
+  void Inliers(std::vector<cv::Point2f>* a, std::vector<cv::Point2f>* b) const;
+};
+
+// `m` verified; inliers stays 0 when fewer than `min_inliers` agree.
+VerifiedMatch VerifyByHomography(Matches m, int min_inliers);
+
+// Ratio- and mutual-checked matches of a against b (MatchFeatures), verified.
+VerifiedMatch MatchVerified(const Features& a, const Features& b, const FeatureOptions& options, int min_inliers);
+
 // Matched pixels between two frames of the input (their sequence numbers).
 struct FrameLink {
   int a = 0, b = 0;
