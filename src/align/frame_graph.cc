@@ -73,7 +73,8 @@ Features AsFeatures(const GraphNode& n, bool all = false) {
   const int count = all || n.primary <= 0 ? size : std::min(n.primary, size);
   Features f;
   f.points.assign(n.points.begin(), n.points.begin() + count);
-  if (count > 0) n.descriptors.rowRange(0, count).convertTo(f.descriptors, CV_32F);
+  // The stored bytes as they are (SIFT's whole numbers: matched to the same distances as floats).
+  if (count > 0) f.descriptors = n.descriptors.rowRange(0, count);
   f.norm = cv::NORM_L2;
   return f;
 }

@@ -259,15 +259,27 @@ __attribute__((target("avx512f"))) void SquaredDistancesAvx512(const cv::Mat& a,
 
 // SIFT's descriptors as 16-bit whole numbers, two to a 32-bit word (the last one's pair 0 when
 // the length is odd), and each row's squared norm; false where an entry is not a whole number
-// in 0..255 (not SIFT's, which SquaredDistancesAvx512 then handles).
+// in 0..255 (not SIFT's, which SquaredDistancesAvx512 then handles). Bytes (descriptors as
+// stored) are whole numbers in 0..255 already.
 bool DescriptorWords(const cv::Mat& m, std::vector<int32_t>* words, std::vector<int32_t>* norms) {
   const int n = m.cols, pairs = (n + 1) / 2;
   words->resize(size_t(m.rows) * size_t(pairs));
   norms->resize(size_t(m.rows));
+  const bool bytes = m.type() == CV_8U;
   for (int i = 0; i < m.rows; ++i) {
-    const float* row = m.ptr<float>(i);
     int32_t* out = words->data() + size_t(i) * size_t(pairs);
     int32_t norm = 0;
+    if (bytes) {
+      const uchar* row = m.ptr<uchar>(i);
+      for (int k = 0; k < pairs; ++k) {
+        const int v0 = row[2 * k], v1 = 2 * k + 1 < n ? row[2 * k + 1] : 0;
+        out[k] = int32_t(uint32_t(v0) | (uint32_t(v1) << 16));
+        norm += v0 * v0 + v1 * v1;
+      }
+      (*norms)[size_t(i)] = norm;
+      continue;
+    }
+    const float* row = m.ptr<float>(i);
     for (int k = 0; k < pairs; ++k) {
       int v[2] = {0, 0};
       for (int h = 0; h < 2 && 2 * k + h < n; ++h) {
@@ -281,6 +293,13 @@ bool DescriptorWords(const cv::Mat& m, std::vector<int32_t>* words, std::vector<
     (*norms)[size_t(i)] = norm;
   }
   return true;
+}
+
+// |a|^2 + |b|^2 - 2 a.b for sixteen of b's rows, written as floats.
+__attribute__((target("avx512f"))) inline void StoreDistances(__m512i dot, int32_t a_norm, __m512i b_norms,
+                                                               __mmask16 lanes, float* out) {
+  const __m512i dist = _mm512_sub_epi32(_mm512_add_epi32(_mm512_set1_epi32(a_norm), b_norms), _mm512_slli_epi32(dot, 1));
+  _mm512_mask_storeu_ps(out, lanes, _mm512_cvtepi32_ps(dist));
 }
 
 // The same matrix as SquaredDistancesAvx512 from dot products in 16-bit whole numbers: |a|^2 +
@@ -301,7 +320,27 @@ __attribute__((target("avx512f,avx512bw,avx512vnni"))) bool SquaredDistancesVnni
       for (int l = 0; l < 16; ++l) block[size_t(k * 16 + l)] = l < m ? bw[size_t(j0 + l) * size_t(pairs) + size_t(k)] : 0;
     const __mmask16 lanes = m == 16 ? __mmask16(0xFFFF) : static_cast<__mmask16>((1u << m) - 1);
     const __m512i b_norms = _mm512_maskz_loadu_epi32(lanes, bn.data() + j0);
-    for (int i = 0; i < a.rows; ++i) {
+    // Four of a's rows a step, each with two sums: every load of b's block serves four rows.
+    int i = 0;
+    for (; i + 4 <= a.rows; i += 4) {
+      const int32_t* row = aw.data() + size_t(i) * size_t(pairs);
+      const size_t stride = size_t(pairs);
+      __m512i s[4][2];
+      for (auto& r : s) r[0] = r[1] = _mm512_setzero_si512();
+      int k = 0;
+      for (; k + 2 <= pairs; k += 2)
+        for (int h = 0; h < 2; ++h) {
+          const __m512i column = _mm512_loadu_si512(&block[size_t((k + h) * 16)]);
+          for (int q = 0; q < 4; ++q)
+            s[q][h] = _mm512_dpwssd_epi32(s[q][h], _mm512_set1_epi32(row[q * stride + size_t(k + h)]), column);
+        }
+      for (; k < pairs; ++k) {
+        const __m512i column = _mm512_loadu_si512(&block[size_t(k * 16)]);
+        for (int q = 0; q < 4; ++q) s[q][0] = _mm512_dpwssd_epi32(s[q][0], _mm512_set1_epi32(row[q * stride + size_t(k)]), column);
+      }
+      for (int q = 0; q < 4; ++q) StoreDistances(_mm512_add_epi32(s[q][0], s[q][1]), an[size_t(i + q)], b_norms, lanes, d.ptr<float>(i + q) + j0);
+    }
+    for (; i < a.rows; ++i) {
       const int32_t* row = aw.data() + size_t(i) * size_t(pairs);
       // Four sums in turn: each waits on its own last step only.
       __m512i s[4] = {_mm512_setzero_si512(), _mm512_setzero_si512(), _mm512_setzero_si512(), _mm512_setzero_si512()};
@@ -311,10 +350,8 @@ __attribute__((target("avx512f,avx512bw,avx512vnni"))) bool SquaredDistancesVnni
           s[q] = _mm512_dpwssd_epi32(s[q], _mm512_set1_epi32(row[k + q]), _mm512_loadu_si512(&block[size_t((k + q) * 16)]));
       for (; k < pairs; ++k)
         s[0] = _mm512_dpwssd_epi32(s[0], _mm512_set1_epi32(row[k]), _mm512_loadu_si512(&block[size_t(k * 16)]));
-      const __m512i dot = _mm512_add_epi32(_mm512_add_epi32(s[0], s[1]), _mm512_add_epi32(s[2], s[3]));
-      const __m512i dist =
-          _mm512_sub_epi32(_mm512_add_epi32(_mm512_set1_epi32(an[size_t(i)]), b_norms), _mm512_slli_epi32(dot, 1));
-      _mm512_mask_storeu_ps(d.ptr<float>(i) + j0, lanes, _mm512_cvtepi32_ps(dist));
+      StoreDistances(_mm512_add_epi32(_mm512_add_epi32(s[0], s[1]), _mm512_add_epi32(s[2], s[3])), an[size_t(i)], b_norms, lanes,
+                     d.ptr<float>(i) + j0);
     }
   }
   return true;
@@ -341,54 +378,138 @@ __attribute__((target("avx512f"))) double DistanceAvx512(const float* a, const f
   return std::sqrt(sum);
 }
 
+// The same for descriptors as stored, in bytes: the same whole numbers, the same sums.
+__attribute__((target("avx512f"))) double DistanceBytesAvx512(const uchar* a, const uchar* b, int n) {
+  __m512d low = _mm512_setzero_pd(), high = _mm512_setzero_pd();
+  int i = 0;
+  for (; i + 16 <= n; i += 16) {
+    const __m512 fa = _mm512_cvtepi32_ps(_mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(a + i))));
+    const __m512 fb = _mm512_cvtepi32_ps(_mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(b + i))));
+    const __m512 d = _mm512_sub_ps(fa, fb);
+    const __m512d dl = _mm512_cvtps_pd(_mm512_castps512_ps256(d));
+    const __m512d dh = _mm512_cvtps_pd(_mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(d), 1)));
+    low = _mm512_fmadd_pd(dl, dl, low);
+    high = _mm512_fmadd_pd(dh, dh, high);
+  }
+  double sum = _mm512_reduce_add_pd(_mm512_add_pd(low, high));
+  for (; i < n; ++i) {
+    const double v = double(int(a[i]) - int(b[i]));
+    sum += v * v;
+  }
+  return std::sqrt(sum);
+}
+
 }  // namespace
 
 cv::Mat SquaredDistanceMatrix(const Features& a, const Features& b) {
-  CV_Assert(a.descriptors.type() == CV_32F && b.descriptors.type() == CV_32F);
+  const int type = a.descriptors.type();
+  CV_Assert((type == CV_32F || type == CV_8U) && b.descriptors.type() == type);
   cv::Mat d;
   const bool same_length = b.descriptors.cols == a.descriptors.cols;
   if (CpuHasAvx512Vnni() && same_length && SquaredDistancesVnni(a.descriptors, b.descriptors, d)) return d;
+  cv::Mat fa = a.descriptors, fb = b.descriptors;
+  if (type == CV_8U) {  // the float paths' values are the same for the same whole numbers
+    a.descriptors.convertTo(fa, CV_32F);
+    b.descriptors.convertTo(fb, CV_32F);
+  }
   if (CpuHasAvx512() && same_length)
-    SquaredDistancesAvx512(a.descriptors, b.descriptors, d);
+    SquaredDistancesAvx512(fa, fb, d);
   else
-    cv::batchDistance(a.descriptors, b.descriptors, d, CV_32F, cv::noArray(), cv::NORM_L2SQR);
+    cv::batchDistance(fa, fb, d, CV_32F, cv::noArray(), cv::NORM_L2SQR);
   return d;
 }
 
 namespace {
+
+// For each column of `d`, the first row holding its smallest value.
+void ColumnMinima(const cv::Mat& d, std::vector<int>* best_a) {
+  std::vector<float> best(static_cast<size_t>(d.cols), std::numeric_limits<float>::max());
+  for (int i = 0; i < d.rows; ++i) {
+    const float* row = d.ptr<float>(i);
+    for (int j = 0; j < d.cols; ++j)
+      if (row[j] < best[static_cast<size_t>(j)]) {
+        best[static_cast<size_t>(j)] = row[j];
+        (*best_a)[static_cast<size_t>(j)] = i;
+      }
+  }
+}
+
+// The same, 16 columns a step: each column still sees the rows in order and keeps the first.
+__attribute__((target("avx512f"))) void ColumnMinimaAvx512(const cv::Mat& d, std::vector<int>* best_a) {
+  std::vector<float> best(static_cast<size_t>(d.cols), std::numeric_limits<float>::max());
+  for (int i = 0; i < d.rows; ++i) {
+    const float* row = d.ptr<float>(i);
+    const __m512i index = _mm512_set1_epi32(i);
+    for (int j = 0; j < d.cols; j += 16) {
+      const __mmask16 lanes = d.cols - j >= 16 ? __mmask16(0xFFFF) : static_cast<__mmask16>((1u << (d.cols - j)) - 1);
+      const __m512 v = _mm512_maskz_loadu_ps(lanes, row + j), b = _mm512_maskz_loadu_ps(lanes, best.data() + j);
+      const __mmask16 lower = _mm512_mask_cmp_ps_mask(lanes, v, b, _CMP_LT_OQ);
+      _mm512_mask_storeu_ps(best.data() + j, lower, v);
+      _mm512_mask_storeu_epi32(best_a->data() + j, lower, index);
+    }
+  }
+}
+
+// A row's smallest value, its first column, and its second smallest value (equal to the first
+// when it occurs twice): Lowe's ratio test's d1, j1 and d2.
+void BestTwo(const float* row, int cols, float* d1, float* d2, int* j1) {
+  *d1 = *d2 = std::numeric_limits<float>::max();
+  *j1 = -1;
+  for (int j = 0; j < cols; ++j) {
+    if (row[j] < *d1) {
+      *d2 = *d1;
+      *d1 = row[j];
+      *j1 = j;
+    } else if (row[j] < *d2) {
+      *d2 = row[j];
+    }
+  }
+}
+
+// The same, 16 columns a step: each lane keeps the two smallest of its columns and the first
+// column of its smallest; the row's are the smallest lane's, its first column the least of the
+// lanes that hold it, and the second the least of that lane's second and the other lanes' first.
+// The same values as BestTwo.
+__attribute__((target("avx512f"))) void BestTwoAvx512(const float* row, int cols, float* d1, float* d2, int* j1) {
+  const __m512 none = _mm512_set1_ps(std::numeric_limits<float>::max());
+  __m512 m1 = none, m2 = none;
+  __m512i at = _mm512_set1_epi32(-1), j = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+  const __m512i step = _mm512_set1_epi32(16);
+  for (int j0 = 0; j0 < cols; j0 += 16, j = _mm512_add_epi32(j, step)) {
+    const __mmask16 lanes = cols - j0 >= 16 ? __mmask16(0xFFFF) : static_cast<__mmask16>((1u << (cols - j0)) - 1);
+    const __m512 v = _mm512_mask_loadu_ps(none, lanes, row + j0);
+    const __mmask16 below1 = _mm512_cmp_ps_mask(v, m1, _CMP_LT_OQ);
+    const __mmask16 below2 = _mm512_cmp_ps_mask(v, m2, _CMP_LT_OQ);
+    m2 = _mm512_mask_mov_ps(_mm512_mask_mov_ps(m2, below2, v), below1, m1);
+    m1 = _mm512_mask_mov_ps(m1, below1, v);
+    at = _mm512_mask_mov_epi32(at, below1, j);
+  }
+  *d1 = _mm512_reduce_min_ps(m1);
+  if (!(*d1 < std::numeric_limits<float>::max())) {
+    *d2 = *d1;
+    *j1 = -1;
+    return;
+  }
+  const __mmask16 holding = _mm512_cmp_ps_mask(m1, _mm512_set1_ps(*d1), _CMP_EQ_OQ);
+  *j1 = _mm512_mask_reduce_min_epi32(holding, at);
+  const __mmask16 lane = static_cast<__mmask16>(1u << (*j1 & 15));
+  *d2 = _mm512_reduce_min_ps(_mm512_mask_mov_ps(m1, lane, m2));
+}
 
 // Float descriptors (SIFT): one distance matrix serves the ratio test one way and the mutual-best
 // check the other, where kNN matching and a reverse pass would compute most distances twice.
 std::vector<cv::DMatch> MatchByDistanceMatrix(const Features& a, const Features& b,
                                               const FeatureOptions& options) {
   const cv::Mat d = SquaredDistanceMatrix(a, b);
+  const bool wide = CpuHasAvx512();
   std::vector<int> best_a(static_cast<size_t>(d.cols), -1);  // for each b, its nearest a
-  if (options.cross_check) {
-    std::vector<float> best(static_cast<size_t>(d.cols), std::numeric_limits<float>::max());
-    for (int i = 0; i < d.rows; ++i) {
-      const float* row = d.ptr<float>(i);
-      for (int j = 0; j < d.cols; ++j)
-        if (row[j] < best[static_cast<size_t>(j)]) {
-          best[static_cast<size_t>(j)] = row[j];
-          best_a[static_cast<size_t>(j)] = i;
-        }
-    }
-  }
+  if (options.cross_check) wide ? ColumnMinimaAvx512(d, &best_a) : ColumnMinima(d, &best_a);
   const float ratio2 = static_cast<float>(options.ratio * options.ratio);
   std::vector<cv::DMatch> out;
   for (int i = 0; i < d.rows; ++i) {
-    const float* row = d.ptr<float>(i);
-    float d1 = std::numeric_limits<float>::max(), d2 = d1;
-    int j1 = -1;
-    for (int j = 0; j < d.cols; ++j) {
-      if (row[j] < d1) {
-        d2 = d1;
-        d1 = row[j];
-        j1 = j;
-      } else if (row[j] < d2) {
-        d2 = row[j];
-      }
-    }
+    float d1, d2;
+    int j1;
+    wide ? BestTwoAvx512(d.ptr<float>(i), d.cols, &d1, &d2, &j1) : BestTwo(d.ptr<float>(i), d.cols, &d1, &d2, &j1);
     if (j1 < 0 || !(d1 < ratio2 * d2)) continue;
     if (options.cross_check && best_a[static_cast<size_t>(j1)] != i) continue;
     out.emplace_back(i, j1, std::sqrt(d1));
@@ -423,9 +544,11 @@ std::vector<cv::DMatch> MatchBinary(const Features& a, const Features& b, const 
 }  // namespace
 
 double DescriptorDistance(const Features& a, int i, const Features& b, int j) {
-  if (CpuHasAvx512() && a.norm == cv::NORM_L2 && a.descriptors.type() == CV_32F && b.descriptors.type() == CV_32F &&
-      a.descriptors.cols == b.descriptors.cols)
-    return DistanceAvx512(a.descriptors.ptr<float>(i), b.descriptors.ptr<float>(j), a.descriptors.cols);
+  const int type = a.descriptors.type();
+  if (CpuHasAvx512() && a.norm == cv::NORM_L2 && b.descriptors.type() == type && a.descriptors.cols == b.descriptors.cols) {
+    if (type == CV_32F) return DistanceAvx512(a.descriptors.ptr<float>(i), b.descriptors.ptr<float>(j), a.descriptors.cols);
+    if (type == CV_8U) return DistanceBytesAvx512(a.descriptors.ptr<uchar>(i), b.descriptors.ptr<uchar>(j), a.descriptors.cols);
+  }
   return cv::norm(a.descriptors.row(i), b.descriptors.row(j), a.norm);
 }
 
@@ -433,7 +556,8 @@ Matches MatchFeatures(const Features& a, const Features& b, const FeatureOptions
   Matches m;
   if (a.descriptors.rows < 2 || b.descriptors.rows < 2) return m;
   CV_Assert(a.norm == b.norm && a.descriptors.type() == b.descriptors.type());
-  const std::vector<cv::DMatch> matches = a.norm == cv::NORM_L2 && a.descriptors.type() == CV_32F
+  const int type = a.descriptors.type();
+  const std::vector<cv::DMatch> matches = a.norm == cv::NORM_L2 && (type == CV_32F || type == CV_8U)
                                               ? MatchByDistanceMatrix(a, b, options)
                                               : MatchBinary(a, b, options);
   for (const auto& c : matches) {

@@ -80,11 +80,13 @@ struct Matches {
   std::vector<cv::Point2f> from, to;  // from[i] in the first set matches to[i] in the second
 };
 
-// kNN (k = 2) both ways, ratio test, and (optionally) mutual-best check.
+// kNN (k = 2) both ways, ratio test, and (optionally) mutual-best check. SIFT's descriptors may be
+// float or bytes (as stored: no copy in float for every pair `align` tries), the same matches.
 Matches MatchFeatures(const Features& a, const Features& b, const FeatureOptions& options);
 
 // Float descriptors' squared distances, a's rows by b's (cv::batchDistance's NORM_L2SQR matrix;
-// for SIFT's whole-number descriptors its values to the bit).
+// for SIFT's whole-number descriptors its values to the bit). SIFT's descriptors as stored, in
+// bytes, give the same values as the same numbers in float.
 cv::Mat SquaredDistanceMatrix(const Features& a, const Features& b);
 
 // The distance of a's descriptor i from b's descriptor j, cv::norm(..., a.norm)'s value.

@@ -1,6 +1,8 @@
 #include "engine/features.h"
 
 #include <algorithm>
+#include <cfloat>
+#include <tuple>
 #include <set>
 
 #include <gtest/gtest.h>
@@ -206,6 +208,80 @@ TEST(SquaredDistanceMatrix, IsCvBatchDistancesToTheBit) {
   cv::batchDistance(a.descriptors, b.descriptors, theirs, CV_32F, cv::noArray(), cv::NORM_L2SQR);
   EXPECT_LE(cv::norm(SquaredDistanceMatrix(a, b), theirs, cv::NORM_INF), 1e-3);
   EXPECT_EQ(SquaredDistanceMatrix(a, b).at<float>(3, 2), 0.0625f);
+}
+
+// The ratio test and the mutual-best check as one row and one column after another would make
+// them, ties included: descriptors of a few small values tie often, and the matrix's widths are
+// not whole vectors of 16.
+TEST(MatchFeatures, EqualsTheMatchesOfAScanInOrderTiesIncluded) {
+  cv::RNG rng(11);
+  for (auto [rows_a, rows_b] : {std::pair<int, int>{2, 2}, {5, 17}, {31, 16}, {40, 37}, {120, 200}}) {
+    Features a, b;
+    for (auto [f, rows, y] : {std::tuple<Features*, int, float>{&a, rows_a, 0.f}, {&b, rows_b, 1.f}}) {
+      cv::Mat bytes(rows, 128, CV_8U);
+      rng.fill(bytes, cv::RNG::UNIFORM, 0, 3);
+      bytes.convertTo(f->descriptors, CV_32F);
+      for (int i = 0; i < rows; ++i) f->points.emplace_back(float(i), y);
+    }
+    // Rows alike: columns whose smallest is in two rows, and (in b) rows tied for a's nearest.
+    for (int i = 0; i + 1 < rows_a; i += 3) a.descriptors.row(i).copyTo(a.descriptors.row(i + 1));
+    for (int j = 5; j + 1 < rows_b; j += 7) b.descriptors.row(j).copyTo(b.descriptors.row(j + 1));
+    for (bool cross : {true, false}) {
+      FeatureOptions o;
+      o.cross_check = cross;
+      o.ratio = 0.95;
+      cv::Mat d;
+      cv::batchDistance(a.descriptors, b.descriptors, d, CV_32F, cv::noArray(), cv::NORM_L2SQR);
+      std::vector<std::pair<float, float>> want;
+      for (int i = 0; i < d.rows; ++i) {
+        float d1 = FLT_MAX, d2 = FLT_MAX;
+        int j1 = -1;
+        for (int j = 0; j < d.cols; ++j) {
+          const float v = d.at<float>(i, j);
+          if (v < d1) d2 = d1, d1 = v, j1 = j;
+          else if (v < d2) d2 = v;
+        }
+        if (j1 < 0 || !(d1 < float(o.ratio * o.ratio) * d2)) continue;
+        int first = 0;  // the first row holding column j1's smallest
+        for (int r = 1; r < d.rows; ++r)
+          if (d.at<float>(r, j1) < d.at<float>(first, j1)) first = r;
+        if (cross && first != i) continue;
+        want.emplace_back(float(i), float(j1));
+      }
+      const Matches got = MatchFeatures(a, b, o);
+      std::vector<std::pair<float, float>> pairs;
+      for (size_t k = 0; k < got.from.size(); ++k) pairs.emplace_back(got.from[k].x, got.to[k].x);
+      EXPECT_EQ(pairs, want) << rows_a << " x " << rows_b << (cross ? ", cross-checked" : "");
+    }
+  }
+}
+
+// Descriptors as stored (bytes) give the distances, the distance of a pair and the matches of
+// the same numbers in float, to the bit.
+TEST(MatchFeatures, BytesAreMatchedAsTheirFloats) {
+  cv::RNG rng(3);
+  Features fa, fb, ba, bb;
+  for (auto [f, b, rows] : {std::tuple<Features*, Features*, int>{&fa, &ba, 83}, {&fb, &bb, 61}}) {
+    cv::Mat bytes(rows, 128, CV_8U);
+    rng.fill(bytes, cv::RNG::UNIFORM, 0, 60);
+    bytes.convertTo(f->descriptors, CV_32F);
+    b->descriptors = bytes;
+    for (int i = 0; i < rows; ++i) f->points.emplace_back(float(i), float(rows));
+    b->points = f->points;
+  }
+  // Some of b near some of a: matches that pass the ratio test.
+  for (int i = 0; i < 20; ++i) {
+    ba.descriptors.row(i).copyTo(bb.descriptors.row(2 * i));
+    bb.descriptors.at<uchar>(2 * i, i) = uchar(bb.descriptors.at<uchar>(2 * i, i) + 3);
+    bb.descriptors.row(2 * i).convertTo(fb.descriptors.row(2 * i), CV_32F);
+  }
+  EXPECT_EQ(cv::norm(SquaredDistanceMatrix(ba, bb), SquaredDistanceMatrix(fa, fb), cv::NORM_INF), 0.0);
+  for (int i = 0; i < 83; i += 7)
+    for (int j = 0; j < 61; j += 5) ASSERT_EQ(DescriptorDistance(ba, i, bb, j), DescriptorDistance(fa, i, fb, j));
+  const Matches from_bytes = MatchFeatures(ba, bb, FeatureOptions()), from_floats = MatchFeatures(fa, fb, FeatureOptions());
+  EXPECT_GE(from_floats.from.size(), 15u);
+  EXPECT_EQ(from_bytes.from, from_floats.from);
+  EXPECT_EQ(from_bytes.to, from_floats.to);
 }
 
 }  // namespace
