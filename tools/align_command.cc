@@ -115,6 +115,10 @@ void AddAlignCommand(CLI::App& app, Runner* run) {
       ->capture_default_str();
   cmd->add_option("--loss", s->options.loss_px, "edge RMS (px) beyond which an edge is discounted (Cauchy)")
       ->capture_default_str();
+  cmd->add_option("--scatter-floor", s->options.scatter_floor_px,
+                  "each edge weighs as the inverse of its pairs' scatter about its homography, floored at this (px; "
+                  "0 = every edge by its pairs alone)")
+      ->capture_default_str();
   cmd->add_option("--navigation", s->navigation,
                   "pull every camera towards its navigation: CSV of per-frame georeference or of vehicle navigation "
                   "(as compose --navigation)");

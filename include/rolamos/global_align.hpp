@@ -53,6 +53,12 @@ struct AlignOptions {
   // with these, not with the pairs: 0 = no compression, every kept pair in the solve.
   int points_per_edge = 9;
   double loss_px = 1.0;          // Cauchy knee: an edge whose RMS passes this is discounted
+  // Each edge weighs by how closely its matched pairs fit its homography, as the inverse of their
+  // scatter (floored at this) against the edges' median: the engine's links, pixels it followed
+  // to a tenth of a pixel, weigh more than matches of SIFT's stored features half a pixel off,
+  // where by their pairs alone each weighed the same and the map within a lane came out twice the
+  // engine's error (bench/RESULTS.md, 2026-12-01 (43)). 0 = by their pairs alone, as before.
+  double scatter_floor_px = 0.1;
   // Per-frame navigation (ReadNavigationCsv): each camera centre pulled towards it.
   std::map<std::string, FrameNavigation> navigation;
   double navigation_sigma_m = 0.5;  // how far a centre may stray from its navigation (1 sigma)

@@ -22,6 +22,18 @@ PlaneLink LinkOf(const GraphEdge& e, int a, int b) {
   return l;
 }
 
+double TypicalScatter(const FrameGraph& g) {
+  std::vector<double> scatter;
+  for (const auto& e : g.edges)
+    if (e.scatter_px > 0) scatter.push_back(e.scatter_px);
+  return scatter.empty() ? 0.0 : Median(std::move(scatter));
+}
+
+double ScatterWeight(const GraphEdge& e, double typical, double floor_px) {
+  if (!(e.scatter_px > 0) || !(floor_px > 0) || !(typical > 0)) return 1.0;
+  return typical / std::max(double(e.scatter_px), floor_px);
+}
+
 cv::Matx33d NodeToPlane(const FrameGraph& g, const GraphSolution& s, int i) { return FrameToPlane(s.poses[size_t(i)], g.K); }
 
 void ScaleToTypicalFrame(const FrameGraph& g, GraphSolution& s) {
@@ -68,6 +80,7 @@ int AdjustParts(const FrameGraph& g, GraphSolution& s, const std::vector<GroundP
   s.dropped.resize(g.edges.size(), 0);
   std::vector<std::pair<int, std::vector<int>>> parts(s.members.begin(), s.members.end());
   std::atomic<int> dropped_count{0};
+  const double typical_scatter = TypicalScatter(g);
   // Parts in parallel; one part (the usual survey) gets every thread inside its solver.
   const int solver_threads = parts.size() == 1 ? ParallelThreads(pfo.threads) : 1;
   ParallelFor(static_cast<long long>(parts.size()), [&](long long c, int) {
@@ -84,6 +97,7 @@ int AdjustParts(const FrameGraph& g, GraphSolution& s, const std::vector<GroundP
     for (size_t k = 0; k < g.edges.size(); ++k) {
       if (s.dropped[k] || !local.count(g.edges[k].a)) continue;
       PlaneLink l = LinkOf(g.edges[k], local[g.edges[k].a], local[g.edges[k].b]);
+      l.weight = ScatterWeight(g.edges[k], typical_scatter, o.scatter_floor_px);
       l.trusted = trust_chain && g.edges[k].kind == kOnline;
       links.push_back(std::move(l));
       which.push_back(k);

@@ -57,6 +57,15 @@ int AdjustParts(const FrameGraph& g, GraphSolution& s, const std::vector<GroundP
 // nodes `a` and `b` of the problem.
 PlaneLink LinkOf(const GraphEdge& e, int a, int b);
 
+// The median scatter of the compressed edges' pairs about their homographies (frame pixels; 0
+// when no edge is compressed).
+double TypicalScatter(const FrameGraph& g);
+
+// How much an edge weighs beside the others (PlaneLink::weight): `typical` over its pairs' scatter
+// floored at `floor_px`, as the inverse of the error its homography carries. 1 for an edge
+// without a scatter (not compressed), or with `floor_px` or `typical` 0.
+double ScatterWeight(const GraphEdge& e, double typical, double floor_px);
+
 // Transfer error of every kept edge, frame pixels (RMS over the matched pairs).
 double KeptEdgesRms(const FrameGraph& g, const GraphSolution& s);
 

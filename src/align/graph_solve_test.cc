@@ -200,13 +200,13 @@ TEST(GraphSolve, AChainFirstSolveKeepsTheLoopClosuresTheChainsDriftContradicts) 
 }
 
 // Four lanes of twelve frames, each frame linked to its neighbours along and across the lanes by
-// every 8th pixel's match, measured with 0.5 px of noise: the map's shape is what the pairs'
-// noise adds up to.
+// every 8th pixel's match, measured with 0.5 px of noise (or as given, along the lanes and
+// across them): the map's shape is what the pairs' noise adds up to.
 struct NoisyLanes {
   static constexpr int kLanes = 4, kPerLane = 12;
   FrameGraph full;
   std::vector<PlanePose> truth;
-  NoisyLanes() {
+  explicit NoisyLanes(double along_px = 0.5, double across_px = 0.5) {
     SetTestCamera(full);
     for (int i = 0; i < kLanes * kPerLane; ++i) {
       GraphNode n;
@@ -225,7 +225,8 @@ struct NoisyLanes {
         if (std::abs(d[0]) > 250 || std::abs(d[1]) > 200) continue;
         const size_t before = full.edges.size();
         AddMeasuredEdge(full, truth, a, b, d[1] == 0 ? kOnline : kLoop, {4, 4}, {8, 8});
-        for (auto& q : full.edges[before].in_b) q += cv::Point2f(float(rng.gaussian(0.5)), float(rng.gaussian(0.5)));
+        const double sigma = d[1] == 0 ? along_px : across_px;
+        for (auto& q : full.edges[before].in_b) q += cv::Point2f(float(rng.gaussian(sigma)), float(rng.gaussian(sigma)));
       }
   }
   // The error of a solution: frame corners on its plane against the truth's, after the
@@ -246,7 +247,8 @@ struct NoisyLanes {
     return std::sqrt(sum / double(ours.size()));
   }
   // The map from the edges as `measure` leaves them, from the true placement; its error.
-  double Solve(const std::function<GraphEdge(GraphEdge)>& measure, FrameGraph* solved = nullptr) const {
+  double Solve(const std::function<GraphEdge(GraphEdge)>& measure, FrameGraph* solved = nullptr,
+               double scatter_floor_px = AlignOptions().scatter_floor_px) const {
     FrameGraph g = full;
     for (auto& e : g.edges) e = measure(std::move(e));
     UnionFind comp(g.nodes.size());
@@ -255,6 +257,7 @@ struct NoisyLanes {
     for (const auto& p : truth) G.push_back(FrameToPlane(p, g.K) * FrameToPlane(truth[0], g.K).inv());
     AlignOptions o;
     o.loops_per_frame = 0;  // the graph is all there is: the nodes have no features
+    o.scatter_floor_px = scatter_floor_px;
     AlignSummary summary;
     const GraphSolution s = SolveGraph(g, StartSolution(g, G, comp), comp, o, {}, /*trust_chain=*/false, &summary);
     EXPECT_EQ(summary.edges_dropped, 0);
@@ -308,6 +311,30 @@ TEST(GraphSolve, CompressedEdgesHoldTheMapAsTheirPairsDo) {
     EXPECT_LT(e.scatter_px, 0.95);
   }
   EXPECT_GT(compressed_edges, int(g.edges.size()) / 2);
+}
+
+// Links followed to a tenth of a pixel along the lanes and matches a pixel off across them, each
+// compressed as align does: weighed by their scatter, the precise links hold the lanes and the
+// map is truer than with every edge weighed by its pairs alone; with the same noise everywhere
+// the weights are all alike and the map the same.
+TEST(GraphSolve, EdgesWeighByHowCloselyTheirPairsFit) {
+  const auto compress = [](const NoisyLanes& lanes) {
+    return [&lanes](GraphEdge e) { return CompressEdge(ThinEdge(std::move(e), 60, lanes.full.frame), 9); };
+  };
+  const NoisyLanes mixed(0.1, 1.0);
+  FrameGraph g;
+  const double weighed = mixed.Solve(compress(mixed), &g, 0.1), by_pairs = mixed.Solve(compress(mixed), nullptr, 0.0);
+  RecordProperty("px_weighed_by_scatter", std::to_string(weighed));
+  RecordProperty("px_by_pairs_alone", std::to_string(by_pairs));
+  EXPECT_LT(weighed, 0.8 * by_pairs) << "weighed: " << weighed << " px, by pairs alone: " << by_pairs << " px";
+  const double typical = TypicalScatter(g);
+  for (const auto& e : g.edges) {
+    const double w = ScatterWeight(e, typical, 0.1);
+    if (e.kind == kOnline) EXPECT_GT(w, 2.0);
+    else EXPECT_LT(w, 1.5);
+  }
+  const NoisyLanes even;
+  EXPECT_NEAR(even.Solve(compress(even), nullptr, 0.1), even.Solve(compress(even), nullptr, 0.0), 0.02);
 }
 
 // A compressed edge's points lie on the homography its pairs fit, and stand for all of them.

@@ -111,7 +111,7 @@ PlaneAdjustment SolveOnce(std::vector<PlanePose>* poses, double* focal, cv::Size
     if (o.per_link && !l.in_a.empty()) {
       auto* cost = new LinkTransferCost(&l, cx, cy);
       // The knee where the link's RMS (over the pairs it stands for) reaches loss_px.
-      const double a = o.loss_px * std::sqrt(PairCount(l));
+      const double a = o.loss_px * std::sqrt(PairCount(l)) * l.weight;
       // A trusted link is not discounted: its pull grows with how far off it is.
       ceres::LossFunction* link_loss =
           l.trusted ? nullptr

@@ -20,7 +20,9 @@ namespace rolamos {
 struct PlaneLink {
   int a = 0, b = 0;
   std::vector<cv::Point2f> in_a, in_b;
-  double weight = 1.0;  // multiplies every residual of the link
+  // Multiplies every residual of the link; a link's own robust loss (PlaneAdjustmentOptions::
+  // per_link) has its knee multiplied too, so that it stays at the same error of the link's pixels.
+  double weight = 1.0;
   // Per pair (empty: 1 each): multiplies that pair's residuals. A pair of weight w stands for w^2
   // matched pairs (an edge's homography sampled at a few points, each for the pairs about it).
   std::vector<float> pair_weight;
