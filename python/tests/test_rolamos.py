@@ -103,7 +103,9 @@ def test_errors_name_the_file_and_bad_options_name_the_option(tmp_path):
 
 
 def test_align_then_compose_and_export_from_python(store, tmp_path):
-    summary = rolamos.align(store.path)
+    with pytest.raises((ValueError, rolamos.Error), match="scatter floor"):
+        rolamos.align(store.path, scatter_floor_px=-1)
+    summary = rolamos.align(store.path, scatter_floor_px=0.1)
     assert summary["components"] == 1 and summary["rms_after_px"] < 2.0, summary
     # Every stage timed, in order, with the peak memory at its end (which only grows).
     stages = list(summary["stage_seconds"])
