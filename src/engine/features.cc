@@ -357,35 +357,22 @@ __attribute__((target("avx512f,avx512bw,avx512vnni"))) bool SquaredDistancesVnni
   return true;
 }
 
-// cv::norm(a, b, NORM_L2) of two float descriptors without its dispatch and two Mat headers per
-// pair (a fifth of a guided match's time): differences in float, squares summed in double, as
-// OpenCV computes them; for SIFT's whole numbers every sum is exact, OpenCV's value to the bit.
-__attribute__((target("avx512f"))) double DistanceAvx512(const float* a, const float* b, int n) {
-  __m512d low = _mm512_setzero_pd(), high = _mm512_setzero_pd();
-  int i = 0;
-  for (; i + 16 <= n; i += 16) {
-    const __m512 d = _mm512_sub_ps(_mm512_loadu_ps(a + i), _mm512_loadu_ps(b + i));
-    const __m512d dl = _mm512_cvtps_pd(_mm512_castps512_ps256(d));
-    const __m512d dh = _mm512_cvtps_pd(_mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(d), 1)));
-    low = _mm512_fmadd_pd(dl, dl, low);
-    high = _mm512_fmadd_pd(dh, dh, high);
-  }
-  double sum = _mm512_reduce_add_pd(_mm512_add_pd(low, high));
-  for (; i < n; ++i) {
-    const double v = double(a[i] - b[i]);
-    sum += v * v;
-  }
-  return std::sqrt(sum);
+// Sixteen descriptor entries as floats: float descriptors, or bytes (descriptors as stored).
+__attribute__((target("avx512f"))) inline __m512 Load16(const float* p) { return _mm512_loadu_ps(p); }
+__attribute__((target("avx512f"))) inline __m512 Load16(const uchar* p) {
+  return _mm512_cvtepi32_ps(_mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(p))));
 }
 
-// The same for descriptors as stored, in bytes: the same whole numbers, the same sums.
-__attribute__((target("avx512f"))) double DistanceBytesAvx512(const uchar* a, const uchar* b, int n) {
+// cv::norm(a, b, NORM_L2) of two descriptors without its dispatch and two Mat headers per pair (a
+// fifth of a guided match's time): differences in float, squares summed in double, as OpenCV
+// computes them; for SIFT's whole numbers every sum is exact, OpenCV's value to the bit, in float
+// or in bytes.
+template <typename T>
+__attribute__((target("avx512f"))) double DistanceAvx512(const T* a, const T* b, int n) {
   __m512d low = _mm512_setzero_pd(), high = _mm512_setzero_pd();
   int i = 0;
   for (; i + 16 <= n; i += 16) {
-    const __m512 fa = _mm512_cvtepi32_ps(_mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(a + i))));
-    const __m512 fb = _mm512_cvtepi32_ps(_mm512_cvtepu8_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(b + i))));
-    const __m512 d = _mm512_sub_ps(fa, fb);
+    const __m512 d = _mm512_sub_ps(Load16(a + i), Load16(b + i));
     const __m512d dl = _mm512_cvtps_pd(_mm512_castps512_ps256(d));
     const __m512d dh = _mm512_cvtps_pd(_mm256_castpd_ps(_mm512_extractf64x4_pd(_mm512_castps_pd(d), 1)));
     low = _mm512_fmadd_pd(dl, dl, low);
@@ -393,7 +380,7 @@ __attribute__((target("avx512f"))) double DistanceBytesAvx512(const uchar* a, co
   }
   double sum = _mm512_reduce_add_pd(_mm512_add_pd(low, high));
   for (; i < n; ++i) {
-    const double v = double(int(a[i]) - int(b[i]));
+    const double v = double(float(a[i]) - float(b[i]));
     sum += v * v;
   }
   return std::sqrt(sum);
@@ -547,7 +534,7 @@ double DescriptorDistance(const Features& a, int i, const Features& b, int j) {
   const int type = a.descriptors.type();
   if (CpuHasAvx512() && a.norm == cv::NORM_L2 && b.descriptors.type() == type && a.descriptors.cols == b.descriptors.cols) {
     if (type == CV_32F) return DistanceAvx512(a.descriptors.ptr<float>(i), b.descriptors.ptr<float>(j), a.descriptors.cols);
-    if (type == CV_8U) return DistanceBytesAvx512(a.descriptors.ptr<uchar>(i), b.descriptors.ptr<uchar>(j), a.descriptors.cols);
+    if (type == CV_8U) return DistanceAvx512(a.descriptors.ptr<uchar>(i), b.descriptors.ptr<uchar>(j), a.descriptors.cols);
   }
   return cv::norm(a.descriptors.row(i), b.descriptors.row(j), a.norm);
 }
