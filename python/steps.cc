@@ -380,8 +380,8 @@ void BindSteps(py::module_& m) {
   m.def("align", &Align, py::arg("store"), py::kw_only(), py::arg("navigation") = py::none(), py::arg("focal") = 0.0,
         py::arg("crs") = "", py::arg("progress") = py::none(),
         "The global map over every frame (rolamos align); compose then draws it. Options: frames, "
-        "retrieval_candidates, loops_per_frame, loop_overlap, min_inliers, loss_px, pairs_per_edge, points_per_edge, navigation_sigma, "
-        "threads.");
+        "retrieval_candidates, loops_per_frame, loop_overlap, min_inliers, loss_px, pairs_per_edge, points_per_edge, "
+        "scatter_floor_px, navigation_sigma, threads.");
   m.def("merge", &Merge, py::arg("stores"), py::arg("output"), py::kw_only(), py::arg("progress") = py::none(),
         "Several stores (dives) as one new store (rolamos merge); align it to find where they meet.");
   m.def("export", &Export, py::arg("image"), py::arg("output"), py::kw_only(), py::arg("region") = py::none(),
