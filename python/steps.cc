@@ -225,6 +225,7 @@ py::dict Align(const py::object& store, const py::object& navigation, double foc
         .Integer("min_inliers", &AlignOptions::min_inliers).Number("loss_px", &AlignOptions::loss_px)
         .Integer("pairs_per_edge", &AlignOptions::pairs_per_edge)
         .Integer("points_per_edge", &AlignOptions::points_per_edge).Number("scatter_floor_px", &AlignOptions::scatter_floor_px)
+        .Number("edge_loss_px", &AlignOptions::edge_loss_px)
         .Number("navigation_sigma", &AlignOptions::navigation_sigma_m).Integer("threads", &AlignOptions::threads);
     return t;
   }();
@@ -381,7 +382,7 @@ void BindSteps(py::module_& m) {
         py::arg("crs") = "", py::arg("progress") = py::none(),
         "The global map over every frame (rolamos align); compose then draws it. Options: frames, "
         "retrieval_candidates, loops_per_frame, loop_overlap, min_inliers, loss_px, pairs_per_edge, points_per_edge, "
-        "scatter_floor_px, navigation_sigma, threads.");
+        "scatter_floor_px, edge_loss_px, navigation_sigma, threads.");
   m.def("merge", &Merge, py::arg("stores"), py::arg("output"), py::kw_only(), py::arg("progress") = py::none(),
         "Several stores (dives) as one new store (rolamos merge); align it to find where they meet.");
   m.def("export", &Export, py::arg("image"), py::arg("output"), py::kw_only(), py::arg("region") = py::none(),

@@ -119,6 +119,9 @@ void AddAlignCommand(CLI::App& app, Runner* run) {
                   "each edge weighs as the inverse of its pairs' scatter about its homography, floored at this (px; "
                   "0 = every edge by its pairs alone)")
       ->capture_default_str();
+  cmd->add_option("--edge-loss", s->options.edge_loss_px,
+                  "each edge's homography fitted to its pairs under a Cauchy loss from this many px (0 = least squares)")
+      ->capture_default_str();
   cmd->add_option("--navigation", s->navigation,
                   "pull every camera towards its navigation: CSV of per-frame georeference or of vehicle navigation "
                   "(as compose --navigation)");

@@ -59,6 +59,11 @@ struct AlignOptions {
   // where by their pairs alone each weighed the same and the map within a lane came out twice the
   // engine's error (bench/RESULTS.md, 2026-12-01 (43)). 0 = by their pairs alone, as before.
   double scatter_floor_px = 0.1;
+  // Each edge's homography is fitted to its pairs under a Cauchy loss from this many pixels, as
+  // the engine's adjustment discounts each pair on its own: by least squares, a few pairs a pixel
+  // or more off (a corner followed onto its neighbour) bent the edge (bench/RESULTS.md,
+  // 2026-12-01 (43)). 0 = least squares, as before. Only where edges are compressed.
+  double edge_loss_px = 0.5;
   // Per-frame navigation (ReadNavigationCsv): each camera centre pulled towards it.
   std::map<std::string, FrameNavigation> navigation;
   double navigation_sigma_m = 0.5;  // how far a centre may stray from its navigation (1 sigma)

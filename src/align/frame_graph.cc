@@ -44,9 +44,9 @@ GraphEdge ThinEdge(GraphEdge e, int n, cv::Size frame) {
   return e;
 }
 
-GraphEdge CompressEdge(GraphEdge e, int points) {
+GraphEdge CompressEdge(GraphEdge e, int points, double loss_px) {
   CompressedPairs c;
-  if (!e.weight.empty() || !CompressPairs(e.in_a, e.in_b, points, &c)) return e;
+  if (!e.weight.empty() || !CompressPairs(e.in_a, e.in_b, points, &c, loss_px)) return e;
   e.in_a = std::move(c.in_a);
   e.in_b = std::move(c.in_b);
   e.weight = std::move(c.weight);
@@ -56,7 +56,7 @@ GraphEdge CompressEdge(GraphEdge e, int points) {
 }
 
 GraphEdge MeasureEdge(GraphEdge e, const AlignOptions& o, cv::Size frame) {
-  return CompressEdge(ThinEdge(std::move(e), o.pairs_per_edge, frame), o.points_per_edge);
+  return CompressEdge(ThinEdge(std::move(e), o.pairs_per_edge, frame), o.points_per_edge, o.edge_loss_px);
 }
 
 double Median(std::vector<double> v) {

@@ -101,9 +101,10 @@ void AddRejoiningEdges(FrameGraph& g, const AlignOptions& o, AlignSummary* summa
 // At most `n` pairs spread over frame a (Thin's grid), as the optimisation wants them.
 GraphEdge ThinEdge(GraphEdge e, int n, cv::Size frame);
 
-// The edge's pairs replaced by the homography they fit, at most `points` weighted points
-// (geometry/pair_compression.h), their scatter kept; as it is when that gains nothing.
-GraphEdge CompressEdge(GraphEdge e, int points);
+// The edge's pairs replaced by the homography they fit (under a Cauchy loss from `loss_px`, or
+// by least squares with 0), at most `points` weighted points (geometry/pair_compression.h),
+// their scatter kept; as it is when that gains nothing.
+GraphEdge CompressEdge(GraphEdge e, int points, double loss_px = 0);
 
 // What align does with every edge it finds: thinned to pairs_per_edge, compressed to
 // points_per_edge.

@@ -27,10 +27,10 @@ namespace rolamos {
 bool AlignOptions::IsValid(std::string* error) const {
   if (retrieval_candidates < 0 || vocabulary < 2 || loops_per_frame < 0 || min_index_gap < 1 ||
       min_inliers < 8 || rejoin_candidates < 0 || rejoin_min_inliers < 8 || pairs_per_edge < 4 || (points_per_edge != 0 && points_per_edge < 9) ||
-      !(loop_overlap > 0 && loop_overlap < 1) || !(loss_px > 0) || !(scatter_floor_px >= 0) ||
+      !(loop_overlap > 0 && loop_overlap < 1) || !(loss_px > 0) || !(scatter_floor_px >= 0) || !(edge_loss_px >= 0) ||
       !(navigation_sigma_m > 0) || threads < 0 || !(chain_tolerance > 0) || !(chain_break_px > 0)) {
     *error = "align settings are out of range (at least 8 inliers, 4 pairs and 0 or 9 points an edge, overlap in (0, 1), "
-             "positive loss, navigation sigma, chain tolerance and chain break, scatter floor 0 or more)";
+             "positive loss, navigation sigma, chain tolerance and chain break, scatter floor and edge loss 0 or more)";
     return false;
   }
   return true;

@@ -24,8 +24,11 @@ struct CompressedPairs {
 
 // At most `points` points (a grid of floor(sqrt(points)) cells a side). False, and `out`
 // untouched, when there is nothing to gain or too little to hold a homography: fewer than 8
-// pairs or no more than the points, fewer than 5 occupied cells, or no fit.
+// pairs or no more than the points, fewer than 5 occupied cells, or no fit. The homography is
+// fitted by least squares, or with `loss_px` > 0 under a Cauchy loss from that many pixels
+// (iteratively reweighted): a few pairs off by pixels, a corner followed onto its neighbour, do
+// not bend it; the scatter still counts every pair.
 bool CompressPairs(const std::vector<cv::Point2f>& in_a, const std::vector<cv::Point2f>& in_b, int points,
-                   CompressedPairs* out);
+                   CompressedPairs* out, double loss_px = 0);
 
 }  // namespace rolamos
