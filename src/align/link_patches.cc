@@ -57,17 +57,19 @@ LinkSummary LinkPatches(Store store, const LinkOptions& options, const ProgressF
       for (const auto& f : ReadFrameFeatures((std::filesystem::path(store.dir()) / *s.frame_features).string())) {
         auto r = record.find(f.index);
         if (r == record.end()) continue;
-        // Its primary features: as many as the patches' links were found with before.
+        // Its primary features: as many as the patches' links were found with before, matched as
+        // the stored bytes (the same matches as floats).
         const int n = std::min<int>(static_cast<int>(f.points.size()), kPrimaryStoredFeatures);
         Features g;
         g.points.assign(f.points.begin(), f.points.begin() + n);
-        f.descriptors.rowRange(0, n).convertTo(g.descriptors, CV_32F);
+        g.descriptors = f.descriptors.rowRange(0, n);
         described[{s.id, r->second}] = std::move(g);
       }
       it = described.find(key);
       if (it != described.end()) return it->second;
     }
     Features f = DescribeStoredFrame(StoredFramePath(s.frames[k].source, options.frames_dir), extractor);
+    f.descriptors.convertTo(f.descriptors, CV_8U);  // as the stored ones: SIFT's whole numbers, exact
     ++summary.frames_described;
     return described[key] = std::move(f);
   };

@@ -2,13 +2,10 @@
 
 #include <gtest/gtest.h>
 
+#include "util/homography.h"
+
 namespace rolamos {
 namespace {
-
-cv::Point2d ApplyTo(const cv::Matx33d& H, cv::Point2f p) {
-  const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1);
-  return {q[0] / q[2], q[1] / q[2]};
-}
 
 // Pairs clustered unevenly over part of a frame (three blobs), under a homography with 0.5 px of
 // noise on b.
@@ -89,14 +86,14 @@ TEST(PairCompression, ACauchyFitIsNotBentByAFewPairsFarOff) {
   cv::RNG rng(9);
   for (int y = 10; y < 300; y += 15)
     for (int x = 10; x < 400; x += 15) {
-      const cv::Point2d q = ApplyTo(H, cv::Point2f(float(x), float(y)));
+      const cv::Point2d q = ApplyHomography(H, cv::Point2f(float(x), float(y)));
       const bool off = rng.uniform(0, 10) == 0;
       a.emplace_back(float(x), float(y));
       b.emplace_back(float(q.x + rng.gaussian(0.1) + (off ? 4.0 : 0.0)), float(q.y + rng.gaussian(0.1) + (off ? -3.0 : 0.0)));
     }
   const auto worst = [&](const CompressedPairs& c) {
     double w = 0;
-    for (size_t k = 0; k < c.in_a.size(); ++k) w = std::max(w, cv::norm(ApplyTo(H, c.in_a[k]) - cv::Point2d(c.in_b[k])));
+    for (size_t k = 0; k < c.in_a.size(); ++k) w = std::max(w, cv::norm(ApplyHomography(H, c.in_a[k]) - cv::Point2d(c.in_b[k])));
     return w;
   };
   CompressedPairs robust, squares;
