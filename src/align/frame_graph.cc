@@ -151,7 +151,9 @@ int DescribeMissing(FrameGraph& g, const AlignOptions& o, const ParallelForOptio
 
 // Stage 2: the engine's stored links, or (older stores) the online placements of consecutive
 // frames of a patch.
-void AddOnlineEdges(const Store& store, const AlignOptions& o, FrameGraph& g) {
+void AddOnlineEdges(const Store& store, const AlignOptions& o, FrameGraph& g, const ParallelForOptions& pfo) {
+  const size_t first = g.edges.size();
+  std::vector<char> measure;  // the stored links, measured together below (on every core)
   for (const auto& [id, s] : g.sidecars) {
     if (s.frame_links) {
       for (const auto& l : ReadFrameLinks((std::filesystem::path(store.dir()) / *s.frame_links).string())) {
@@ -162,7 +164,9 @@ void AddOnlineEdges(const Store& store, const AlignOptions& o, FrameGraph& g) {
         e.b = b->second;
         e.in_a = l.in_a;
         e.in_b = l.in_b;
-        g.edges.push_back(MeasureEdge(std::move(e), o, g.frame));
+        g.edges.push_back(std::move(e));
+        measure.resize(g.edges.size() - first, 0);
+        measure.back() = 1;
         g.AddLinked(a->second, b->second);
       }
     } else {
@@ -185,6 +189,11 @@ void AddOnlineEdges(const Store& store, const AlignOptions& o, FrameGraph& g) {
     // A patch the engine linked to the one before by the pixel budget: its first frame's stored
     // link with the previous patch is among the links already.
   }
+  measure.resize(g.edges.size() - first, 0);
+  ParallelFor(static_cast<long long>(measure.size()), [&](long long k, int) {
+    GraphEdge& e = g.edges[first + size_t(k)];
+    if (measure[size_t(k)]) e = MeasureEdge(std::move(e), o, g.frame);
+  }, pfo);
 }
 
 }  // namespace
@@ -194,7 +203,7 @@ FrameGraph LoadFrameGraph(const Store& store, const AlignOptions& o, AlignSummar
   LoadNodes(store, g);
   summary->frames = g.size() + static_cast<int>(g.followed.size());
   summary->frames_described = DescribeMissing(g, o, pfo);
-  AddOnlineEdges(store, o, g);
+  AddOnlineEdges(store, o, g, pfo);
   summary->online_edges = static_cast<int>(g.edges.size());
   return g;
 }
@@ -253,11 +262,14 @@ void AddRejoiningEdges(FrameGraph& g, const AlignOptions& o, AlignSummary* summa
   int count = g.size();
   for (const auto& e : g.edges) count -= parts.Join(e.a, e.b) ? 1 : 0;
   if (count <= 1) return;
+  // Each frame's part, found once: the search asks from several threads (Find compresses paths).
+  std::vector<int> part(g.nodes.size());
+  for (size_t i = 0; i < part.size(); ++i) part[i] = parts.Find(static_cast<int>(i));
   AlignOptions relaxed = o;
   relaxed.min_inliers = std::min(o.min_inliers, o.rejoin_min_inliers);
   std::tie(summary->rejoin_tried, summary->rejoin_edges) =
       AddAppearanceEdges(g, relaxed, o.rejoin_candidates, [&](int i, int j) {
-        return parts.Find(i) != parts.Find(j) && !g.Linked(i, j);
+        return part[size_t(i)] != part[size_t(j)] && !g.Linked(i, j);
       }, pfo);
 }
 

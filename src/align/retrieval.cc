@@ -9,6 +9,8 @@
 #include <opencv2/core.hpp>
 
 #include "rolamos/error.hpp"
+#include "util/parallel_for.h"
+#include "util/principal_axes.h"
 
 namespace rolamos {
 
@@ -86,15 +88,14 @@ cv::Mat DescribeFrames(const std::vector<cv::Mat>& descriptors, const RetrievalO
              cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 12, 1e-3), 1, cv::KMEANS_PP_CENTERS, words);
   // 2. VLAD of every frame, reduced by PCA learnt from a spread of frames.
   cv::Mat vlad(n, words.rows * words.cols, CV_32F);
-  for (int i = 0; i < n; ++i) Vlad(descriptors[size_t(i)], words).copyTo(vlad.row(i));
+  ParallelFor(n, [&](long long i, int) { Vlad(descriptors[size_t(i)], words).copyTo(vlad.row(static_cast<int>(i))); });
   const int learn = std::min(n, 3000);
   cv::Mat learn_rows;
   for (int k = 0; k < learn; ++k) learn_rows.push_back(vlad.row(static_cast<int>((long long)k * n / learn)));
   const int dims = std::min({o.dimensions, learn - 1, vlad.cols});
   if (dims < 2) return {};
   cv::Mat vectors(n, dims, CV_32F);
-  cv::PCA pca(learn_rows, cv::Mat(), cv::PCA::DATA_AS_ROW, dims);
-  const cv::Mat projected = pca.project(vlad);
+  const cv::Mat projected = FindPrincipalAxes(learn_rows, dims).Project(vlad);
   for (int i = 0; i < n; ++i) {
     const float* p = projected.ptr<float>(i);
     double norm = 0;
@@ -108,29 +109,43 @@ cv::Mat DescribeFrames(const std::vector<cv::Mat>& descriptors, const RetrievalO
 
 std::vector<std::pair<int, int>> MostSimilarPairs(const cv::Mat& vectors, int candidates,
                                                   const std::function<bool(int, int)>& allowed) {
-  if (vectors.empty()) return {};
+  if (vectors.empty() || candidates <= 0) return {};
   CV_Assert(vectors.type() == CV_32F && vectors.isContinuous());
   const int n = vectors.rows;
   const Eigen::Map<const Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>> D(
       vectors.ptr<float>(), vectors.rows, vectors.cols);
-  // For every frame its most similar allowed others, block by block (memory stays small).
-  std::set<std::pair<int, int>> pairs;
+  // For every frame its most similar allowed others, block by block (memory stays small), the
+  // rows of a block on every core. Each row's others are taken in order of similarity (ties by
+  // the higher index, as a sort of (similarity, index) pairs) until `candidates` are allowed:
+  // the most similar are mostly its neighbours in the sequence, a few dozen, so `allowed` is
+  // asked of a few others per frame, not of all of them.
+  std::vector<std::vector<int>> best(static_cast<size_t>(n));
   constexpr int kBlock = 512;
   for (int b0 = 0; b0 < n; b0 += kBlock) {
     const int rows = std::min(kBlock, n - b0);
     const Eigen::MatrixXf S = D.middleRows(b0, rows) * D.transpose();
-    for (int r = 0; r < rows; ++r) {
-      const int i = b0 + r;
-      std::vector<std::pair<float, int>> best;
-      for (int j = 0; j < n; ++j) {
-        if (j == i || !allowed(i, j)) continue;
-        best.emplace_back(S(r, j), j);
+    ParallelFor(rows, [&](long long r, int) {
+      const int i = b0 + static_cast<int>(r);
+      std::vector<std::pair<float, int>> order;
+      order.reserve(static_cast<size_t>(n));
+      for (int j = 0; j < n; ++j)
+        if (j != i) order.emplace_back(S(r, j), j);
+      std::vector<int>& kept = best[size_t(i)];
+      size_t sorted = 0;
+      for (size_t next = 0; next < order.size() && kept.size() < size_t(candidates); ++next) {
+        if (next == sorted) {  // the next stretch of the order, twice as long as the last
+          const size_t end = std::min(order.size(), std::max<size_t>(64, 2 * sorted));
+          std::nth_element(order.begin() + long(sorted), order.begin() + long(end - 1), order.end(), std::greater<>());
+          std::sort(order.begin() + long(sorted), order.begin() + long(end), std::greater<>());
+          sorted = end;
+        }
+        if (allowed(i, order[next].second)) kept.push_back(order[next].second);
       }
-      const size_t k = std::min(best.size(), static_cast<size_t>(std::max(candidates, 0)));
-      std::partial_sort(best.begin(), best.begin() + k, best.end(), std::greater<>());
-      for (size_t t = 0; t < k; ++t) pairs.emplace(std::min(i, best[t].second), std::max(i, best[t].second));
-    }
+    });
   }
+  std::set<std::pair<int, int>> pairs;
+  for (int i = 0; i < n; ++i)
+    for (const int j : best[size_t(i)]) pairs.emplace(std::min(i, j), std::max(i, j));
   return {pairs.begin(), pairs.end()};
 }
 

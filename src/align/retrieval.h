@@ -28,7 +28,8 @@ struct RetrievalOptions {
 cv::Mat DescribeFrames(const std::vector<cv::Mat>& descriptors, const RetrievalOptions& options);
 // For each frame (a row of DescribeFrames's) its `candidates` most similar others that `allowed`
 // lets through: pairs (i, j), i < j, each at most once. Several searches over one survey
-// describe it once.
+// describe it once. `allowed` is called from several threads at once, for the most similar
+// others of each frame only.
 std::vector<std::pair<int, int>> MostSimilarPairs(const cv::Mat& vectors, int candidates,
                                                   const std::function<bool(int, int)>& allowed);
 
