@@ -80,21 +80,30 @@ Features AsFeatures(const GraphNode& n, bool all = false) {
 }
 
 // Stage 1: the keyframes of every patch with their stored features; followed frames aside.
-void LoadNodes(const Store& store, FrameGraph& g) {
-  for (const auto& e : store.patches()) g.sidecars[e.id] = store.ReadSidecar(e.id);
-  if (g.sidecars.empty()) Fail(store.dir(), "has no patches to align");
+void LoadNodes(const Store& store, FrameGraph& g, const ParallelForOptions& pfo) {
+  // Each patch's sidecar and stored features read on every core (JSON and files: on 10,000
+  // frames a third of the graph's time on one core), then taken in the patches' order.
+  const std::vector<PatchEntry> entries = store.patches();
+  if (entries.empty()) Fail(store.dir(), "has no patches to align");
+  std::vector<PatchSidecar> sidecars(entries.size());
+  std::vector<std::vector<StoredFeatures>> features(entries.size());
+  ParallelFor(static_cast<long long>(entries.size()), [&](long long k, int) {
+    sidecars[size_t(k)] = store.ReadSidecar(entries[size_t(k)].id);
+    if (sidecars[size_t(k)].frame_features)
+      features[size_t(k)] =
+          ReadFrameFeatures((std::filesystem::path(store.dir()) / *sidecars[size_t(k)].frame_features).string());
+  }, pfo);
+  std::map<int, size_t> order;  // patch id -> entry, taken in the order of ids
+  for (size_t k = 0; k < entries.size(); ++k) order[entries[k].id] = k;
+  for (const auto& [id, k] : order) g.sidecars[id] = std::move(sidecars[k]);
   // The patches' focal lengths, each estimated with its poses (or the one camera's): their median.
   std::vector<double> focals;
   for (const auto& [id, s] : g.sidecars) {
     if (s.frame_size) g.frame = cv::Size((*s.frame_size)[0], (*s.frame_size)[1]);
     if (s.extra.contains("adjustment") && s.extra["adjustment"].contains("focal_px"))
       focals.push_back(s.extra["adjustment"]["focal_px"].get<double>());
-    std::map<int, const StoredFeatures*> stored;
-    std::vector<StoredFeatures> features;
-    if (s.frame_features) {
-      features = ReadFrameFeatures((std::filesystem::path(store.dir()) / *s.frame_features).string());
-      for (const auto& f : features) stored[f.index] = &f;
-    }
+    std::map<int, StoredFeatures*> stored;
+    for (auto& f : features[order.at(id)]) stored[f.index] = &f;
     for (size_t r = 0; r < s.frames.size(); ++r) {
       if (!s.frames[r].is_keyframe()) {
         g.followed.push_back({id, r, s.frames[r].placed_from.value_or(-1)});
@@ -108,8 +117,8 @@ void LoadNodes(const Store& store, FrameGraph& g) {
       n.to_patch = ToMatx(s.frames[r].frame_to_patch);
       auto it = stored.find(n.index);
       if (it != stored.end()) {
-        n.points = it->second->points;
-        n.descriptors = it->second->descriptors.clone();
+        n.points = std::move(it->second->points);
+        n.descriptors = it->second->descriptors;  // each frame's own buffer, read for it
         n.primary = std::min<int>(static_cast<int>(n.points.size()), kPrimaryStoredFeatures);
       }
       g.node_of[{id, n.index}] = g.size();
@@ -200,7 +209,7 @@ void AddOnlineEdges(const Store& store, const AlignOptions& o, FrameGraph& g, co
 
 FrameGraph LoadFrameGraph(const Store& store, const AlignOptions& o, AlignSummary* summary, const ParallelForOptions& pfo) {
   FrameGraph g;
-  LoadNodes(store, g);
+  LoadNodes(store, g, pfo);
   summary->frames = g.size() + static_cast<int>(g.followed.size());
   summary->frames_described = DescribeMissing(g, o, pfo);
   AddOnlineEdges(store, o, g, pfo);
