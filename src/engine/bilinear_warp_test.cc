@@ -215,6 +215,33 @@ TEST(BilinearWarp, AccumulatesWhatTheWarpedFrameWouldAdd) {
   }
 }
 
+// A canvas blended whole (sixteen pixels a step) equals it blended in strips seven pixels wide
+// (the last pixels of each row, one by one), to the bit: the patch's pixels do not depend on
+// where a row's runs begin.
+TEST(BilinearWarp, SumsDoNotDependOnHowARowIsSplit) {
+  std::array<float, 256> table;
+  for (int c = 0; c < 256; ++c) table[size_t(c)] = c == 0 ? 0.0f : 0.02f + c / 300.0f;
+  for (const int type : {CV_8UC4, CV_16UC4}) {
+    const double top = type == CV_8UC4 ? 255 : 16320;
+    const cv::Mat src = SmoothImage({203, 151}, type, top);  // codes vary with the noise
+    const float unit = type == CV_8UC4 ? 1.0f : 1.0f / 64;
+    for (const cv::Matx33d& m : kWarps) {
+      const cv::Size size(261, 230);
+      cv::Mat whole(size, CV_32FC3, cv::Scalar::all(1)), whole_weight(size, CV_32F, cv::Scalar(2));
+      WarpAccumulate(src, m, table, unit, whole, whole_weight, CodeEdges{});
+      cv::Mat strips(size, CV_32FC3, cv::Scalar::all(1)), strips_weight(size, CV_32F, cv::Scalar(2));
+      for (int x = 0; x < size.width; x += 7) {
+        const cv::Rect strip(x, 0, std::min(7, size.width - x), size.height);
+        cv::Mat sum = strips(strip), weight = strips_weight(strip);
+        WarpAccumulate(src, cv::Matx33d(1, 0, -x, 0, 1, 0, 0, 0, 1) * m, table, unit, sum, weight, CodeEdges{});
+      }
+      EXPECT_EQ(cv::norm(whole.reshape(1), strips.reshape(1), cv::NORM_INF), 0.0) << cv::typeToString(type) << " " << m;
+      EXPECT_EQ(cv::norm(whole_weight, strips_weight, cv::NORM_INF), 0.0) << cv::typeToString(type) << " " << m;
+      if (&m != &kWarps[3]) EXPECT_GT(cv::countNonZero(whole_weight != 2.0f), 1000) << cv::typeToString(type) << " " << m;
+    }
+  }
+}
+
 TEST(BilinearWarp, TellsWhichEdgesHoldNoCode) {
   const auto edges = [](const CodeEdges& e) {
     return std::string(e.left ? "L" : "") + (e.right ? "R" : "") + (e.top ? "T" : "") + (e.bottom ? "B" : "");
