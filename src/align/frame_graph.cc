@@ -161,8 +161,7 @@ int DescribeMissing(FrameGraph& g, const AlignOptions& o, const ParallelForOptio
 // Stage 2: the engine's stored links, or (older stores) the online placements of consecutive
 // frames of a patch.
 void AddOnlineEdges(const Store& store, const AlignOptions& o, FrameGraph& g, const ParallelForOptions& pfo) {
-  const size_t first = g.edges.size();
-  std::vector<char> measure;  // the stored links, measured together below (on every core)
+  std::vector<size_t> stored;  // the stored links' edges, measured together below (on every core)
   for (const auto& [id, s] : g.sidecars) {
     if (s.frame_links) {
       for (const auto& l : ReadFrameLinks((std::filesystem::path(store.dir()) / *s.frame_links).string())) {
@@ -173,9 +172,8 @@ void AddOnlineEdges(const Store& store, const AlignOptions& o, FrameGraph& g, co
         e.b = b->second;
         e.in_a = l.in_a;
         e.in_b = l.in_b;
+        stored.push_back(g.edges.size());
         g.edges.push_back(std::move(e));
-        measure.resize(g.edges.size() - first, 0);
-        measure.back() = 1;
         g.AddLinked(a->second, b->second);
       }
     } else {
@@ -198,10 +196,9 @@ void AddOnlineEdges(const Store& store, const AlignOptions& o, FrameGraph& g, co
     // A patch the engine linked to the one before by the pixel budget: its first frame's stored
     // link with the previous patch is among the links already.
   }
-  measure.resize(g.edges.size() - first, 0);
-  ParallelFor(static_cast<long long>(measure.size()), [&](long long k, int) {
-    GraphEdge& e = g.edges[first + size_t(k)];
-    if (measure[size_t(k)]) e = MeasureEdge(std::move(e), o, g.frame);
+  ParallelFor(static_cast<long long>(stored.size()), [&](long long k, int) {
+    GraphEdge& e = g.edges[stored[size_t(k)]];
+    e = MeasureEdge(std::move(e), o, g.frame);
   }, pfo);
 }
 
