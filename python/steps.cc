@@ -224,8 +224,8 @@ py::dict Align(const py::object& store, const py::object& navigation, double foc
         .Integer("loops_per_frame", &AlignOptions::loops_per_frame).Number("loop_overlap", &AlignOptions::loop_overlap)
         .Integer("min_inliers", &AlignOptions::min_inliers).Number("loss_px", &AlignOptions::loss_px)
         .Integer("pairs_per_edge", &AlignOptions::pairs_per_edge)
-        .Integer("points_per_edge", &AlignOptions::points_per_edge).Number("scatter_floor_px", &AlignOptions::scatter_floor_px)
-        .Number("edge_loss_px", &AlignOptions::edge_loss_px)
+        .Integer("points_per_edge", &AlignOptions::points_per_edge)
+        .Number("scatter_floor_px", &AlignOptions::scatter_floor_px).Number("edge_loss_px", &AlignOptions::edge_loss_px)
         .Number("navigation_sigma", &AlignOptions::navigation_sigma_m).Integer("threads", &AlignOptions::threads);
     return t;
   }();

@@ -11,16 +11,16 @@ namespace rolamos {
 
 namespace {
 
-// An orthonormal basis of `m`'s columns (thin Q of its QR factorisation).
+using RowMajorF = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
+// An orthonormal basis of `m`'s columns (thin Q of its QR factorisation, in double).
 cv::Mat Orthonormal(const cv::Mat& m) {
-  Eigen::MatrixXd a(m.rows, m.cols);
-  for (int r = 0; r < m.rows; ++r)
-    for (int c = 0; c < m.cols; ++c) a(r, c) = m.at<float>(r, c);
+  CV_Assert(m.type() == CV_32F && m.isContinuous());
+  const Eigen::MatrixXd a = Eigen::Map<const RowMajorF>(m.ptr<float>(), m.rows, m.cols).cast<double>();
   const Eigen::HouseholderQR<Eigen::MatrixXd> qr(a);
-  const Eigen::MatrixXd q = qr.householderQ() * Eigen::MatrixXd::Identity(m.rows, m.cols);
   cv::Mat out(m.rows, m.cols, CV_32F);
-  for (int r = 0; r < m.rows; ++r)
-    for (int c = 0; c < m.cols; ++c) out.at<float>(r, c) = static_cast<float>(q(r, c));
+  Eigen::Map<RowMajorF>(out.ptr<float>(), m.rows, m.cols) =
+      (qr.householderQ() * Eigen::MatrixXd::Identity(m.rows, m.cols)).cast<float>();
   return out;
 }
 
