@@ -383,8 +383,9 @@ static void AddKeyframeSwitches(CLI::App* cmd, const std::shared_ptr<MosaicSwitc
                   "every keyframe; 0.5: faster on stills, at some cost in accuracy")
       ->capture_default_str();
   cmd->add_option("--still-track-points", o.still_track_points,
-                  "points a keyframe taken right after another (stills) hands on to the next; 600 with the two "
-                  "below at 0.5: the stills' faster mode, better placed within each patch, a worse global map")
+                  "points a keyframe taken right after another (stills) hands on to the next; 600 with "
+                  "--still-describe-overlap 0.5: the stills' faster mode, better placed within each patch, a "
+                  "worse global map")
       ->capture_default_str();
   cmd->add_option("--still-describe-overlap", o.still_describe_overlap,
                   "a keyframe taken right after another (stills) is described when it overlaps the last described "
@@ -392,7 +393,8 @@ static void AddKeyframeSwitches(CLI::App* cmd, const std::shared_ptr<MosaicSwitc
       ->capture_default_str();
   cmd->add_option("--still-blend-overlap", o.still_blend_overlap,
                   "a keyframe taken right after another (stills) is blended when it overlaps the last blended "
-                  "keyframe less than this; 1 = every still")
+                  "keyframe less than this (every other still at 70 % overlap; the others are described and "
+                  "adjusted, in the patch image through their neighbours); 1 = every still")
       ->capture_default_str();
 }
 

@@ -106,21 +106,27 @@ struct MosaickerOptions {
   double describe_overlap = 1.0;
   // Stills: keyframes taken one after another, no frame followed between them, that overlap less
   // than keyframe_overlap (stills at 70-80 % overlap; video only where it moves that fast). Each
-  // is a keyframe, adjusted with the others. Off by default (as any keyframe); a faster mode:
+  // is a keyframe, adjusted with the others.
   // - the points each hands on to the next (600: more tracks link it to the frames around it);
-  // - described and blended only when it overlaps the last described (blended) keyframe less
-  //   than these (0.5: every other one at 70 % overlap, the others linked by their tracks, their
-  //   ground blended from their neighbours). A still over a keyframe of the lane before is
-  //   described all the same (its loop links), and one whose neighbours leave part of its ground
-  //   out is blended after all (a lane's last still).
+  // - described only when it overlaps the last described keyframe less than
+  //   still_describe_overlap (1, the default: every still; 0.5: every other one at 70 % overlap,
+  //   the others linked by their tracks, their ground described by their neighbours). A still
+  //   over a keyframe of the lane before is described all the same (its loop links);
+  // - blended only when it overlaps the last blended keyframe less than still_blend_overlap
+  //   (0.5, the default: every other one at 70 % overlap, the others in the patch image through
+  //   their neighbours). One whose neighbours leave part of its ground out is blended after all
+  //   (a lane's last still). A still not blended is described as any (SIFT's doubled first
+  //   octave: the global map's links), is not ECC-refined or filtered, and counts as blended for
+  //   the next frame's keyframe rule. 1292 x 964 stills 14 % less CPU, 800 x 600 0-10 %; per
+  //   patch and global error the same over 31 surveys (bench/RESULTS.md, session 45).
   // With 600, 0.5, 0.5 on the spread's stills: 800 x 600 at 70 % overlap 25.6 -> 34.6 frames/s,
   // 1292 x 964 20.3 -> 26.5, per-patch error lower on 9 of 13 kinds (0.32 -> 0.18 px) and on 40
   // of 48 other draws. But the global map after `align` is much worse: 0.40 -> 0.89 px on 984
-  // stills (the undescribed ones give it no links; 0.58 describing every still and blending
-  // every other), which is why it is not the default (bench/RESULTS.md, session 29).
+  // stills (the undescribed ones give it no links), which is why still_describe_overlap stays 1
+  // (bench/RESULTS.md, session 29).
   int still_track_points = 300;
   double still_describe_overlap = 1.0;
-  double still_blend_overlap = 1.0;
+  double still_blend_overlap = 0.5;
   // Features found ahead, by the threads that prepare frames, while the recent frames all needed
   // theirs and some needed them on the engine's own thread (recovery: stills that turn more
   // than following foresees). They are the features the engine would find itself, used only

@@ -181,6 +181,7 @@ struct Mosaicker::Impl {
     KeyframeFuture products;
     bool described = true;                 // its features are found (products.features)
     bool blended = true;                   // in the patch image (else it links and places only)
+    bool still = false;                    // taken right after another keyframe (StillKeyframe)
     std::shared_ptr<const Features> dense;  // found when recovery first needs them (RecoverDensely)
   };
   // The frame placed last, keyframe or not.
@@ -850,8 +851,12 @@ bool Mosaicker::Impl::WantsKeyframe(const Candidate& c, const cv::Matx33d& to_pa
   // A keyframe that would only link (it overlaps the last blended one by blend_overlap or more)
   // is taken only with frames followed since the last keyframe: on video, not on stills at
   // 80 % overlap, where every other frame would be one for little gain (paper: 7 % slower).
+  // A still left out of the patch image (still_blend_overlap) counts as blended here: else the
+  // frame after it would be a keyframe only because the last blended one is two stills back.
+  const bool only_links = WouldOnlyLink(to_patch, options.blend_overlap) ||
+                          (key.still && !key.blended && overlap >= options.blend_overlap);
   if (overlap < options.keyframe_overlap &&
-      (options.keyframe_overlap >= 1.0 || FollowedSinceKeyframe() || !WouldOnlyLink(to_patch, options.blend_overlap)))
+      (options.keyframe_overlap >= 1.0 || FollowedSinceKeyframe() || !only_links))
     return true;
   if (c.at.size() < std::max<size_t>(size_t(2 * support_options.strong_inliers), key.points.size() / 3)) return true;
   // The next frame, if the motion from the last one repeats.
@@ -1156,6 +1161,7 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   key.frame = p;
   key.described = described;
   key.blended = blend;
+  key.still = still;
   if (c) {
     key.points = c->at;
     key.ids = c->ids;
@@ -1175,8 +1181,10 @@ void Mosaicker::Impl::AddKeyframe(const std::shared_ptr<PreparedFrame>& p, const
   job.index = key.index;
   job.frame = p;
   job.blend = blend;
-  // Read once the job runs, on its thread.
-  if (!blend && !p->features) p->coarse_features = true;
+  // Read once the job runs, on its thread. A keyframe that only links is described coarsely (SIFT
+  // without its doubled first octave), but not a still: its features are the global map's only
+  // links to the lane beside it, and were most often found ahead already.
+  if (!blend && !p->features && !still) p->coarse_features = true;
   if (current && last.frame && FollowedSinceKeyframe() && !p->features) p->followed_features = true;
   if (blend && current && last.frame && !last.blended && !last.frame->image.empty() &&
       last.frame->image.size() == p->image.size()) {

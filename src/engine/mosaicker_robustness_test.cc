@@ -875,57 +875,109 @@ TEST(MosaickerRobustness, KeyframesThatOnlyLinkAreMarkedAndTheImageStillShowsEve
   }
 }
 
-// Stills at 70 % overlap: every frame is a keyframe, taken right after another. With the stills'
-// faster mode about every other one is described and blended (still_describe_overlap,
-// still_blend_overlap); the others are linked by the tracks they hand on (still_track_points).
-// Every frame is placed as well as when each still is described and blended (the default), a
-// still over the lane before is described (its loop links), and the patch image still covers
-// every frame's ground (a lane's last still is blended).
-TEST(MosaickerRobustness, StillsAreDescribedAndBlendedEveryOtherAndPlacedAsWell) {
+// Stills at 70 % overlap: every frame is a keyframe, taken right after another. Three ways:
+// - "each": every still described and blended (still_blend_overlap 1);
+// - the default: every still described, about every other one blended (still_blend_overlap);
+// - "fast", the stills' faster mode: about every other one described too
+//   (still_describe_overlap), the others linked by the tracks they hand on (still_track_points).
+// Every frame is placed as well as when each still is described and blended, a still over the
+// lane before is described (its loop links), and the patch image still covers every frame's
+// ground (a lane's last still is blended). A still left out of the patch image by default is
+// described as any still (SIFT's doubled first octave: the same keypoints as when it is blended),
+// not coarsely as a video keyframe that only links.
+enum class StillMode { kEach, kDefault, kFast };
+
+struct StillRun {
+  MosaicSummary summary;
+  double rms = 0;
+  std::map<int, std::vector<cv::Point2f>> features;  // stored, by frame
+  std::set<int> unblended;
+  std::set<int> described;  // keyframes
+};
+
+StillRun MapStills(const Survey& survey, const fs::path& frames, const fs::path& out, StillMode mode) {
+  MosaickerOptions o = Options();
+  if (mode == StillMode::kEach) o.still_blend_overlap = 1.0;
+  if (mode == StillMode::kFast) {
+    o.still_describe_overlap = 0.5;
+    o.still_track_points = 600;
+  }
+  StillRun run;
+  Store store = Store::Create(out);
+  run.summary = MosaicInput(frames, store, o);
+  Store reopened = Store::Open(out);
+  double sum2 = 0;
+  int patches = 0;
+  for (const auto& p : reopened.patches()) {
+    const PatchSidecar s = reopened.ReadSidecar(p.id);
+    TiledImage image = TiledImage::Open(reopened.PatchImagePath(p.id), std::make_shared<TileCache>());
+    for (const auto& f : s.frames) {
+      if (f.blended.has_value() && !*f.blended) run.unblended.insert(f.index);
+      if ((!f.keyframe.has_value() || *f.keyframe) && (!f.described.has_value() || *f.described))
+        run.described.insert(f.index);
+      for (const cv::Point2d q : {cv::Point2d(240, 180), cv::Point2d(48, 36), cv::Point2d(432, 36),
+                                  cv::Point2d(48, 324), cv::Point2d(432, 324)}) {
+        const cv::Vec3d c = ToMatx(f.frame_to_patch) * cv::Vec3d(q.x, q.y, 1);
+        const cv::Mat px = image.ReadRegion(0, cv::Rect(int(c[0] / c[2]) - 1, int(c[1] / c[2]) - 1, 2, 2));
+        EXPECT_EQ(cv::mean(px)[3], 255.0) << "frame " << f.index << " at " << q;
+      }
+    }
+    if (s.frame_features)
+      for (const auto& f : ReadFrameFeatures((fs::path(reopened.dir()) / *s.frame_features).string()))
+        run.features[f.index] = f.points;
+    const double r = PatchRms(s, survey);
+    EXPECT_LT(r, 0.5) << "patch " << p.id;
+    sum2 += r * r;
+    ++patches;
+  }
+  run.rms = std::sqrt(sum2 / std::max(1, patches));
+  return run;
+}
+
+// The share of `a`'s points that `b` holds too (within 0.01 px).
+double SharedPoints(const std::vector<cv::Point2f>& a, const std::vector<cv::Point2f>& b) {
+  int shared = 0;
+  for (const auto& p : a)
+    for (const auto& q : b)
+      if (std::abs(p.x - q.x) < 0.01f && std::abs(p.y - q.y) < 0.01f) {
+        ++shared;
+        break;
+      }
+  return a.empty() ? 0.0 : double(shared) / double(a.size());
+}
+
+TEST(MosaickerRobustness, StillsAreBlendedEveryOtherAndPlacedAsWell) {
   test::ScratchDir dir;
   const Survey survey = WriteSurvey(JitteredSurvey(36, 2), dir / "survey");
-  double rms[2] = {0, 0};
-  for (const bool every : {false, true}) {
-    MosaickerOptions o = Options();
-    if (!every) {
-      o.still_describe_overlap = o.still_blend_overlap = 0.5;
-      o.still_track_points = 600;
-    }
-    const fs::path out = dir / (every ? "every.rolamos" : "stills.rolamos");
-    Store store = Store::Create(out);
-    const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, o);
-    ASSERT_EQ(sum.stitched, 36);
-    EXPECT_GE(sum.keyframes, 32);
-    if (every) {
-      EXPECT_EQ(sum.described, sum.keyframes);
-      EXPECT_EQ(sum.blended, sum.keyframes);
-    } else {
-      EXPECT_GT(sum.described, sum.keyframes / 3);
-      EXPECT_LT(sum.described, sum.keyframes * 3 / 4);
-      EXPECT_GT(sum.blended, sum.keyframes / 3);
-      EXPECT_LT(sum.blended, sum.keyframes * 3 / 4);
-    }
-    Store reopened = Store::Open(out);
-    double sum2 = 0;
-    int patches = 0;
-    for (const auto& p : reopened.patches()) {
-      const PatchSidecar s = reopened.ReadSidecar(p.id);
-      TiledImage image = TiledImage::Open(reopened.PatchImagePath(p.id), std::make_shared<TileCache>());
-      for (const auto& f : s.frames)
-        for (const cv::Point2d q : {cv::Point2d(240, 180), cv::Point2d(48, 36), cv::Point2d(432, 36),
-                                    cv::Point2d(48, 324), cv::Point2d(432, 324)}) {
-          const cv::Vec3d c = ToMatx(f.frame_to_patch) * cv::Vec3d(q.x, q.y, 1);
-          const cv::Mat px = image.ReadRegion(0, cv::Rect(int(c[0] / c[2]) - 1, int(c[1] / c[2]) - 1, 2, 2));
-          EXPECT_EQ(cv::mean(px)[3], 255.0) << "frame " << f.index << " at " << q;
-        }
-      const double r = PatchRms(s, survey);
-      EXPECT_LT(r, 0.5) << "patch " << p.id;
-      sum2 += r * r;
-      ++patches;
-    }
-    rms[every] = std::sqrt(sum2 / std::max(1, patches));
+  const StillRun each = MapStills(survey, dir / "survey/frames", dir / "each.rolamos", StillMode::kEach);
+  const StillRun def = MapStills(survey, dir / "survey/frames", dir / "default.rolamos", StillMode::kDefault);
+  const StillRun fast = MapStills(survey, dir / "survey/frames", dir / "fast.rolamos", StillMode::kFast);
+  for (const StillRun* r : {&each, &def, &fast}) {
+    ASSERT_EQ(r->summary.stitched, 36);
+    EXPECT_GE(r->summary.keyframes, 32);
   }
-  EXPECT_LT(rms[0], 1.2 * rms[1]) << "every other still described: " << rms[0] << " px, each still: " << rms[1];
+  EXPECT_EQ(each.summary.described, each.summary.keyframes);
+  EXPECT_EQ(each.summary.blended, each.summary.keyframes);
+  EXPECT_EQ(def.summary.described, def.summary.keyframes);
+  for (const StillRun* r : {&def, &fast}) {
+    EXPECT_GT(r->summary.blended, r->summary.keyframes / 3);
+    EXPECT_LT(r->summary.blended, r->summary.keyframes * 3 / 4);
+  }
+  // The faster mode describes about every other still of the first lane (frames 0-17); the
+  // second lane's lie over it and are all described (their loop links).
+  const auto first_lane = std::count_if(fast.described.begin(), fast.described.end(), [](int i) { return i < 18; });
+  EXPECT_GT(first_lane, 18 / 3);
+  EXPECT_LT(first_lane, 18 * 3 / 4);
+  EXPECT_GT(fast.summary.described, fast.summary.keyframes / 3);
+  EXPECT_LT(fast.summary.described, fast.summary.keyframes);
+  EXPECT_LT(def.rms, 1.2 * each.rms) << "every other still blended: " << def.rms << " px, each: " << each.rms;
+  EXPECT_LT(fast.rms, 1.2 * each.rms) << "every other still described: " << fast.rms << " px, each: " << each.rms;
+  // The stills left out of the default run's patch image keep the features each run stores.
+  ASSERT_FALSE(def.unblended.empty());
+  for (const int i : def.unblended) {
+    ASSERT_TRUE(def.features.count(i) && each.features.count(i)) << "frame " << i;
+    EXPECT_GT(SharedPoints(def.features.at(i), each.features.at(i)), 0.9) << "frame " << i;
+  }
 }
 
 }  // namespace
