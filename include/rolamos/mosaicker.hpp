@@ -118,7 +118,7 @@ struct MosaickerOptions {
   //   (a lane's last still). A still not blended is described as any (SIFT's doubled first
   //   octave: the global map's links), is not ECC-refined or filtered, and counts as blended for
   //   the next frame's keyframe rule. 1292 x 964 stills 14 % less CPU, 800 x 600 0-10 %; per
-  //   patch and global error the same over 31 surveys (bench/RESULTS.md, session 45).
+  //   patch error 3 % less, global 1 % more over 41 surveys (bench/RESULTS.md, session 45).
   // With 600, 0.5, 0.5 on the spread's stills: 800 x 600 at 70 % overlap 25.6 -> 34.6 frames/s,
   // 1292 x 964 20.3 -> 26.5, per-patch error lower on 9 of 13 kinds (0.32 -> 0.18 px) and on 40
   // of 48 other draws. But the global map after `align` is much worse: 0.40 -> 0.89 px on 984
