@@ -980,6 +980,29 @@ TEST(MosaickerRobustness, StillsAreBlendedEveryOtherAndPlacedAsWell) {
   }
 }
 
+// Stills at 80 % overlap: every other frame is a keyframe (the one between would only link).
+// A still left out of the patch image counts as blended for that rule: leaving stills out must
+// not make the frames after them keyframes (the last blended one two stills back).
+TEST(MosaickerRobustness, StillsLeftOutOfTheImageAddNoKeyframes) {
+  test::ScratchDir dir;
+  SurveyOptions so = JitteredSurvey(40, 1);
+  so.forward_overlap = 0.8;
+  const Survey survey = WriteSurvey(so, dir / "survey");
+  int keyframes[2] = {0, 0}, blended[2] = {0, 0};
+  for (const bool each : {false, true}) {
+    MosaickerOptions o = Options();
+    if (each) o.still_blend_overlap = 1.0;
+    Store store = Store::Create(dir / (each ? "each.rolamos" : "default.rolamos"));
+    const MosaicSummary sum = MosaicInput(dir / "survey/frames", store, o);
+    ASSERT_EQ(sum.stitched, 40);
+    keyframes[each] = sum.keyframes;
+    blended[each] = sum.blended;
+  }
+  EXPECT_LT(blended[0], blended[1]) << "stills left out of the image by default";
+  EXPECT_LE(keyframes[0], keyframes[1]) << "keyframes with stills left out: " << keyframes[0] << ", each blended: "
+                                        << keyframes[1];
+}
+
 }  // namespace
 }  // namespace rolamos
 
