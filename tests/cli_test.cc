@@ -190,6 +190,35 @@ TEST(Cli, BadInputGivesAClearErrorAndNonZeroExit) {
   EXPECT_FALSE(fs::exists(dir / "new.rolamos/store.json"));
 }
 
+// The program restarts itself once with glibc's heap on huge pages (util/heap_tuning.h): seen in
+// the environment of a running `mosaic --live` (same pid), the user's own tunables kept, a choice
+// the user made left alone, SIGINT honoured as before.
+TEST(Cli, RestartsOnceWithHugePageHeapKeepingTheUsersTunables) {
+  std::ifstream mode_file("/sys/kernel/mm/transparent_hugepage/enabled");
+  std::string mode;
+  std::getline(mode_file, mode);
+  const bool on_request = mode.find("[madvise]") != std::string::npos;
+  ScratchDir dir;
+  fs::create_directories(dir / "in");
+  // The environment of the run, one entry a line (glibc's parsing may have cut GLIBC_TUNABLES at
+  // its colons), then its log.
+  auto live_run = [&](const std::string& tunables, const std::string& name) {
+    const std::string store = dir / (name + ".rolamos"), log = dir / (name + ".log");
+    return test::RunShell("GLIBC_TUNABLES=" + tunables + " " + ROLAMOS_CLI + " mosaic -q " + (dir / "in") + " -o " +
+                          store + " --live > " + log + " 2>&1 & pid=$!; for i in $(seq 600); do [ -e " + store +
+                          "/store.json ] && break; sleep 0.05; done; tr '\\0' '\\n' < /proc/$pid/environ; "
+                          "kill -INT $pid; wait $pid; cat " + log);
+  };
+  auto r = live_run("glibc.malloc.check=0", "added");
+  EXPECT_NE(r.output.find("GLIBC_TUNABLES=glibc.malloc.check=0"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("glibc.malloc.hugetlb=1") != std::string::npos, on_request) << "THP: " << mode << r.output;
+  EXPECT_NE(r.output.find("stopped by a signal"), std::string::npos) << r.output;
+  r = live_run("glibc.malloc.hugetlb=0", "kept");
+  EXPECT_NE(r.output.find("GLIBC_TUNABLES=glibc.malloc.hugetlb=0"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find("hugetlb=1"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("stopped by a signal"), std::string::npos) << r.output;
+}
+
 }  // namespace
 }  // namespace rolamos
 

@@ -6,14 +6,13 @@
 // start, 9 % of mapping 60 frames of 1292 x 964. The engine reads JPEG frames with libjpeg and
 // writes patches with libtiff: the launcher is linked without them, and loads the module only when
 // a run needs it (a video, frames that are not JPEG, a mask image, the viewer of --serve).
-#include <malloc.h>
-
 #include <cstdio>
 #include <cstring>
 
 #include "command.h"
 #include "rolamos/error.hpp"
 #include "util/full_module.h"
+#include "util/heap_tuning.h"
 
 namespace {
 
@@ -31,6 +30,15 @@ std::shared_ptr<void> ViewerFromModule(rolamos::Store& store, const rolamos::cli
   return handle;
 }
 
+// What reads a line or two of a store, and help, starts as it is: the restart costs ~30 ms.
+bool AllocatesLittle(int argc, char** argv) {
+  if (argc < 2 || std::strcmp(argv[1], "info") == 0) return true;
+  for (int i = 1; i < argc; ++i)
+    for (const char* quick : {"--version", "--help", "-h"})
+      if (std::strcmp(argv[i], quick) == 0) return true;
+  return false;
+}
+
 int RunFullModule(int argc, char** argv) {
   try {
     using Main = int (*)(int, char**);
@@ -44,14 +52,10 @@ int RunFullModule(int argc, char** argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  // Frames, warps and tiles are megabytes each, allocated and freed at every frame: keep them in
-  // the heap instead of mapping and unmapping (and page-faulting) them each time.
-  mallopt(M_MMAP_THRESHOLD, 64 << 20);
-  mallopt(M_TRIM_THRESHOLD, 128 << 20);
-  // Two heaps, not one per thread: the engine's threads (preparation, keyframe workers, patch
-  // writer, OpenCV's) each keeping freed frames in an arena of its own cost ~150 MB of peak
-  // memory on 1,000 frames of 800 x 600, for no measurable speed.
-  mallopt(M_ARENA_MAX, 2);
+  // Megabytes allocated and freed at every frame: on huge pages, in one heap kept between frames
+  // (util/heap_tuning.h says why and what it saves).
+  if (!AllocatesLittle(argc, argv)) rolamos::RestartWithHugePageHeap(argv);
+  rolamos::KeepOneHeap();
   if (!RunsHere(argc, argv)) return RunFullModule(argc, argv);
   const auto app = rolamos::cli::MakeApp();
   rolamos::cli::Runner run;
