@@ -1455,17 +1455,21 @@ void Mosaicker::Impl::SecondChance(const std::shared_ptr<PreparedFrame>& p, cons
     // frames); else tied by its placement.
     Candidate c = Assess(RegisterPair(*it->frame, *p, &corners), to_patch, "second_chance",
                          last.keyframe ? last.index : -1);
-    const bool fits = c.support.strong && canvas->Fits(PatchCanvas::FrameBounds(c.to_patch, frame_size));
-    if (!fits) {
+    if (!c.support.strong) {
       it = ++it->tries >= 2 ? pending.erase(it) : std::next(it);
       continue;
     }
+    // Where the patch image has no room left for it (the budget reached beside the lane) it is
+    // placed, described and linked all the same, and left out of the patch image (`blended`
+    // false): dropped, it was a frame of the survey missing from the map (a lane's first frame,
+    // 102 inliers onto the second, lost on 640 x 480 stills; bench/RESULTS.md, session 49).
+    const bool blend = canvas->Fits(PatchCanvas::FrameBounds(c.to_patch, frame_size));
     FrameReport r = Unreject(it->report);
     r.matches = c.ego.matches;
     r.inliers = c.ego.inliers;
     FrameRecord rec = RecordOf(r, c.to_patch);
     rec.registered_by = "second_chance";
-    AddKeyframe(it->frame, c.to_patch, nullptr, c.Links(r.index), std::move(rec), false);
+    AddKeyframe(it->frame, c.to_patch, nullptr, c.Links(r.index), std::move(rec), false, blend);
     it = pending.erase(it);
   }
   lap(kRecovery);

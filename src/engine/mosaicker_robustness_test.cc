@@ -19,6 +19,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "engine/patch_adjustment.h"
+#include "engine/patch_canvas.h"
 #include "engine/static_mask.h"
 #include "rolamos/error.hpp"
 #include "rolamos/global_align.hpp"
@@ -651,6 +652,57 @@ TEST(MosaickerRobustness, AFrameWaitingForASecondChanceIsNotLostWhereThePatchClo
     for (const auto& r : s.rejected) ADD_FAILURE() << "patch " << p.id << " lost " << r.source << ": " << r.reason;
   }
   EXPECT_TRUE(ten_placed);
+}
+
+// A frame that registers on its second chance where the patch image has no room left for it is
+// placed, not dropped: a lane's first frame, rejected, matched the second with 102 inliers when
+// the budget was reached beside the lane, and was lost (640 x 480 stills, bench/RESULTS.md,
+// session 49). Here frame 12 comes after 8 (no overlap: rejected), is tried against 9 (too
+// little) and 10, where the canvas, sized to hold frames 0-11 and not 12, has no room for it.
+TEST(MosaickerRobustness, AFrameWithNoRoomLeftInThePatchImageIsPlacedNotDropped) {
+  test::ScratchDir dir;
+  const Survey survey = WriteSurvey(JitteredSurvey(16, 1), dir / "survey");
+  const std::vector<int> order{0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 9, 10, 11, 13, 14, 15};
+  std::vector<std::string> names;
+  for (int i : order) names.push_back(FrameName("survey", i));
+  WriteFrameList(dir / "frames.txt", names);
+  // The patch's pixels (the first frame's) holding frames 0..last, from the truth.
+  const cv::Matx33d world_to_first = ToMatx(survey.frames[0].frame_to_world).inv();
+  auto extent = [&](int last) {
+    cv::Rect2d all;
+    for (int i = 0; i <= last; ++i) {
+      const cv::Rect2d b = PatchCanvas::FrameBounds(world_to_first * ToMatx(survey.frames[size_t(i)].frame_to_world),
+                                                    survey.frame_size);
+      all = i == 0 ? b : (all | b);
+    }
+    return (all.width + 2) * (all.height + 2);
+  };
+  ASSERT_GT(extent(12) - extent(11), 0.03 * extent(11));  // a step of the lane: 5 %
+  MosaickerOptions o = Options();
+  o.patch_megapixels = (extent(11) + 0.3 * (extent(12) - extent(11))) / 1e6;
+  ASSERT_GT(o.PixelBudget(survey.frame_size), 2LL * survey.frame_size.area());
+  Store store = Store::Create(dir / "s.rolamos");
+  std::vector<FrameReport> reports;
+  const MosaicSummary sum =
+      MosaicInput(dir / "frames.txt", store, o, [&](const FrameReport& r, int) { reports.push_back(r); });
+  ASSERT_EQ(reports.size(), order.size());
+  EXPECT_EQ(reports[9].status, "rejected");  // frame 12, against frame 8 at first
+  EXPECT_EQ(sum.stitched, 16);
+  Store reopened = Store::Open(dir / "s.rolamos");
+  bool twelve_placed = false;
+  for (const auto& p : reopened.patches()) {
+    const PatchSidecar s = reopened.ReadSidecar(p.id);
+    EXPECT_LT(PatchRms(s, survey), 1.0) << "patch " << p.id;
+    for (const auto& f : s.frames)
+      if (f.source.find("frame_00012") != std::string::npos) {
+        twelve_placed = true;
+        EXPECT_EQ(p.id, 1);
+        EXPECT_EQ(f.registered_by.value_or(""), "second_chance");
+        EXPECT_FALSE(f.blended.value_or(true)) << "frame 12 fitted in the patch image: the test misses its case";
+      }
+    for (const auto& r : s.rejected) ADD_FAILURE() << "patch " << p.id << " lost " << r.source << ": " << r.reason;
+  }
+  EXPECT_TRUE(twelve_placed);
 }
 
 // The camera changes (another frame size) mid-stream: the patch closes and the frames go on in a
