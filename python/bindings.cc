@@ -181,6 +181,7 @@ const OptionTable<MosaickerOptions>& MosaickerTable() {
         .Flag("bilateral", &O::bilateral).Flag("temporal", &O::temporal).Flag("clahe", &O::clahe)
         .Number("track_pixels", &O::track_pixels).Text("track_halve", &O::track_halve)
         .Number("video_track_pixels", &O::video_track_pixels).Integer("track_points", &O::track_points)
+        .Integer("track_window", &O::track_window)
         .Number("track_turn_deg", &O::track_turn_deg).Number("track_turn_search_deg", &O::track_turn_search_deg)
         .Number("keyframe_overlap", &O::keyframe_overlap).Number("keyframe_min_overlap", &O::keyframe_min_overlap)
         .Flag("follow_back", &O::follow_back).Flag("features_ahead", &O::features_ahead)

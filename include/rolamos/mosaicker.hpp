@@ -62,6 +62,12 @@ struct MosaickerOptions {
   // (bench/RESULTS.md, session 17; a near-lossless stream loses a little).
   double video_track_pixels = 0.25e6;
   int track_points = 300;       // points a keyframe hands on (twice as many on video followed at a quarter)
+  // Lucas-Kanade's window, tracking pixels, for frames followed at full size and a video's halved
+  // (stills followed halved, beyond track_pixels, use 21; a video followed at a quarter 13). 31
+  // rather than 21 since session 49: a point's place averaged over twice the pixels, the tracks'
+  // pairs 15-25 % nearer the truth, noisy and dim surveys 25-35 % truer within each patch
+  // (bench/RESULTS.md, session 49).
+  int track_window = 31;
   // A frame turned more than this (degrees) from the frame it is followed from is followed in a
   // copy warped back by the predicted motion (Lucas-Kanade's windows do not turn). 0 = never.
   double track_turn_deg = 2.0;

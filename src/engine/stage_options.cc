@@ -66,6 +66,7 @@ TrackerOptions ToTrackerOptions(const MosaickerOptions& o) {
   t.track_pixels = o.track_pixels;
   t.codec_pixels = o.video_track_pixels;
   t.max_points = o.track_points;
+  t.window = o.track_window;
   t.turn_deg = o.track_turn_deg;
   t.turn_search_deg = o.track_turn_search_deg;
   // "auto" is decided by the input before the engine; frames pushed to it count as images.

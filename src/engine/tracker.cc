@@ -27,7 +27,7 @@ bool TrackerOptions::IsValid(std::string* error) const {
     *error = "tracking image size for video " + std::to_string(codec_pixels) + " pixels is outside 2e4..1e8";
     return false;
   }
-  if (max_points < 30 || window < 5 || window > 61 || quarter_window < 5 || quarter_window > 61 || levels < 0 ||
+  if (max_points < 30 || window < 5 || window > 61 || quarter_window < 5 || quarter_window > 61 || halved_window < 5 || halved_window > 61 || levels < 0 ||
       levels > 6) {
     *error = "tracker settings are out of range (points >= 30, windows 5..61, levels 0..6)";
     return false;
@@ -73,7 +73,10 @@ bool TrackerOptions::CodecAtAQuarter(cv::Size frame) const { return halve_once &
 
 int TrackerOptions::PointsFor(cv::Size frame) const { return CodecAtAQuarter(frame) ? 2 * max_points : max_points; }
 
-int TrackerOptions::WindowFor(cv::Size frame) const { return CodecAtAQuarter(frame) ? quarter_window : window; }
+int TrackerOptions::WindowFor(cv::Size frame) const {
+  if (CodecAtAQuarter(frame)) return quarter_window;
+  return !halve_once && ScaleFor(frame) < 1.0 ? halved_window : window;
+}
 
 namespace {
 

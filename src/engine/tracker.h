@@ -36,7 +36,14 @@ struct TrackerOptions {
   // 1920 x 1080 0.12 against 0.16, at about the speed of half size (bench/RESULTS.md, session 17).
   double codec_pixels = 0.25e6;
   int max_points = 300;     // points a keyframe hands on (PointsFor)
-  int window = 21;          // Lucas-Kanade window, tracking pixels
+  // Lucas-Kanade's window, tracking pixels (MosaickerOptions::track_window). 31 rather than 21
+  // since session 49: a point's place is averaged over twice the pixels, and the tracks' pairs
+  // land 15-25 % nearer the truth (640 x 480 with noise and the lights' cone 1.1-2.0 -> 0.65-1.5
+  // px per patch, 800 x 600 MPEG-4 0.42-0.68 -> 0.35-0.46; bench/RESULTS.md).
+  int window = 31;
+  // Stills larger than track_pixels, followed halved: 21 there spans 42 frame pixels already, and
+  // 31 placed them no better (1024 x 768 turning stills 10-15 % worse) for ~4 % more CPU.
+  int halved_window = 21;
   // The window for a codec's frames followed at a quarter or less (PointsFor's frames): 21 there
   // spans 84 frame pixels, twice the ground of the window at half size. At 13 the quarter-size
   // video surveys are placed as well or better (1292 x 964 random walk 0.30 -> 0.27 px, H.264
@@ -86,8 +93,8 @@ struct TrackerOptions {
   // followed at a quarter or less (their pyramid is a quarter of the half-size one, a point costs
   // what it did; bench/RESULTS.md, session 17).
   int PointsFor(cv::Size frame) const;
-  // The Lucas-Kanade window (tracking pixels) for frames of `frame`'s size: window, or
-  // quarter_window for the frames PointsFor doubles.
+  // The Lucas-Kanade window (tracking pixels) for frames of `frame`'s size: window, halved_window
+  // for stills followed halved, or quarter_window for the frames PointsFor doubles.
   int WindowFor(cv::Size frame) const;
   // A codec's frames followed at a quarter of their size or less: the frames both rules above
   // are for.

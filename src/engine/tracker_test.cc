@@ -48,7 +48,7 @@ TEST(Tracker, ScaleHalvesUntilTheTrackingImageIsSmallEnough) {
   EXPECT_EQ(o.ScaleFor({3840, 2160}), 0.25);
   EXPECT_EQ(o.ScaleFor({200, 100}), 1.0);  // never enlarged
   EXPECT_EQ(o.PointsFor({3840, 2160}), o.max_points);  // stills at a quarter
-  EXPECT_EQ(o.WindowFor({3840, 2160}), o.window);
+  EXPECT_EQ(o.WindowFor({3840, 2160}), o.halved_window);  // stills followed halved or less
   o.halve_once = true;
   EXPECT_EQ(o.ScaleFor({480, 360}), 1.0);  // under 0.4 of track_pixels
   EXPECT_EQ(o.ScaleFor({640, 480}), 0.5);
@@ -77,6 +77,19 @@ TEST(Tracker, ScaleHalvesUntilTheTrackingImageIsSmallEnough) {
   o.quarter_window = 3;
   EXPECT_FALSE(o.IsValid(&error));
   o.quarter_window = 13;
+  // Stills: the window at full size, halved_window where they are followed halved.
+  o.halve_once = false;
+  o.track_pixels = 0.6e6;
+  o.window = 31;
+  o.halved_window = 21;
+  EXPECT_EQ(o.WindowFor({800, 600}), 31);
+  EXPECT_EQ(o.WindowFor({640, 480}), 31);
+  EXPECT_EQ(o.WindowFor({1292, 964}), 21);
+  EXPECT_EQ(o.WindowFor({1920, 1080}), 21);
+  EXPECT_EQ(o.PointsFor({1292, 964}), 300);
+  o.halved_window = 62;
+  EXPECT_FALSE(o.IsValid(&error));
+  o.halved_window = 21;
   o.track_pixels = 10;
   EXPECT_FALSE(o.IsValid(&error));
 }
