@@ -1,6 +1,8 @@
 #include "util/parallel_for.h"
 
 #include <atomic>
+#include <chrono>
+#include <thread>
 #include <stdexcept>
 #include <vector>
 
@@ -33,9 +35,19 @@ TEST(ParallelFor, RunsEveryItemOnceWithinTheWorkerRange) {
 
 TEST(ParallelFor, RethrowsTheFirstErrorAndStopsStartingItems) {
   std::atomic<int> ran{0};
+  std::atomic<bool> thrown{false};
   EXPECT_THROW(ParallelFor(100000, [&](long long i, int) {
                  ++ran;
-                 if (i == 10) throw std::runtime_error("item 10");
+                 if (i == 10) {
+                   thrown = true;
+                   throw std::runtime_error("item 10");
+                 }
+                 // Later items wait (up to 2 s) for item 10's error: on a loaded machine the other
+                 // thread could otherwise run them all before item 10's thread is scheduled.
+                 if (i > 1000)
+                   for (const auto start = std::chrono::steady_clock::now();
+                        !thrown && std::chrono::steady_clock::now() - start < std::chrono::seconds(2);)
+                     std::this_thread::yield();
                }),
                std::runtime_error);
   EXPECT_LT(ran.load(), 100000);
