@@ -27,7 +27,8 @@ bool TrackerOptions::IsValid(std::string* error) const {
     *error = "tracking image size for video " + std::to_string(codec_pixels) + " pixels is outside 2e4..1e8";
     return false;
   }
-  if (max_points < 30 || window < 5 || window > 61 || quarter_window < 5 || quarter_window > 61 || halved_window < 5 || halved_window > 61 || levels < 0 ||
+  const auto window_ok = [](int w) { return w >= 5 && w <= 61; };
+  if (max_points < 30 || !window_ok(window) || !window_ok(halved_window) || !window_ok(quarter_window) || levels < 0 ||
       levels > 6) {
     *error = "tracker settings are out of range (points >= 30, windows 5..61, levels 0..6)";
     return false;
