@@ -64,11 +64,11 @@ struct MosaickerOptions {
   int track_points = 300;       // points a keyframe hands on (twice as many on video followed at a quarter)
   // Lucas-Kanade's window, tracking pixels, for frames followed at full size and a video's halved
   // (stills followed halved, beyond track_pixels, use 21; a video followed at a quarter 13). 31
-  // averages a point's place over twice the pixels: the tracks' pairs 15-25 % nearer the truth,
-  // noisy and dim surveys 25-35 % truer within each patch, 0-7 % more CPU; but a real low-contrast
-  // still that overlaps a third of the one before is then rejected where 21 follows it
-  // (skerki6_whoi), so 21 stays the default (bench/RESULTS.md, session 49).
-  int track_window = 21;
+  // averages a point's place over twice the pixels of 21: the tracks' pairs 15-25 % nearer the
+  // truth, noisy and dim surveys 25-35 % truer within each patch, 0-7 % more CPU (bench/RESULTS.md,
+  // sessions 49-50). A still its keyframe holds too thinly for the wider window is followed from
+  // the frame after that keyframe (made one) instead.
+  int track_window = 31;
   // A frame turned more than this (degrees) from the frame it is followed from is followed in a
   // copy warped back by the predicted motion (Lucas-Kanade's windows do not turn). 0 = never.
   double track_turn_deg = 2.0;

@@ -28,8 +28,9 @@ struct FeatureOptions {
   // SIFT's first octave on the detection image doubled in size (OpenCV's SIFT always does it):
   // four times the detection image's pixels, for the finest and best-placed features. Off: the
   // keypoints are found on the detection image halved (its doubled octave is the detection
-  // image's own size) and described on the detection image: half the time, ~25 % more error in
-  // the placements (as good as doubled at twice the detection pixels).
+  // image's own size) and described on the detection image: half the time, 30-60 % more error
+  // within each patch; at twice the detection pixels still worse than doubled, and slower
+  // (bench/RESULTS.md, session 36).
   bool double_first_octave = true;
   double ratio = 0.8;         // Lowe's ratio test
   bool cross_check = true;

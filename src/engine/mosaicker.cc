@@ -471,6 +471,12 @@ struct Mosaicker::Impl {
   // The last frame placed becomes a keyframe when the patch closes after it (lost tracking, end
   // of input): the patch reaches as far as the frames it placed, and its features are stored.
   void PromoteLast();
+  // The last frame placed was followed (not a keyframe) and can hand on points: a frame that
+  // its keyframe does not hold may be followed from it instead (Integrate, step 1).
+  bool LastCanBeKeyframe() const {
+    return canvas && last.frame && !last.keyframe && last.frame->track && !frames.empty() &&
+           frames.back().index == last.index;
+  }
   void BlendLastKeyframe();
   // The last frame is a still not blended that the blended keyframes before it and `next` (the
   // frame placed after it, when blended) leave part of uncovered: a lane's last still, a turn.
@@ -1707,8 +1713,19 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   //    places a frame on faint ground (MosaickerRobustness.RealLowContrastStills...).
   using Start = Impl::Start;
   std::vector<Impl::Tried> tried;
-  const bool far = m.PredictionFarOff(*p);
+  bool far = m.PredictionFarOff(*p);
   Impl::Candidate best = m.FollowStarts(p, far, &tried, true);
+  //    When the keyframe does not hold the frame and frames were followed since, the last of
+  //    them becomes a keyframe and the frame is followed from it: it overlaps the frame more.
+  //    Stills that overlap little were otherwise followed across the last keyframe's thinner
+  //    strip, weakly or not at all (a real low-contrast still at a third overlap: 17 inliers
+  //    from the keyframe, 43-46 from the frame between; lost with a 31-pixel window).
+  if (!m.Settled(best) && m.LastCanBeKeyframe()) {
+    m.PromoteLast();
+    tried.clear();
+    far = m.PredictionFarOff(*p);
+    best = m.FollowStarts(p, far, &tried, true);
+  }
   const bool gave_up = std::any_of(tried.begin(), tried.end(), [](const Impl::Tried& t) { return t.cut_short; });
   const auto from_prediction = std::find_if(tried.begin(), tried.end(),
                                             [](const Impl::Tried& t) { return t.start == Start::kPredicted; });

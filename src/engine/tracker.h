@@ -37,10 +37,10 @@ struct TrackerOptions {
   double codec_pixels = 0.25e6;
   int max_points = 300;     // points a keyframe hands on (PointsFor)
   // Lucas-Kanade's window, tracking pixels (MosaickerOptions::track_window). 31 averages a
-  // point's place over twice the pixels (640 x 480 with noise and the lights' cone 1.1-2.0 ->
-  // 0.65-1.5 px per patch, 800 x 600 MPEG-4 0.42-0.68 -> 0.35-0.46; bench/RESULTS.md, session
-  // 49) but loses a real low-contrast still that overlaps little; 21 stays the default.
-  int window = 21;
+  // point's place over twice the pixels of 21 (640 x 480 with noise and the lights' cone 1.1-2.0
+  // -> 0.65-1.2 px per patch, 800 x 600 MPEG-4 0.42-0.68 -> 0.35-0.46; bench/RESULTS.md,
+  // sessions 49-50).
+  int window = 31;
   // Stills larger than track_pixels, followed halved: 21 there spans 42 frame pixels already, and
   // 31 placed them no better (1024 x 768 turning stills 10-15 % worse) for ~4 % more CPU: they
   // keep 21 whatever `window` is.
