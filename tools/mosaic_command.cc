@@ -353,8 +353,8 @@ static void AddTrackingSwitches(CLI::App* cmd, const std::shared_ptr<MosaicSwitc
                   "points a keyframe hands on to the frames after it (twice as many on video followed at a quarter)")
       ->capture_default_str();
   cmd->add_option("--track-window", o.track_window,
-                  "Lucas-Kanade's window in tracking pixels, for frames followed at full size and a video's halved "
-                  "(5..61; stills followed halved use 21, a video followed at a quarter 13)")
+                  "Lucas-Kanade's window in tracking pixels, for frames followed at full size (5..61; frames "
+                  "followed halved use 21, a video followed at a quarter 13)")
       ->capture_default_str();
   cmd->add_option("--track-turn", o.track_turn_deg,
                   "a frame turned more than this many degrees from the one it is followed from is followed in a "

@@ -62,12 +62,12 @@ struct MosaickerOptions {
   // (bench/RESULTS.md, session 17; a near-lossless stream loses a little).
   double video_track_pixels = 0.25e6;
   int track_points = 300;       // points a keyframe hands on (twice as many on video followed at a quarter)
-  // Lucas-Kanade's window, tracking pixels, for frames followed at full size and a video's halved
-  // (stills followed halved, beyond track_pixels, use 21; a video followed at a quarter 13). 31
-  // averages a point's place over twice the pixels of 21: the tracks' pairs 15-25 % nearer the
-  // truth, noisy and dim surveys 25-35 % truer within each patch, 0-7 % more CPU (bench/RESULTS.md,
-  // sessions 49-50). A still its keyframe holds too thinly for the wider window is followed from
-  // the frame after that keyframe (made one) instead.
+  // Lucas-Kanade's window, tracking pixels, for frames followed at full size (frames followed
+  // halved, stills beyond track_pixels and a video's, use 21; a video followed at a quarter 13).
+  // 31 averages a point's place over twice the pixels of 21: the tracks' pairs 15-25 % nearer the
+  // truth, 640 x 480 and 800 x 600 stills 13 % truer within each patch over 34 surveys, 0-7 % more
+  // CPU (bench/RESULTS.md, sessions 49-50). A still its keyframe holds too thinly for the wider
+  // window is followed from the frame after that keyframe (made one) instead.
   int track_window = 31;
   // A frame turned more than this (degrees) from the frame it is followed from is followed in a
   // copy warped back by the predicted motion (Lucas-Kanade's windows do not turn). 0 = never.

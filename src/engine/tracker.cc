@@ -76,7 +76,7 @@ int TrackerOptions::PointsFor(cv::Size frame) const { return CodecAtAQuarter(fra
 
 int TrackerOptions::WindowFor(cv::Size frame) const {
   if (CodecAtAQuarter(frame)) return quarter_window;
-  return !halve_once && ScaleFor(frame) < 1.0 ? halved_window : window;
+  return ScaleFor(frame) < 1.0 ? halved_window : window;
 }
 
 namespace {

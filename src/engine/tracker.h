@@ -36,14 +36,16 @@ struct TrackerOptions {
   // 1920 x 1080 0.12 against 0.16, at about the speed of half size (bench/RESULTS.md, session 17).
   double codec_pixels = 0.25e6;
   int max_points = 300;     // points a keyframe hands on (PointsFor)
-  // Lucas-Kanade's window, tracking pixels (MosaickerOptions::track_window). 31 averages a
-  // point's place over twice the pixels of 21 (640 x 480 with noise and the lights' cone 1.1-2.0
-  // -> 0.65-1.2 px per patch, 800 x 600 MPEG-4 0.42-0.68 -> 0.35-0.46; bench/RESULTS.md,
-  // sessions 49-50).
+  // Lucas-Kanade's window, tracking pixels, for frames followed at full size
+  // (MosaickerOptions::track_window). 31 averages a point's place over twice the pixels of 21
+  // (640 x 480 stills with noise and the lights' cone 1.1-2.0 -> 0.65-1.2 px per patch, 800 x
+  // 600 stills 0.32 -> 0.20; bench/RESULTS.md, sessions 49-50).
   int window = 31;
-  // Stills larger than track_pixels, followed halved: 21 there spans 42 frame pixels already, and
-  // 31 placed them no better (1024 x 768 turning stills 10-15 % worse) for ~4 % more CPU: they
-  // keep 21 whatever `window` is.
+  // Frames followed halved: stills larger than track_pixels, and a codec's frames (halve_once).
+  // 21 there spans 42 frame pixels already. 31 placed such stills no better (1024 x 768 turning
+  // stills 10-15 % worse) for ~4 % more CPU, and 800 x 600 MPEG-4 worse on four of seven
+  // surveys (random walk 0.34 -> 0.44 px, the lights' cone 1.00 -> 1.15) for 3-14 % more CPU:
+  // they keep 21 whatever `window` is.
   int halved_window = 21;
   // The window for a codec's frames followed at a quarter or less (PointsFor's frames): 21 there
   // spans 84 frame pixels, twice the ground of the window at half size. At 13 the quarter-size
@@ -94,8 +96,8 @@ struct TrackerOptions {
   // followed at a quarter or less (their pyramid is a quarter of the half-size one, a point costs
   // what it did; bench/RESULTS.md, session 17).
   int PointsFor(cv::Size frame) const;
-  // The Lucas-Kanade window (tracking pixels) for frames of `frame`'s size: window, halved_window
-  // for stills followed halved, or quarter_window for the frames PointsFor doubles.
+  // The Lucas-Kanade window (tracking pixels) for frames of `frame`'s size: window at full size,
+  // halved_window for frames followed halved, or quarter_window for the frames PointsFor doubles.
   int WindowFor(cv::Size frame) const;
   // A codec's frames followed at a quarter of their size or less: the frames both rules above
   // are for.

@@ -58,17 +58,19 @@ TEST(Tracker, ScaleHalvesUntilTheTrackingImageIsSmallEnough) {
   EXPECT_EQ(o.ScaleFor({1292, 964}), 0.25);
   EXPECT_EQ(o.ScaleFor({1920, 1080}), 0.25);
   EXPECT_EQ(o.ScaleFor({3840, 2160}), 0.125);
-  // ...and hand on twice the points there, followed in smaller windows; at half size, and
-  // stills, the points and window asked for.
+  // ...and hand on twice the points there, followed in smaller windows; at half size the points
+  // asked for, in halved_window; at full size (under 0.4 of track_pixels) in `window`.
   o.max_points = 300;
   EXPECT_EQ(o.PointsFor({1292, 964}), 600);
   EXPECT_EQ(o.PointsFor({800, 600}), 300);
-  o.window = 21;
+  o.window = 31;
+  o.halved_window = 21;
   o.quarter_window = 13;
   EXPECT_EQ(o.WindowFor({1292, 964}), 13);
   EXPECT_EQ(o.WindowFor({1920, 1080}), 13);
   EXPECT_EQ(o.WindowFor({800, 600}), 21);
   EXPECT_EQ(o.WindowFor({1280, 720}), 21);
+  EXPECT_EQ(o.WindowFor({480, 360}), 31);
   o.codec_pixels = 1e6;  // or track_pixels, the smaller
   EXPECT_EQ(o.ScaleFor({1292, 964}), 0.5);
   EXPECT_EQ(o.ScaleFor({3840, 2160}), 0.25);
