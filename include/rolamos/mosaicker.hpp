@@ -65,7 +65,7 @@ struct MosaickerOptions {
   // Lucas-Kanade's window, tracking pixels, for frames followed at full size (frames followed
   // halved, stills beyond track_pixels and a video's, use 21; a video followed at a quarter 13).
   // 31 averages a point's place over twice the pixels of 21: the tracks' pairs 15-25 % nearer the
-  // truth, 640 x 480 and 800 x 600 stills 13 % truer within each patch over 34 surveys, 0-7 % more
+  // truth, 34 surveys 11 % truer within each patch and 9 % after align, 0-7 % more
   // CPU (bench/RESULTS.md, sessions 49-50). A still its keyframe holds too thinly for the wider
   // window is followed from the frame after that keyframe (made one) instead.
   int track_window = 31;
