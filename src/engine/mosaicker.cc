@@ -473,9 +473,10 @@ struct Mosaicker::Impl {
   void PromoteLast();
   // The last frame placed was followed (not a keyframe) and can hand on points: a frame that
   // its keyframe does not hold may be followed from it instead (Integrate, step 1).
-  bool LastCanBeKeyframe() const {
-    return canvas && last.frame && !last.keyframe && last.frame->track && !frames.empty() &&
-           frames.back().index == last.index;
+  bool LastCanBeKeyframe() const { return LastIsOpenPatchsNewest() && !last.keyframe && last.frame->track; }
+  // The last frame placed is the open patch's newest frame (not one placed late, behind it).
+  bool LastIsOpenPatchsNewest() const {
+    return canvas && last.frame && !frames.empty() && frames.back().index == last.index;
   }
   void BlendLastKeyframe();
   // The last frame is a still not blended that the blended keyframes before it and `next` (the
@@ -1268,7 +1269,7 @@ void Mosaicker::Impl::AddFollowed(const std::shared_ptr<PreparedFrame>& p, const
 }
 
 void Mosaicker::Impl::PromoteLast() {
-  if (!canvas || !last.frame || frames.empty() || frames.back().index != last.index) return;
+  if (!LastIsOpenPatchsNewest()) return;
   if (last.keyframe) {
     if (!last.blended) BlendLastKeyframe();
     return;
@@ -1718,8 +1719,8 @@ FrameReport Mosaicker::Integrate(const std::shared_ptr<PreparedFrame>& p) {
   //    When the keyframe does not hold the frame and frames were followed since, the last of
   //    them becomes a keyframe and the frame is followed from it: it overlaps the frame more.
   //    Stills that overlap little were otherwise followed across the last keyframe's thinner
-  //    strip, weakly or not at all (a real low-contrast still at a third overlap: 17 inliers
-  //    from the keyframe, 43-46 from the frame between; lost with a 31-pixel window).
+  //    strip, weakly or not at all (a real low-contrast still at a fifth of its keyframe: 17
+  //    inliers from it with a 21-pixel window, lost with 31; 72 from the frame between).
   if (!m.Settled(best) && m.LastCanBeKeyframe()) {
     m.PromoteLast();
     tried.clear();

@@ -182,13 +182,11 @@ TEST(MosaickerRobustness, OpenWaterClosesThePatchAndTheSeafloorOpensANewOne) {
 // patch joined to the one before, and where the navigation shipped with the frames puts a frame's
 // centre in the next frame agrees with ours, within patches and across the joins, within the
 // navigation's own scatter (SOURCE.txt: it disagrees with vision by a median 17-48 px there).
-// Skerki Bank (WHOI): six low-contrast frames under a strobe's uneven light. The last one shares
-// a third of its ground with the one before, and only 21 SIFT matches, 17 of them agreeing: it
-// was rejected (25 inliers asked) though it overlaps. It is placed, one step further along the
-// line of the others.
-// The last still overlaps the one before it by about half and the keyframe before that by a
-// fifth. Followed from that keyframe it was held weakly (17 inliers) with Lucas-Kanade's window of
-// 21 and lost with 31; the frame between is made a keyframe and the still followed from it.
+// Skerki Bank (WHOI): six low-contrast frames under a strobe's uneven light. The fifth is followed,
+// not a keyframe; the last overlaps it by about half and the keyframe before it by a fifth.
+// Followed from that keyframe the last was held weakly (17 inliers, doubtful) with a window of 21
+// and lost with 31. The fifth is made a keyframe and the last followed from it, with either
+// window: placed strongly, one step further along the line of the others.
 TEST(MosaickerRobustness, RealLowContrastStillsWithFewMatchesAreAllPlaced) {
   const std::string data = test::SharedData();
   if (data.empty()) GTEST_SKIP() << "../shared/data is absent";
