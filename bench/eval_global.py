@@ -6,33 +6,48 @@ best-fit homography for the whole map. A map that `align` left in parts (the sid
 `component`) has no common gauge: each part gets its own best fit, and `components` says how
 many there were. Prints JSON: frames, components, RMS and p95 in pixels.
 
+A survey made through a distorting lens (`synth --k1`, mapped with a calibration): each grid point
+of the engine's (rectified) frame is followed back to the raw pixel and through the true lens to
+the pinhole's pixel the ground truth maps, as bench/eval_mosaic.py does; without it such a survey
+measured ~11 px whatever its map (lawn-lens).
+
   bench/eval_global.py SURVEY_DIR STORE [--online]
 """
 import json, os, sys
 import numpy as np
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from eval_mosaic import engine_grid_to_pinhole, lens_of  # noqa: E402
+
 survey, store = sys.argv[1], sys.argv[2]
 online = "--online" in sys.argv
-truth = json.load(open(os.path.join(survey, "ground_truth.json")))["frames"]
+survey_gt = json.load(open(os.path.join(survey, "ground_truth.json")))
+truth = survey_gt["frames"]
 gt = {os.path.basename(f["file"]): np.array(f["frame_to_world"]).reshape(3, 3) for f in truth}
 # A video's frames are named video.mp4#N: N is the survey's frame index.
 gt.update({"#" + str(f["index"]): np.array(f["frame_to_world"]).reshape(3, 3) for f in truth})
 manifest = json.load(open(os.path.join(store, "store.json")))
+lens = lens_of(survey_gt, store, manifest)
 ours, theirs, part = [], [], []
 w = h = None
 for p in manifest["patches"]:
     s = json.load(open(os.path.join(store, p["sidecar"])))
     w, h = s["frame_size"]
     G = np.array(s.get("patch_to_global_online", s["patch_to_global"]) if online else s["patch_to_global"]).reshape(3, 3)
+    grid = np.array([(x, y) for x in (0, (w - 1) / 2, w - 1) for y in (0, (h - 1) / 2, h - 1)])
+    truth_grid = grid if lens is None else engine_grid_to_pinhole(grid, lens, s)
+    if truth_grid is None:
+        print(f"{p['sidecar']}: no frame_camera_matrix (an older engine's store): its frames through a calibration "
+              "cannot be followed back to the lens; the patch is not evaluated", file=sys.stderr)
+        continue
     for f in s["frames"]:
         H = np.array(f["frame_to_global"]).reshape(3, 3) if ("frame_to_global" in f and not online) else \
             (np.array(s.get("patch_to_global_online", s["patch_to_global"])).reshape(3, 3) @ np.array(f["frame_to_patch"]).reshape(3, 3))
         name = os.path.basename(f["source"])
         T = gt["#" + name.split("#")[1]] if "#" in name else gt[name]
-        for x in (0, (w - 1) / 2, w - 1):
-            for y in (0, (h - 1) / 2, h - 1):
-                a, b = H @ [x, y, 1], T @ [x, y, 1]
-                ours.append(a[:2] / a[2]); theirs.append(b[:2] / b[2]); part.append(s.get("component", 0))
+        for (x, y), (u, v) in zip(grid, truth_grid):
+            a, b = H @ [x, y, 1], T @ [u, v, 1]
+            ours.append(a[:2] / a[2]); theirs.append(b[:2] / b[2]); part.append(s.get("component", 0))
 ours, theirs, part = np.array(ours), np.array(theirs), np.array(part)
 
 
