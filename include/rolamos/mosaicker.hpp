@@ -130,7 +130,10 @@ struct MosaickerOptions {
   // 1292 x 964 20.3 -> 26.5, per-patch error lower on 9 of 13 kinds (0.32 -> 0.18 px) and on 40
   // of 48 other draws. But the global map after `align` is much worse: 0.40 -> 0.89 px on 984
   // stills (the undescribed ones give it no links), which is why still_describe_overlap stays 1
-  // (bench/RESULTS.md, session 29).
+  // (bench/RESULTS.md, session 29). 600 points alone (every still described) are truer, for
+  // CPU: over 20 surveys 0.88 of the error within each patch and 0.97 after `align`, 5-21 % more
+  // CPU (tracking 7 -> 13 ms a still at 800 x 600); not the default while the stills are under
+  // their frames/s goal (bench/RESULTS.md, session 51).
   int still_track_points = 300;
   double still_describe_overlap = 1.0;
   double still_blend_overlap = 0.5;
