@@ -33,7 +33,6 @@ w = h = None
 for p in manifest["patches"]:
     s = json.load(open(os.path.join(store, p["sidecar"])))
     w, h = s["frame_size"]
-    G = np.array(s.get("patch_to_global_online", s["patch_to_global"]) if online else s["patch_to_global"]).reshape(3, 3)
     grid = np.array([(x, y) for x in (0, (w - 1) / 2, w - 1) for y in (0, (h - 1) / 2, h - 1)])
     truth_grid = grid if lens is None else engine_grid_to_pinhole(grid, lens, s)
     if truth_grid is None:

@@ -188,6 +188,20 @@ def with_seed(args, seed):
     return out + ["--seed", str(seed)]
 
 
+def make_survey(out, base, args, seed, cli):
+    """The survey of kind `base` drawn with `args` (another draw: `seed`) in OUT, made by `cli synth`
+    unless the one there was made with the same arguments (args.json); -> (survey folder, source:
+    its MPEG-4 file for a video kind, else its frames)."""
+    survey = os.path.join(out, SAME_SURVEY.get(base, base) + ("" if seed is None else f"-s{seed}"))
+    stamp = os.path.join(survey, "args.json")
+    if not os.path.exists(stamp) or json.load(open(stamp)) != args:
+        subprocess.run(["rm", "-rf", survey])
+        timed([cli, "synth"] + synth_args(args) + ["-o", survey, "-q"], check=True)
+        json.dump(args, open(stamp, "w"))
+    video = "--video" in args and base not in SAME_SURVEY
+    return survey, os.path.join(survey, "video.mp4") if video else os.path.join(survey, "frames")
+
+
 def closures(store):
     """How the patches closed, from their sidecars."""
     counts = {}
@@ -275,14 +289,7 @@ def main():
         kind = base if seed is None else f"{base}-s{seed}"
         if seed is not None:
             args, desc = with_seed(args, seed), f"{desc}, seed {seed}"
-        survey = os.path.join(a.out, SAME_SURVEY.get(base, base) + ("" if seed is None else f"-s{seed}"))
-        stamp = os.path.join(survey, "args.json")
-        if not os.path.exists(stamp) or json.load(open(stamp)) != args:
-            subprocess.run(["rm", "-rf", survey])
-            timed([a.cli, "synth"] + synth_args(args) + ["-o", survey, "-q"], check=True)
-            json.dump(args, open(stamp, "w"))
-        video = "--video" in args and base not in SAME_SURVEY
-        source = os.path.join(survey, "video.mp4") if video else os.path.join(survey, "frames")
+        survey, source = make_survey(a.out, base, args, seed, a.cli)
         # Every binary in turn within each round: the machine's speed drifts over minutes, so a
         # before/after is only fair interleaved.
         runs = {cli: dict(fps=[], wall=[], rss=[], cpu=[]) for cli in clis}

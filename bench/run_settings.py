@@ -39,21 +39,13 @@ def parse_setting(text, default_cli):
 
 
 def survey_of(out, kind):
-    """The survey of KIND or KIND-sN (made as run_engine_spread.py makes it, kept between runs)."""
+    """KIND or KIND-sN -> (kind, survey folder, source), made as run_engine_spread.py makes it."""
     m = re.match(r"(.+)-s(\d+)$", kind)
     base, seed = (m.group(1), int(m.group(2))) if m and m.group(1) in spread.KINDS else (kind, None)
     if base not in spread.KINDS:
         raise SystemExit(f"unknown kind {kind!r} (bench/run_engine_spread.py's KINDS, -sN for another draw)")
     args = spread.KINDS[base][1] if seed is None else spread.with_seed(spread.KINDS[base][1], seed)
-    survey = os.path.join(out, spread.SAME_SURVEY.get(base, base) + ("" if seed is None else f"-s{seed}"))
-    stamp = os.path.join(survey, "args.json")
-    if not os.path.exists(stamp) or json.load(open(stamp)) != args:
-        subprocess.run(["rm", "-rf", survey])
-        subprocess.run([spread.CLI, "synth"] + spread.synth_args(args) + ["-o", survey, "-q"], check=True,
-                       capture_output=True)
-        json.dump(args, open(stamp, "w"))
-    video = "--video" in args and base not in spread.SAME_SURVEY
-    return base, survey, os.path.join(survey, "video.mp4") if video else os.path.join(survey, "frames")
+    return (base,) + spread.make_survey(out, base, args, seed, spread.CLI)
 
 
 def run_one(cli, flags, base, survey, source, store):
