@@ -37,16 +37,10 @@ cv::Matx33d Mosaicker::Impl::FitToKeyframes(const PreparedFrame& p, const Candid
   for (auto& l : *fitted) l.a = -1;  // set by the caller
   *frames_used = 1;
   if (!options.patch_fit || !c.tracked() || keys.size() < 2) return guess;
-  std::vector<cv::Point2f> src, dst;
-  std::vector<int> owner;
-  std::vector<cv::Point2f> theirs;
+  PatchPairs pairs;
   const Key& key = keys.back();
-  for (size_t i = 0; i < c.ego.inlier_from.size(); ++i) {
-    src.push_back(c.ego.inlier_from[i]);
-    dst.push_back(cv::Point2f(ApplyHomography(key.to_patch, c.ego.inlier_to[i])));
-    theirs.push_back(c.ego.inlier_to[i]);
-    owner.push_back(key.index);
-  }
+  for (size_t i = 0; i < c.ego.inlier_from.size(); ++i)
+    pairs.Add(c.ego.inlier_from[i], key.to_patch, c.ego.inlier_to[i], key.index);
   int used = 0;
   for (auto it = keys.rbegin() + 1; it != keys.rend() && used < 2; ++it) {
     if (!it->frame || !it->frame->track) break;  // no longer kept: older ones are not either
@@ -56,51 +50,20 @@ cv::Matx33d Mosaicker::Impl::FitToKeyframes(const PreparedFrame& p, const Candid
     int n = 0;
     for (size_t i = 0; i < it->points.size(); ++i) {
       if (!flow.ok[i]) continue;
-      src.push_back(flow.to[i]);
-      dst.push_back(cv::Point2f(ApplyHomography(it->to_patch, it->points[i])));
-      theirs.push_back(it->points[i]);
-      owner.push_back(it->index);
+      pairs.Add(flow.to[i], it->to_patch, it->points[i], it->index);
       ++n;
     }
     if (n >= 8) ++used;
   }
   if (used == 0) return guess;
-  // Least squares with outliers trimmed, from the guess.
-  cv::Matx33d H = guess;
-  std::vector<uchar> keep(src.size(), 1);
-  for (int round = 0; round < 3; ++round) {
-    std::vector<double> res(src.size());
-    for (size_t i = 0; i < src.size(); ++i) res[i] = cv::norm(ApplyHomography(H, src[i]) - cv::Point2d(dst[i]));
-    std::vector<double> sorted = res;
-    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-    const double cut = std::max(fit_options.inlier_px, 3.0 * sorted[sorted.size() / 2]);
-    std::vector<cv::Point2f> a, b;
-    for (size_t i = 0; i < src.size(); ++i) {
-      keep[i] = res[i] <= cut;
-      if (!keep[i]) continue;
-      a.push_back(src[i]);
-      b.push_back(dst[i]);
-    }
-    if (a.size() < 12) return guess;
-    const cv::Mat refined = cv::findHomography(a, b, 0);
-    if (refined.empty()) return guess;
-    H = cv::Matx33d(refined);
-    H *= 1.0 / H(2, 2);
-  }
+  // Every round's cut the same (FitToPatch widens the first for its guided matches).
+  const TrimmedFit trimmed = FitTrimmedHomography(pairs, guess, fit_options.inlier_px, 0.0);
+  if (!trimmed.ok) return guess;
+  const cv::Matx33d& H = trimmed.H;
   if (MaxCornerShift(H, guess, frame_size) > fit_options.max_correction_px ||
       !IsPlausibleMotion(last.to_patch.inv() * H, frame_size, support_options))
     return guess;
-  std::map<int, FrameLink> by_frame;
-  for (size_t i = 0; i < src.size(); ++i) {
-    if (!keep[i]) continue;
-    FrameLink& l = by_frame[owner[i]];
-    l.b = owner[i];
-    l.in_a.push_back(src[i]);
-    l.in_b.push_back(theirs[i]);
-  }
-  fitted->clear();
-  for (auto& [who, l] : by_frame)
-    if (l.in_a.size() >= 8) fitted->push_back(std::move(l));
+  *fitted = LinksByFrame(-1, pairs, trimmed.keep);  // a: set by the caller
   *frames_used = 1 + used;
   return H;
 }

@@ -35,11 +35,6 @@ bool PatchFitOptions::IsValid(std::string* error) const {
 
 namespace {
 
-cv::Point2d Apply(const cv::Matx33d& H, cv::Point2d p) {
-  const cv::Vec3d q = H * cv::Vec3d(p.x, p.y, 1);
-  return {q[0] / q[2], q[1] / q[2]};
-}
-
 std::vector<cv::Point2f> Corners(cv::Size s) {
   return {{0, 0}, {s.width - 1.0f, 0}, {s.width - 1.0f, s.height - 1.0f}, {0, s.height - 1.0f}};
 }
@@ -102,7 +97,7 @@ Matches MatchGuided(const Features& a, const Features& b, const cv::Matx33d& a_t
   std::vector<double> best_d(b.points.size(), std::numeric_limits<double>::max());
   std::vector<int> match_of(a.points.size(), -1);
   for (size_t i = 0; i < a.points.size(); ++i) {
-    const cv::Point2d q = Apply(a_to_b, a.points[i]);
+    const cv::Point2d q = ApplyHomography(a_to_b, a.points[i]);
     if (!std::isfinite(q.x) || !std::isfinite(q.y)) continue;
     const int cx = int(std::floor(q.x / cell)), cy = int(std::floor(q.y / cell));
     double d1 = std::numeric_limits<double>::max(), d2 = d1;
@@ -189,7 +184,7 @@ constexpr double kLoopDistortion = 0.25;
 // frame's diagonal at its centre, and the same motion otherwise (kLoopDistortion).
 bool NearPrediction(const cv::Matx33d& found, const cv::Matx33d& predicted, cv::Size size, double drift) {
   const cv::Point2d c((size.width - 1) / 2.0, (size.height - 1) / 2.0);
-  const cv::Point2d a = Apply(found, c), b = Apply(predicted, c);
+  const cv::Point2d a = ApplyHomography(found, c), b = ApplyHomography(predicted, c);
   if (!(std::hypot(a.x - b.x, a.y - b.y) <= drift * std::hypot(size.width, size.height))) return false;
   // The found motion undone by the predicted one: near the identity, up to the shift.
   const cv::Matx22d J = HomographyJacobian(predicted.inv() * found, c);
@@ -203,7 +198,7 @@ Features WithinFrame(const Features& f, const cv::Matx33d& to_other, cv::Size si
   out.norm = f.norm;
   std::vector<int> rows;
   for (size_t i = 0; i < f.points.size(); ++i) {
-    const cv::Point2d q = Apply(to_other, f.points[i]);
+    const cv::Point2d q = ApplyHomography(to_other, f.points[i]);
     if (q.x >= -margin && q.y >= -margin && q.x <= size.width - 1 + margin && q.y <= size.height - 1 + margin) {
       rows.push_back(static_cast<int>(i));
       out.points.push_back(f.points[i]);
@@ -245,22 +240,69 @@ std::optional<FrameLink> LinkPair(int index, const Features& frame, const cv::Ma
   return link_of(fine);
 }
 
+void PatchPairs::Add(cv::Point2f p, const cv::Matx33d& other_to_patch, cv::Point2f q, int who) {
+  const cv::Point2d d = ApplyHomography(other_to_patch, q);
+  in_frame.push_back(p);
+  in_patch.emplace_back(static_cast<float>(d.x), static_cast<float>(d.y));
+  in_other.push_back(q);
+  other.push_back(who);
+}
+
+TrimmedFit FitTrimmedHomography(const PatchPairs& pairs, const cv::Matx33d& guess, double inlier_px,
+                                double first_cut_px) {
+  TrimmedFit fit;
+  fit.H = guess;
+  fit.keep.assign(pairs.size(), 1);
+  if (pairs.size() < 12) return fit;
+  for (int round = 0; round < 3; ++round) {
+    std::vector<double> res(pairs.size());
+    for (size_t i = 0; i < pairs.size(); ++i)
+      res[i] = cv::norm(ApplyHomography(fit.H, pairs.in_frame[i]) - cv::Point2d(pairs.in_patch[i]));
+    std::vector<double> sorted = res;
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+    const double cut = std::max(inlier_px, 3.0 * sorted[sorted.size() / 2]);
+    std::vector<cv::Point2f> a, b;
+    for (size_t i = 0; i < pairs.size(); ++i) {
+      fit.keep[i] = res[i] <= (round == 0 ? std::max(cut, first_cut_px) : cut);
+      if (!fit.keep[i]) continue;
+      a.push_back(pairs.in_frame[i]);
+      b.push_back(pairs.in_patch[i]);
+    }
+    if (a.size() < 12) return fit;
+    const cv::Mat refined = cv::findHomography(a, b, 0);
+    if (refined.empty()) return fit;
+    fit.H = cv::Matx33d(refined);
+    fit.H *= 1.0 / fit.H(2, 2);
+    fit.inliers = static_cast<int>(a.size());
+  }
+  fit.ok = true;
+  return fit;
+}
+
+std::vector<FrameLink> LinksByFrame(int index, const PatchPairs& pairs, const std::vector<uchar>& keep) {
+  std::map<int, FrameLink> by_frame;
+  for (size_t i = 0; i < pairs.size(); ++i) {
+    if (!keep[i]) continue;
+    FrameLink& l = by_frame[pairs.other[i]];
+    l.a = index;
+    l.b = pairs.other[i];
+    l.in_a.push_back(pairs.in_frame[i]);
+    l.in_b.push_back(pairs.in_other[i]);
+  }
+  std::vector<FrameLink> links;
+  for (auto& [who, l] : by_frame)
+    if (l.in_a.size() >= 8) links.push_back(std::move(l));
+  return links;
+}
+
 PatchFit FitToPatch(int index, const Features& frame, cv::Size size, const cv::Matx33d& guess,
                     const PatchFrame& previous, const std::vector<cv::Point2f>& from_prev,
                     const std::vector<cv::Point2f>& to_prev, const std::vector<PatchFrame>& patch,
                     const PatchFitOptions& o) {
   PatchFit fit;
   fit.to_patch = guess;
-  std::vector<cv::Point2f> src, dst, theirs;
-  std::vector<int> owner;  // which patch frame each pair comes from
-  auto add = [&](const cv::Point2f& p, const cv::Matx33d& H, const cv::Point2f& q, int who) {
-    const cv::Point2d d = Apply(H, q);
-    src.push_back(p);
-    dst.emplace_back(static_cast<float>(d.x), static_cast<float>(d.y));
-    theirs.push_back(q);
-    owner.push_back(who);
-  };
-  for (size_t i = 0; i < from_prev.size(); ++i) add(from_prev[i], previous.to_patch, to_prev[i], previous.index);
+  PatchPairs pairs;
+  for (size_t i = 0; i < from_prev.size(); ++i) pairs.Add(from_prev[i], previous.to_patch, to_prev[i], previous.index);
   fit.frames = from_prev.empty() ? 0 : 1;
   // The other recent patch frames under the new one, most overlap first.
   std::vector<std::pair<double, const PatchFrame*>> under;
@@ -276,50 +318,20 @@ PatchFit FitToPatch(int index, const Features& frame, cv::Size size, const cv::M
   for (const auto& [overlap, f] : under) {
     const Matches m = MatchGuided(frame, *f->features, f->to_patch.inv() * guess, o.search_radius, o.ratio);
     if (m.from.size() < 8) continue;
-    for (size_t i = 0; i < m.from.size(); ++i) add(m.from[i], f->to_patch, m.to[i], f->index);
+    for (size_t i = 0; i < m.from.size(); ++i) pairs.Add(m.from[i], f->to_patch, m.to[i], f->index);
     ++fit.frames;
   }
-  if (src.size() < 12) return fit;
-  // Least squares with outliers trimmed: the guided matches lie near the guess already, so a
-  // robust start is the guess itself.
-  cv::Matx33d H = guess;
-  std::vector<uchar> keep(src.size(), 1);
-  for (int round = 0; round < 3; ++round) {
-    std::vector<double> res(src.size());
-    for (size_t i = 0; i < src.size(); ++i) res[i] = cv::norm(Apply(H, src[i]) - cv::Point2d(dst[i]));
-    std::vector<double> sorted = res;
-    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
-    const double cut = std::max(o.inlier_px, 3.0 * sorted[sorted.size() / 2]);
-    std::vector<cv::Point2f> a, b;
-    for (size_t i = 0; i < src.size(); ++i) {
-      keep[i] = res[i] <= (round == 0 ? std::max(cut, o.search_radius) : cut);
-      if (!keep[i]) continue;
-      a.push_back(src[i]);
-      b.push_back(dst[i]);
-    }
-    if (a.size() < 12) return fit;
-    const cv::Mat refined = cv::findHomography(a, b, 0);
-    if (refined.empty()) return fit;
-    H = cv::Matx33d(refined);
-    H *= 1.0 / H(2, 2);
-    fit.inliers = static_cast<int>(a.size());
-  }
-  fit.correction_px = MaxCornerShift(H, guess, size);
+  if (pairs.size() < 12) return fit;
+  // Guided matches may lie up to the search radius from the guess: the first round keeps them.
+  const TrimmedFit trimmed = FitTrimmedHomography(pairs, guess, o.inlier_px, o.search_radius);
+  fit.inliers = trimmed.inliers;
+  if (!trimmed.ok) return fit;
+  fit.correction_px = MaxCornerShift(trimmed.H, guess, size);
   if (!(fit.correction_px <= o.max_correction_px)) return fit;
-  fit.to_patch = H;
+  fit.to_patch = trimmed.H;
   fit.ok = true;
   // The surviving pairs, by patch frame: the links the patch adjustment uses when it closes.
-  std::map<int, FrameLink> by_frame;
-  for (size_t i = 0; i < src.size(); ++i) {
-    if (!keep[i]) continue;
-    FrameLink& l = by_frame[owner[i]];
-    l.a = index;
-    l.b = owner[i];
-    l.in_a.push_back(src[i]);
-    l.in_b.push_back(theirs[i]);
-  }
-  for (auto& [who, l] : by_frame)
-    if (l.in_a.size() >= 8) fit.links.push_back(std::move(l));
+  fit.links = LinksByFrame(index, pairs, trimmed.keep);
   return fit;
 }
 

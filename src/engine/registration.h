@@ -123,6 +123,31 @@ std::optional<FrameLink> LinkPair(int index, const Features& frame, const cv::Ma
                                  const PatchFrame& older, const PatchFitOptions& options, cv::Size size,
                                  cv::Matx33d* placed);
 
+// Pairs between a new frame and patch frames under it: the new frame's point, where its match
+// lies in the patch, the match in its own frame, and which frame that is.
+struct PatchPairs {
+  std::vector<cv::Point2f> in_frame, in_patch, in_other;
+  std::vector<int> other;
+  void Add(cv::Point2f p, const cv::Matx33d& other_to_patch, cv::Point2f q, int who);
+  size_t size() const { return in_frame.size(); }
+};
+
+// A homography (new frame -> patch) fitted by least squares in three rounds, each dropping the
+// pairs farther than max(inlier_px, 3 x the median residual), the first no nearer than
+// `first_cut_px`. It starts from `guess`: the pairs were found near it already, so the guess is a
+// robust start where RANSAC would only cost time. Not ok when fewer than 12 pairs survive.
+struct TrimmedFit {
+  bool ok = false;
+  cv::Matx33d H = cv::Matx33d::eye();
+  std::vector<uchar> keep;  // per pair, kept by the last round
+  int inliers = 0;          // pairs the last completed round fitted
+};
+TrimmedFit FitTrimmedHomography(const PatchPairs& pairs, const cv::Matx33d& guess, double inlier_px,
+                                double first_cut_px);
+
+// The kept pairs as links from frame `index` to each other frame with 8 or more of them.
+std::vector<FrameLink> LinksByFrame(int index, const PatchPairs& pairs, const std::vector<uchar>& keep);
+
 // The new frame's placement in the patch from its matches to the previous frame (`from_prev` in
 // the new frame, `to_prev` in the previous one) and to the other patch frames it overlaps.
 PatchFit FitToPatch(int index, const Features& frame, cv::Size size, const cv::Matx33d& guess,
