@@ -440,14 +440,18 @@ TEST(MosaickerRobustness, FramesRejectedAfterTheLastPatchClosedAreListedInIt) {
 // snow gives SIFT features enough, so that water frames were not featureless: every fourth opened
 // a patch nothing joined, written as a tile of water placed beside the map (a 40-frame descent:
 // 10 of them). Such a frame is rejected as `isolated`; every frame over the seafloor is placed.
-TEST(MosaickerRobustness, OpenWaterWithMarineSnowLeavesNoPatchOfWater) {
+// Some draws of the water's noise (6 and 16 of the 16 tried) had a water frame followed weakly
+// from the one that opened a patch, before the motion model knew any motion to vouch for it: a
+// patch of two water frames. A weak registration now stands only where the motion model vouches.
+void DiveThroughMarineSnow(uint64_t draw) {
+  SCOPED_TRACE("draw " + std::to_string(draw));
   test::ScratchDir dir;
   WriteSurvey(test::SmallSurvey(20), dir / "survey");
-  cv::RNG rng(7);
+  cv::RNG rng(draw);
   auto water = [&](const std::string& name) {
     cv::Mat w(360, 480, CV_8UC3, cv::Scalar(70, 90, 30));
     cv::Mat noise(w.size(), CV_8UC3);
-    cv::randn(noise, 0, 3);
+    rng.fill(noise, cv::RNG::NORMAL, 0, 3);
     w += noise;
     for (int k = 0; k < 150; ++k)  // snow: specks that drift between frames
       cv::circle(w, {rng.uniform(0, 480), rng.uniform(0, 360)}, rng.uniform(1, 3), cv::Scalar::all(rng.uniform(150, 255)),
@@ -482,6 +486,10 @@ TEST(MosaickerRobustness, OpenWaterWithMarineSnowLeavesNoPatchOfWater) {
   EXPECT_EQ(listed.size(), 24u);  // every water frame, with its reason
   EXPECT_GE(isolated, 2) << "the water frames that opened patches";
   EXPECT_EQ(static_cast<int>(sum.rejected_frames.size()), 24);
+}
+
+TEST(MosaickerRobustness, OpenWaterWithMarineSnowLeavesNoPatchOfWater) {
+  for (const uint64_t draw : {7u, 6u, 16u}) DiveThroughMarineSnow(draw);
 }
 
 // An ROV coming down onto the seafloor from three times the altitude: a patch was drawn at its
