@@ -7,6 +7,7 @@
 #include <opencv2/core.hpp>
 
 #include "test_support.h"
+#include "util/homography.h"
 
 namespace rolamos {
 namespace {
@@ -85,6 +86,53 @@ TEST(Registration, ALoopLinkIsFoundWhereTheChainHasDriftedFromTheLaneBefore) {
   PatchFitOptions guided_only;
   guided_only.loop_drift = 0;
   EXPECT_FALSE(LinkPair(80, *a, drifted, older, guided_only, size, nullptr));
+}
+
+
+// The trimmed fit both FitToPatch and the keyframe fit use: from a guess a few pixels off, pairs
+// of which a fifth are wrong matches (tens of pixels off) give back the true homography, and the
+// wrong ones are not kept; the links group the kept pairs by the frame they are on.
+TEST(Registration, TheTrimmedFitRecoversTheHomographyAndDropsWrongPairs) {
+  const cv::Matx33d truth(1.02, 0.03, 14.0, -0.02, 0.99, -6.0, 1e-5, -2e-5, 1);
+  cv::RNG rng(3);
+  PatchPairs pairs;
+  std::vector<bool> wrong;
+  for (int i = 0; i < 200; ++i) {
+    const cv::Point2f p(rng.uniform(0.f, 800.f), rng.uniform(0.f, 600.f));
+    const bool bad = i % 5 == 0;
+    const cv::Point2d q = ApplyHomography(truth, p) +
+                          (bad ? cv::Point2d(rng.uniform(20.0, 60.0), rng.uniform(-60.0, -20.0))
+                               : cv::Point2d(rng.gaussian(0.2), rng.gaussian(0.2)));
+    // Pairs on two frames: 7 and 9 (the patch frame's own point is not used by the fit).
+    pairs.Add(p, cv::Matx33d::eye(), cv::Point2f(q), i % 2 ? 7 : 9);
+    wrong.push_back(bad);
+  }
+  const cv::Matx33d guess = cv::Matx33d(1, 0, 3, 0, 1, -2, 0, 0, 1) * truth;
+  const TrimmedFit fit = FitTrimmedHomography(pairs, guess, 2.0, 12.0);
+  ASSERT_TRUE(fit.ok);
+  EXPECT_LT(MaxCornerShift(fit.H, truth, cv::Size(800, 600)), 0.5);  // the guess: 3.6 px off
+  int kept_wrong = 0, kept = 0;
+  for (size_t i = 0; i < wrong.size(); ++i) {
+    kept += fit.keep[i];
+    kept_wrong += fit.keep[i] && wrong[i];
+  }
+  EXPECT_EQ(kept_wrong, 0);
+  EXPECT_EQ(kept, fit.inliers);
+  EXPECT_GE(kept, 150);
+  const std::vector<FrameLink> links = LinksByFrame(42, pairs, fit.keep);
+  ASSERT_EQ(links.size(), 2u);
+  for (const FrameLink& l : links) {
+    EXPECT_EQ(l.a, 42);
+    EXPECT_TRUE(l.b == 7 || l.b == 9);
+    EXPECT_EQ(l.in_a.size(), l.in_b.size());
+  }
+  EXPECT_EQ(static_cast<int>(links[0].in_a.size() + links[1].in_a.size()), kept);
+  // Too few pairs: not ok, the guess unchanged.
+  PatchPairs few;
+  for (int i = 0; i < 11; ++i) few.Add(pairs.in_frame[size_t(i)], cv::Matx33d::eye(), pairs.in_patch[size_t(i)], 7);
+  const TrimmedFit none = FitTrimmedHomography(few, guess, 2.0, 12.0);
+  EXPECT_FALSE(none.ok);
+  EXPECT_EQ(none.H, guess);
 }
 
 }  // namespace
