@@ -24,7 +24,7 @@ struct MotionGateOptions {
   double min_jump_fraction = 0.15;    // deviations below this fraction of the frame always pass
   double min_jump_degrees = 25.0;     // and below this rotation
   double min_jump_scale = 0.08;       // and below this relative scale change
-  int warmup_frames = 3;              // accepted while the filter learns
+  int warmup_frames = 3;              // motions learnt from before the gate judges (not informed)
   double noise_memory = 0.1;          // weight of each new innovation in the observed jitter
 
   bool IsValid(std::string* error) const;
