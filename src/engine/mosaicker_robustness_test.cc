@@ -453,7 +453,7 @@ void DiveThroughMarineSnow(uint64_t draw) {
     cv::Mat noise(w.size(), CV_8UC3);
     rng.fill(noise, cv::RNG::NORMAL, 0, 3);
     w += noise;
-    for (int k = 0; k < 150; ++k)  // snow: specks that drift between frames
+    for (int k = 0; k < 150; ++k)  // snow: specks drawn anew for each frame (bench/run_open_water.py: drifting)
       cv::circle(w, {rng.uniform(0, 480), rng.uniform(0, 360)}, rng.uniform(1, 3), cv::Scalar::all(rng.uniform(150, 255)),
                  cv::FILLED);
     cv::imwrite(dir / name, w);
