@@ -18,6 +18,7 @@
 #include "rolamos/global_align.hpp"
 #include "rolamos/survey.hpp"
 #include "rolamos/tiled_image.hpp"
+#include "store/frame_data.h"
 #include "test_support.h"
 #include "util/homography.h"
 
@@ -88,6 +89,41 @@ TEST(Mosaicker, StitchesASyntheticSurveyWhereTheGroundTruthSays) {
   cv::cvtColor(seen, seen, cv::COLOR_BGRA2BGR);
   const cv::Rect centre(140, 105, 200, 150);
   EXPECT_GT(test::PsnrAfterColourFit(seen(centre), frame(centre)), 32.0);  // 29.4 if off by 2 px
+}
+
+// The links the store keeps for `align` (patches/NNNNNN.links.json): each link's pixels are where
+// the two frames' placements put the same ground, and a link keeps up to 192 of them, spread
+// over the frame (48 before session 53): `align` fits each link's homography to them, and the
+// map after it is truer the more there are (bench/RESULTS.md, session 53).
+TEST(Mosaicker, TheStoredLinksHoldPixelsWhereThePlacementsPutTheSameGround) {
+  test::ScratchDir dir;
+  WriteSurvey(test::SmallSurvey(24), dir / "survey");
+  Store store = Store::Create(dir / "s.rolamos");
+  MosaicInput(dir / "survey/frames", store, FastOptions());
+  Store reopened = Store::Open(dir / "s.rolamos");
+  ASSERT_EQ(reopened.patches().size(), 1u);
+  const PatchSidecar s = reopened.ReadSidecar(1);
+  ASSERT_TRUE(s.frame_links.has_value());
+  std::map<int, cv::Matx33d> placed;
+  for (const auto& f : s.frames) placed[f.index] = ToMatx(f.frame_to_patch);
+  const std::vector<StoredLink> links = ReadFrameLinks((fs::path(dir / "s.rolamos") / *s.frame_links).string());
+  ASSERT_GE(links.size(), 23u);  // at least the chain from frame to frame
+  size_t most = 0;
+  std::vector<double> apart;
+  for (const auto& l : links) {
+    ASSERT_EQ(l.in_a.size(), l.in_b.size());
+    EXPECT_LE(l.in_a.size(), 192u);
+    most = std::max(most, l.in_a.size());
+    ASSERT_TRUE(placed.count(l.a.index) && placed.count(l.b.index));
+    for (size_t i = 0; i < l.in_a.size(); ++i) {
+      const cv::Vec3d pa = placed[l.a.index] * cv::Vec3d(l.in_a[i].x, l.in_a[i].y, 1);
+      const cv::Vec3d pb = placed[l.b.index] * cv::Vec3d(l.in_b[i].x, l.in_b[i].y, 1);
+      apart.push_back(std::hypot(pa[0] / pa[2] - pb[0] / pb[2], pa[1] / pa[2] - pb[1] / pb[2]));
+    }
+  }
+  EXPECT_GT(most, 48u);
+  std::nth_element(apart.begin(), apart.begin() + long(apart.size() / 2), apart.end());
+  EXPECT_LT(apart[apart.size() / 2], 0.5);
 }
 
 // The summary's stages account for the run's CPU: the patch images' tiles, compressed on their
