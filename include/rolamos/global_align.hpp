@@ -47,11 +47,11 @@ struct AlignOptions {
   // Matched pixels kept per edge, spread over the overlap: the edge's measurement is the
   // homography they fit. The map's low-frequency shape (a bow across 80 lanes) is what the
   // pairs' noise adds up to, so more pairs are a truer map (bench/RESULTS.md, 2026-11-26 (4)).
-  // 192 (48 before session 53), with the engine storing as many a link: 0.84 of the error after
-  // align over 18 stills surveys, 0.94 over 18 MPEG-4 ones; a store written with 48 a link
-  // gains only on the edges align matches itself; 10,000 frames of the procedural seafloor are
-  // worse, 0.25 -> 0.28 px (bench/RESULTS.md, session 53).
-  int pairs_per_edge = 192;
+  // As many as the engine stores a link (192; 48 before session 53): 0.84 of the error after
+  // align over 18 stills surveys, 0.94 over 18 MPEG-4 ones, links.json ~2.2 times larger; a
+  // store written with 48 a link gains only on the edges align matches itself; 10,000 frames
+  // of the procedural seafloor are worse, 0.25 -> 0.28 px (bench/RESULTS.md, session 53).
+  int pairs_per_edge = kMaxStoredLinkPairs;
   // Points at which the solve compares each edge's homography with the map (a grid over its
   // pairs, each point weighing as the pairs it stands for; at least 9). The solver's memory grows
   // with these, not with the pairs: 0 = no compression, every kept pair in the solve.

@@ -115,6 +115,12 @@ struct PatchSidecar {
   nlohmann::json extra = nlohmann::json::object();    // fields added by later versions, kept as read
 };
 
+// The most matched pixels the engine keeps of a link in `frame_links` (48 in stores written before
+// session 53; readers take any number), spread over the link's first frame. `align` fits each edge
+// to as many (AlignOptions::pairs_per_edge): the pixels followed from frame to frame fit a link's
+// homography better the more there are (bench/RESULTS.md, session 53).
+inline constexpr int kMaxStoredLinkPairs = 192;
+
 // The global record of Table I.
 struct GlobalRecord {
   std::array<long long, 2> size{0, 0};

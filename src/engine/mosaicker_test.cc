@@ -92,9 +92,8 @@ TEST(Mosaicker, StitchesASyntheticSurveyWhereTheGroundTruthSays) {
 }
 
 // The links the store keeps for `align` (patches/NNNNNN.links.json): each link's pixels are where
-// the two frames' placements put the same ground, and a link keeps up to 192 of them, spread
-// over the frame (48 before session 53): `align` fits each link's homography to them, and the
-// map after it is truer the more there are (bench/RESULTS.md, session 53).
+// the two frames' placements put the same ground, and a link keeps up to kMaxStoredLinkPairs of
+// them (48 before session 53, which the chain's links now pass).
 TEST(Mosaicker, TheStoredLinksHoldPixelsWhereThePlacementsPutTheSameGround) {
   test::ScratchDir dir;
   WriteSurvey(test::SmallSurvey(24), dir / "survey");
@@ -112,7 +111,7 @@ TEST(Mosaicker, TheStoredLinksHoldPixelsWhereThePlacementsPutTheSameGround) {
   std::vector<double> apart;
   for (const auto& l : links) {
     ASSERT_EQ(l.in_a.size(), l.in_b.size());
-    EXPECT_LE(l.in_a.size(), 192u);
+    EXPECT_LE(l.in_a.size(), size_t(kMaxStoredLinkPairs));
     most = std::max(most, l.in_a.size());
     ASSERT_TRUE(placed.count(l.a.index) && placed.count(l.b.index));
     for (size_t i = 0; i < l.in_a.size(); ++i) {

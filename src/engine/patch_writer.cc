@@ -18,13 +18,6 @@ namespace rolamos {
 
 namespace {
 
-// What the store keeps for the global map: pairs a link. `align` fits each of the engine's links
-// as the homography of these pairs (AlignOptions::pairs_per_edge, 192): the pixels followed
-// from frame to frame fit it better the more there are. 192 instead of 48, with align's 192:
-// the global map after align 0.84 of the error over 18 stills surveys and 0.94 over 18 MPEG-4
-// ones, the same engine (bench/RESULTS.md, session 53); links.json about four times larger.
-constexpr int kStoredPairsPerLink = 192;
-
 // Frames followed between two keyframes of the patch, placed where both put them, from the
 // keyframes' placements in `keyframe_at`.
 void PlaceBetween(PatchJob& job, const std::vector<FollowedBetween>& between,
@@ -327,7 +320,7 @@ void PatchWriter::Write(PatchJob& job) {
   for (const auto& l : all) {
     auto a = patch_of.find(l.a), b = patch_of.find(l.b);
     if (a == patch_of.end() || b == patch_of.end()) continue;
-    const FrameLink thin = Thin(l, kStoredPairsPerLink, job.frame_size);
+    const FrameLink thin = Thin(l, kMaxStoredLinkPairs, job.frame_size);
     links.push_back({{a->second, l.a}, {b->second, l.b}, thin.in_a, thin.in_b});
   }
   std::vector<StoredFeatures> stored;
