@@ -116,19 +116,44 @@
     return { x: c[0] - s * w / 2, y: c[1] - s * h / 2, width: s * w,
              degrees: Math.atan2(e[1] - c[1], e[0] - c[0]) * 180 / Math.PI };
   }
+  // Resolves with the layer, or null when it cannot be added: the tile source failed, or it did not
+  // come within LAYER_TIMEOUT_MS (OpenSeadragon drops a queued image without a word when the viewer
+  // reopens, and a page waiting on it would stop following the run). A layer that comes later
+  // than that is taken out again: the next poll adds what is still missing.
+  const LAYER_TIMEOUT_MS = 10000;
   function addLayer(image, index) {
     return new Promise((resolve) => {
+      let settled = false;
+      const timer = setTimeout(() => { settled = true; resolve(null); }, LAYER_TIMEOUT_MS);
       const p = similarity(image.to_world, image.width, image.height);
       viewer.addTiledImage({ tileSource: image.dzi.replace(/^\//, '') + '?format=webp', x: p.x, y: p.y, width: p.width,
-        index, success: (e) => { e.item.setRotation(p.degrees, true); resolve(e.item); },
-        error: () => resolve(null) });
+        index,
+        success: (e) => {
+          if (settled) { viewer.world.removeItem(e.item); return; }
+          settled = true;
+          clearTimeout(timer);
+          e.item.setRotation(p.degrees, true);
+          resolve(e.item);
+        },
+        error: () => { if (!settled) { settled = true; clearTimeout(timer); resolve(null); } } });
     });
   }
-  async function showLive() {
+  // One update of the live view at a time: the poll and a user choosing "live" in the list would
+  // otherwise build two worlds at once, each over the other's layers. A call while one runs
+  // asks for one more run after it.
+  let liveRunning = null, liveAgain = false;
+  function showLive() {
+    if (liveRunning) { liveAgain = true; return liveRunning; }
+    liveRunning = (async () => {
+      do { liveAgain = false; await updateLive(); } while (liveAgain);
+    })().finally(() => { liveRunning = null; });
+    return liveRunning;
+  }
+  async function updateLive() {
     let view;
     try { view = await json('api/live'); } catch (e) { return; }
     if (!view.preview) return;  // nothing open yet (or the run is closing its patch)
-    const lv = state.liveView;
+    let lv = state.liveView;
     const key = view.patch + ':' + view.patches.map((p) => p.patch).join(',');
     if (!lv || state.current !== lv.image || lv.key !== key) {
       // A new open patch: a new world.
@@ -138,24 +163,36 @@
       $('image').value = 'live';
       viewer.world.removeAll();
       if (state.svg) { viewer.removeOverlay(state.svg); state.svg = null; }
-      state.liveView = { image, key, preview: null, version: null, layers: [] };
-      const pv = state.liveView;
-      pv.preview = await addLayer(view.preview, 0);
-      pv.version = view.preview.version;
-      for (const p of view.patches.slice().reverse()) pv.layers.push(await addLayer({ ...p, dzi: 'dzi/' + p.name + '.dzi' }));
+      lv = state.liveView = { image, key, preview: null, version: null, missing: [] };
+      lv.preview = await addLayer(view.preview, 0);
+      lv.version = lv.preview ? view.preview.version : null;
+      lv.missing = view.patches.slice().reverse();
       viewer.viewport.fitBounds(worldBounds(view), true);
     } else if (lv.version !== view.preview.version) {
       // The same patch grown: the new preview goes in beneath, the old one leaves once it shows.
       const old = lv.preview;
-      lv.version = view.preview.version;
       const item = await addLayer(view.preview, 0);
-      if (item) {
+      if (item && state.liveView === lv) {
         lv.preview = item;
+        lv.version = view.preview.version;
         const drop = () => { if (old) viewer.world.removeItem(old); };
         if (item.getFullyLoaded()) drop(); else item.addOnceHandler('fully-loaded-change', drop);
+      } else if (item) {
+        viewer.world.removeItem(item);
       }
     }
-    state.liveView.view = view;
+    // The closed patches beneath, oldest first; one the server could not give yet (its tiles
+    // still being written) is tried again at the next poll.
+    const still = [];
+    for (const p of lv.missing) {
+      if (state.liveView !== lv) return;
+      const item = await addLayer({ ...p, dzi: 'dzi/' + p.name + '.dzi' });
+      if (!item) still.push(p);
+      else if (state.liveView !== lv) viewer.world.removeItem(item);
+    }
+    lv.missing = still;
+    if (state.liveView !== lv) return;  // the user chose another image meanwhile
+    lv.view = view;
     drawLive(view);
     const g = view.georef;
     $('live').textContent += g ? 'georeferenced by ' + g.frames + ' fixes (' + g.crs + ', residual ' +

@@ -85,9 +85,15 @@ try {
       text: document.getElementById('live').textContent,
     };
   });
-  for (let i = 0; i < 60 && fed < frames.length; i++) {
+  // Sampled until the run has received every frame the logger wrote: on a loaded machine (CI
+  // once started Chromium beside it) the run maps the feed seconds after it arrives. A minute at
+  // most, for a run that never catches up.
+  const received = (s) => { const m = /live: (\d+) frames/.exec(s.text); return m ? parseInt(m[1], 10) : 0; };
+  for (let i = 0; i < 240; i++) {
     await sleep(250);
-    seen.push(await sample());
+    const s = await sample();
+    seen.push(s);
+    if (fed >= frames.length && received(s) >= frames.length) break;
   }
   const during = seen.filter((s) => s.live);
   check(during.length > 5, 'the page shows the live view while frames arrive (' + during.length + ' of ' + seen.length + ' samples)');
