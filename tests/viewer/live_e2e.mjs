@@ -55,23 +55,24 @@ const base = await new Promise((resolve, reject) => {
 });
 console.log('viewer at ' + base);
 
-// The logger: 10 frames/s, each written under a temporary name and renamed, as loggers do.
-let fed = 0;
-const logger = (async () => {
-  for (const f of frames) {
-    fs.copyFileSync(path.join(scratch, 'survey/frames', f), path.join(scratch, 'incoming/.incoming'));
-    fs.renameSync(path.join(scratch, 'incoming/.incoming'), path.join(scratch, 'incoming', f));
-    fed++;
-    await sleep(100);
-  }
-})();
-
+let logger = Promise.resolve(), fed = 0;
 const browser = await chromium.launch({ executablePath: chromiumPath, args: ['--no-sandbox'] });
 try {
   const page = await browser.newPage({ viewport: { width: 900, height: 700 } });
   const errors = [];
   page.on('pageerror', (e) => errors.push(String(e)));
   await page.goto(base + '/');
+  // The logger: 10 frames/s, each written under a temporary name and renamed, as loggers do. It
+  // starts once the page is open, so the run does not share the cores with Chromium's start-up
+  // while frames arrive (CI's run once mapped the feed seconds late).
+  logger = (async () => {
+    for (const f of frames) {
+      fs.copyFileSync(path.join(scratch, 'survey/frames', f), path.join(scratch, 'incoming/.incoming'));
+      fs.renameSync(path.join(scratch, 'incoming/.incoming'), path.join(scratch, 'incoming', f));
+      fed++;
+      await sleep(100);
+    }
+  })();
   // What the page shows, sampled while frames arrive.
   const seen = [];
   const sample = () => page.evaluate(() => {
