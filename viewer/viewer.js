@@ -116,37 +116,51 @@
     return { x: c[0] - s * w / 2, y: c[1] - s * h / 2, width: s * w,
              degrees: Math.atan2(e[1] - c[1], e[0] - c[0]) * 180 / Math.PI };
   }
-  // Resolves with the layer, or null when it cannot be added: the tile source failed, or it did not
-  // come within LAYER_TIMEOUT_MS (OpenSeadragon drops a queued image without a word when the viewer
-  // reopens, and a page waiting on it would stop following the run). A layer that comes later
-  // than that is taken out again: the next poll adds what is still missing.
+  // Resolves with the layer, or null when it cannot be added: the tile source failed, the user
+  // opened another image (OpenSeadragon then drops the images it was adding without a word), or
+  // it did not come within LAYER_TIMEOUT_MS. A page waiting on a layer that never comes would
+  // stop following the run. A layer that comes after that is taken out again; the next poll
+  // adds what is still missing.
   const LAYER_TIMEOUT_MS = 10000;
+  const layersComing = new Set();  // each layer being added: its settle function
   function addLayer(image, index) {
     return new Promise((resolve) => {
       let settled = false;
-      const timer = setTimeout(() => { settled = true; resolve(null); }, LAYER_TIMEOUT_MS);
+      const settle = (item) => {
+        if (settled) return false;
+        settled = true;
+        clearTimeout(timer);
+        layersComing.delete(settle);
+        resolve(item);
+        return true;
+      };
+      const timer = setTimeout(() => settle(null), LAYER_TIMEOUT_MS);
+      layersComing.add(settle);
       const p = similarity(image.to_world, image.width, image.height);
       viewer.addTiledImage({ tileSource: image.dzi.replace(/^\//, '') + '?format=webp', x: p.x, y: p.y, width: p.width,
         index,
         success: (e) => {
           if (settled) { viewer.world.removeItem(e.item); return; }
-          settled = true;
-          clearTimeout(timer);
           e.item.setRotation(p.degrees, true);
-          resolve(e.item);
+          settle(e.item);
         },
-        error: () => { if (!settled) { settled = true; clearTimeout(timer); resolve(null); } } });
+        error: () => settle(null) });
     });
   }
+  // Settles once the image OpenSeadragon was last asked to open has opened (or failed to).
+  let opening = Promise.resolve();
+  function abandonLayers() { for (const settle of [...layersComing]) settle(null); }
   // One update of the live view at a time: the poll and a user choosing "live" in the list would
   // otherwise build two worlds at once, each over the other's layers. A call while one runs
-  // asks for one more run after it.
+  // waits for it and asks for one more after it, which nobody waits for: the poll (and so the
+  // status line) is held up by one update at most, however often the user chooses.
   let liveRunning = null, liveAgain = false;
   function showLive() {
     if (liveRunning) { liveAgain = true; return liveRunning; }
-    liveRunning = (async () => {
-      do { liveAgain = false; await updateLive(); } while (liveAgain);
-    })().finally(() => { liveRunning = null; });
+    liveRunning = updateLive().finally(() => {
+      liveRunning = null;
+      if (liveAgain) { liveAgain = false; showLive(); }
+    });
     return liveRunning;
   }
   async function updateLive() {
@@ -156,7 +170,11 @@
     let lv = state.liveView;
     const key = view.patch + ':' + view.patches.map((p) => p.patch).join(',');
     if (!lv || state.current !== lv.image || lv.key !== key) {
-      // A new open patch: a new world.
+      // A new open patch: a new world, once an image being opened has come (else OpenSeadragon
+      // would add it into this world later, and move the view to it).
+      const was = state.current;
+      await Promise.race([opening, new Promise((r) => setTimeout(r, LAYER_TIMEOUT_MS))]);
+      if (state.current !== was) return;  // the user chose another image meanwhile
       const image = { name: 'live', width: view.preview.width, height: view.preview.height, live: true };
       state.current = image;
       state.overlays = null;
@@ -242,12 +260,22 @@
     // Not ready until this image's overlays are drawn (the previous image's readiness would
     // otherwise stand while they load).
     state.ready = false;
-    if (image.name === 'live') { $('follow').checked = true; state.liveView = null; showLive(); return; }
+    if (image.name === 'live') {
+      $('follow').checked = true;
+      if (!(state.current && state.current.live)) state.liveView = null;  // back from another image: a new view
+      showLive();
+      return;
+    }
     state.liveView = null;
+    abandonLayers();
     state.current = image;
     state.overlays = null;
     $('image').value = image.name;
     state.tilesLoaded = 0;
+    opening = new Promise((resolve) => {
+      viewer.addOnceHandler('open', resolve);
+      viewer.addOnceHandler('open-failed', resolve);
+    });
     viewer.open(image.dzi);
     status('opening ' + image.name);
   }

@@ -61,6 +61,9 @@ try {
   const page = await browser.newPage({ viewport: { width: 900, height: 700 } });
   const errors = [];
   page.on('pageerror', (e) => errors.push(String(e)));
+  // The layers' descriptors come 300 ms late, as over a ship's network to the vehicle: the user's
+  // choices below land while the page is adding layers.
+  await page.route('**/dzi/*.dzi*', async (route) => { await sleep(300); await route.continue(); });
   await page.goto(base + '/');
   // The logger: 10 frames/s, each written under a temporary name and renamed, as loggers do. It
   // starts once the page is open, so the run does not share the cores with Chromium's start-up
@@ -90,12 +93,29 @@ try {
   // once started Chromium beside it) the run maps the feed seconds after it arrives. A minute at
   // most, for a run that never catches up.
   const received = (s) => { const m = /live: (\d+) frames/.exec(s.text); return m ? parseInt(m[1], 10) : 0; };
+  // Every few seconds the user looks at the last closed patch and comes back to "live": the page
+  // drops the layers it was adding for the live view (OpenSeadragon does so when it opens an
+  // image) and must build the view anew, not wait on them (it once stopped following there).
+  const choose = (which) => page.evaluate((which) => {
+    const select = document.getElementById('image');
+    const names = [...select.options].map((o) => o.value);
+    const name = which === 'live' ? names.find((n) => n === 'live') : names.filter((n) => n.startsWith('patch')).pop();
+    if (!name) return false;
+    select.value = name;
+    select.dispatchEvent(new Event('change'));
+    return true;
+  }, which);
+  let chosen = 0;
   for (let i = 0; i < 240; i++) {
     await sleep(250);
+    if (i % 12 === 6 && (await choose('patch'))) { await sleep(300); if (await choose('live')) chosen++; }
     const s = await sample();
     seen.push(s);
     if (fed >= frames.length && received(s) >= frames.length) break;
   }
+  const last = seen.length ? received(seen[seen.length - 1]) : 0;
+  check(last >= frames.length, 'the page\'s status followed the run to its last frame (' + last + ' of ' + frames.length + ')');
+  check(chosen >= 2, 'the user went to a closed patch and back to "live" while frames arrived (' + chosen + ' times)');
   const during = seen.filter((s) => s.live);
   check(during.length > 5, 'the page shows the live view while frames arrive (' + during.length + ' of ' + seen.length + ' samples)');
   const versions = new Set(during.map((s) => s.version));
@@ -131,6 +151,15 @@ try {
   const shot = path.join(artefacts, 'viewer-live.png');
   await page.screenshot({ path: shot });
   check(centre.sd > 5, 'the view around the vehicle shows textured seafloor (grey sd ' + centre.sd.toFixed(1) + ')');
+  if (centre.sd <= 5) {
+    console.log('the live view then: ' + await page.evaluate(() => {
+      const r = window.rolamos, lv = r.liveView;
+      return JSON.stringify({ current: r.current && r.current.name, follow: document.getElementById('follow').checked,
+        view: !!(lv && lv.view), preview: !!(lv && lv.preview), loaded: !!(lv && lv.preview && lv.preview.getFullyLoaded()),
+        missing: lv ? lv.missing.length : null, items: r.viewer.world.getItemCount(),
+        status: document.getElementById('status').textContent });
+    }));
+  }
   check(errors.length === 0, 'no page errors' + (errors.length ? ': ' + errors.join('; ') : ''));
   console.log('last sample: ' + JSON.stringify(seen[seen.length - 1]));
 } finally {
