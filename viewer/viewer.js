@@ -149,6 +149,14 @@
   }
   // Settles once the image OpenSeadragon was last asked to open has opened (or failed to).
   let opening = Promise.resolve();
+  function whenOpened() {
+    return new Promise((resolve) => {
+      const done = () => { viewer.removeHandler('open', done); viewer.removeHandler('open-failed', done); resolve(); };
+      viewer.addHandler('open', done);
+      viewer.addHandler('open-failed', done);
+    });
+  }
+  const wait = (ms) => new Promise((resolve) => setTimeout(resolve, ms));
   function abandonLayers() { for (const settle of [...layersComing]) settle(null); }
   // One update of the live view at a time: the poll and a user choosing "live" in the list would
   // otherwise build two worlds at once, each over the other's layers. A call while one runs
@@ -173,7 +181,7 @@
       // A new open patch: a new world, once an image being opened has come (else OpenSeadragon
       // would add it into this world later, and move the view to it).
       const was = state.current;
-      await Promise.race([opening, new Promise((r) => setTimeout(r, LAYER_TIMEOUT_MS))]);
+      await Promise.race([opening, wait(LAYER_TIMEOUT_MS)]);
       if (state.current !== was) return;  // the user chose another image meanwhile
       const image = { name: 'live', width: view.preview.width, height: view.preview.height, live: true };
       state.current = image;
@@ -199,16 +207,7 @@
         viewer.world.removeItem(item);
       }
     }
-    // The closed patches beneath, oldest first; one the server could not give yet (its tiles
-    // still being written) is tried again at the next poll.
-    const still = [];
-    for (const p of lv.missing) {
-      if (state.liveView !== lv) return;
-      const item = await addLayer({ ...p, dzi: 'dzi/' + p.name + '.dzi' });
-      if (!item) still.push(p);
-      else if (state.liveView !== lv) viewer.world.removeItem(item);
-    }
-    lv.missing = still;
+    await addClosedPatches(lv);
     if (state.liveView !== lv) return;  // the user chose another image meanwhile
     lv.view = view;
     drawLive(view);
@@ -223,6 +222,18 @@
     }
     state.ready = true;
     status('live: patch ' + view.patch + ' open, ' + view.patches.length + ' closed beneath it');
+  }
+  // The closed patches beneath the live view `lv`, oldest first; one the server could not give
+  // yet (its tiles still being written) is tried again at the next poll.
+  async function addClosedPatches(lv) {
+    const still = [];
+    for (const p of lv.missing) {
+      if (state.liveView !== lv) return;
+      const item = await addLayer({ ...p, dzi: 'dzi/' + p.name + '.dzi' });
+      if (!item) still.push(p);
+      else if (state.liveView !== lv) viewer.world.removeItem(item);
+    }
+    lv.missing = still;
   }
   function worldBounds(view) {
     const pts = view.track.concat(view.footprint);
@@ -272,10 +283,7 @@
     state.overlays = null;
     $('image').value = image.name;
     state.tilesLoaded = 0;
-    opening = new Promise((resolve) => {
-      viewer.addOnceHandler('open', resolve);
-      viewer.addOnceHandler('open-failed', resolve);
-    });
+    opening = whenOpened();
     viewer.open(image.dzi);
     status('opening ' + image.name);
   }
