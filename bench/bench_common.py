@@ -1,6 +1,10 @@
 """Shared by the bench scripts: running a command under /usr/bin/time."""
 import os, re, subprocess
 
+# The evaluation scripts need numpy, which the README's setup installs for Debian's Python
+# (python3-numpy); another python3 first on PATH (pyenv) may not have it.
+PYTHON = "/usr/bin/python3"
+
 
 def timed(cmd, timeout=None, check=False):
     """Runs `cmd`; returns (CompletedProcess, seconds, peak RSS MB), or (None, None, None) when it

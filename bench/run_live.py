@@ -25,7 +25,7 @@ fraction of a core (a vehicle's computer doing other work, or a slower machine).
 import argparse, json, multiprocessing, os, shutil, statistics, subprocess, sys, threading, time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_common import write_report  # noqa: E402
+from bench_common import PYTHON, write_report  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 # name: (spread kind whose frames are fed, frames per second)
@@ -55,13 +55,15 @@ def feed(frames, folder, fps, done):
 
 
 def placement_rms(survey, store):
-    """Per-patch RMS against the survey's ground truth (bench/eval_mosaic.py), px."""
-    r = subprocess.run([sys.executable, os.path.join(ROOT, "bench", "eval_mosaic.py"), survey, store],
+    """Per-patch RMS against the survey's ground truth (bench/eval_mosaic.py), px; None, said on
+    stderr, when the evaluation fails (a failure shown as 0 px once passed for a perfect map)."""
+    r = subprocess.run([PYTHON, os.path.join(ROOT, "bench", "eval_mosaic.py"), survey, store],
                        capture_output=True, text=True)
     try:
-        return json.loads(r.stdout.strip().splitlines()[-1]).get("rms_px") or 0
-    except (ValueError, IndexError):
-        return 0
+        return json.loads(r.stdout.strip().splitlines()[-1])["rms_px"]
+    except (ValueError, IndexError, KeyError):
+        print(f"eval_mosaic.py {survey} {store} failed: {r.stderr.strip()[-300:]}", file=sys.stderr)
+        return None
 
 
 def one_run(cli, frames, fps, work, extra=(), survey=None):
@@ -84,8 +86,18 @@ def one_run(cli, frames, fps, work, extra=(), survey=None):
                 rejected=status["frames_rejected"], skipped=status["frames_skipped"],
                 coverage_lost=status.get("coverage_lost", 0), backlog=status.get("backlog_max", 0),
                 patches=status.get("patches", 0), shedding=status.get("frames_shedding", 0),
-                rms=placement_rms(survey, store) if survey else 0,
+                rms=placement_rms(survey, store) if survey else None,
                 p50=status.get("latency_ms_p50", 0), p95=status.get("latency_ms_p95", 0), rss=rss)
+
+
+def median_of(values):
+    """The median of the values measured (None: not measured); None when there are none."""
+    known = [v for v in values if v is not None]
+    return statistics.median(known) if known else None
+
+
+def px(value):
+    return "—" if value is None else f"{value:.2f}"
 
 
 def hog(duty, stop):
@@ -137,14 +149,14 @@ def main():
                 # One feed varies between runs of one build: each run, not only the medians.
                 print(f"  {name} {names[n]}: registered {r['registered']}, skipped {r['skipped']}, "
                       f"coverage lost {r['coverage_lost']}, patches {r['patches']}, mapped shedding {r['shedding']}, "
-                      f"RMS {r['rms']:.2f} px", flush=True)
+                      f"RMS {px(r['rms'])} px", flush=True)
         for n, cli in enumerate(clis):
-            med = {k: statistics.median(r[k] for r in results[cli]) for k in results[cli][0]}
+            med = {k: median_of(r[k] for r in results[cli]) for k in results[cli][0]}
             load = f", {a.load:g} core busy beside" if a.load else ""
             lines.append(f"| {name} ({kind} at {fps:g} frames/s{load}) | {names[n]} | {len(frames)} | {med['received']:.0f} | "
                          f"{med['registered']:.0f} | {med['rejected']:.0f} | {med['skipped']:.0f} | "
                          f"{med['coverage_lost']:.0f} | {med['backlog']:.0f} | {med['patches']:.0f} | {med['shedding']:.0f} | "
-                         f"{med['rms']:.2f} | "
+                         f"{px(med['rms'])} | "
                          f"{med['p50']:.0f} / {med['p95']:.0f} | {med['rss']:.0f} |")
             print(lines[-1], flush=True)
     stop_load.set()

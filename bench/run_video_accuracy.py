@@ -14,7 +14,7 @@ speed is measured by run_engine_spread.py on a quiet machine.
 import argparse, concurrent.futures, json, os, statistics, subprocess, sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_common import write_report  # noqa: E402
+from bench_common import PYTHON, write_report  # noqa: E402
 from run_engine_spread import CLI, KINDS, PHOTOS, ROOT, synth_args  # noqa: E402
 
 # The six surveys besides the spread's three: photo, field of view, ground sampling, attitude
@@ -48,7 +48,7 @@ def measure(cli, survey, store, jpeg, extra):
     r = subprocess.run([cli, "mosaic", source, "-o", store, "-q"] + extra, capture_output=True, text=True)
     if r.returncode != 0:
         return {"error": (r.stderr or r.stdout).strip().splitlines()[-1:]}
-    e = subprocess.run([sys.executable, os.path.join(ROOT, "bench", "eval_mosaic.py"), survey, store],
+    e = subprocess.run([PYTHON, os.path.join(ROOT, "bench", "eval_mosaic.py"), survey, store],
                        capture_output=True, text=True, check=True)
     return json.loads(e.stdout)
 
