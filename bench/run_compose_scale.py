@@ -8,7 +8,7 @@ and resumed; then a 1,000-frame synthetic survey mosaicked, composed and aligned
 
 Stores are made once under bench/out/compose/ by build/compose_scale_bench and `rolamos synth`.
 """
-from bench_common import timed
+from bench_common import PYTHON, timed
 import argparse, json, os, re, signal, subprocess, statistics, time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -76,7 +76,7 @@ def survey1000(lines):
     r, t_align, m_align = timed_checked([CLI, "align", "-q", store])
     loop = re.search(r"loop error ([\d.]+) -> ([\d.]+) px", r.stdout)
     t_re, m_re, mpx = compose(store, "webp")
-    ev = subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "bench", "eval_global.py"), survey, store],
+    ev = subprocess.run([PYTHON, os.path.join(ROOT, "bench", "eval_global.py"), survey, store],
                         capture_output=True, text=True)
     rms = json.loads(ev.stdout)["rms_px"] if ev.returncode == 0 else float("nan")
     lines.append(f"\n1,000-frame synthetic survey (1292 x 964 frames, procedural seafloor, lawnmower): `mosaic` "

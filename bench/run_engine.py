@@ -8,6 +8,9 @@ with every stage on and with ECC or the Kalman gate switched off.
 """
 import argparse, glob, json, os, re, statistics, subprocess, sys
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_common import PYTHON  # noqa: E402
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CLI = os.path.join(ROOT, "build", "rolamos")
 DATA = os.path.join(ROOT, "..", "shared", "data", "seattle_rov_gopro_large")
@@ -47,7 +50,7 @@ def main():
                 m = re.search(r"\(([\d.]+) frames/s\)", r.stdout)
                 fps.append(float(m.group(1)))
                 rss.append(int(re.search(r"TIME [\d.]+ (\d+)", r.stderr).group(1)) / 1024)
-            e = json.loads(subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "bench", "eval_mosaic.py"),
+            e = json.loads(subprocess.run([PYTHON, os.path.join(ROOT, "bench", "eval_mosaic.py"),
                                            survey, store], capture_output=True, text=True).stdout)
             acc.append(e)
         rows.append((label, statistics.median(x["rms_px"] for x in acc), max(x["p95_px"] for x in acc),

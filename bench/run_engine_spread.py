@@ -25,7 +25,7 @@ file per binary and kind, kept across runs on other kinds).
 import argparse, glob, json, os, re, statistics, subprocess, sys, time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_common import timed, write_report  # noqa: E402
+from bench_common import PYTHON, timed, write_report  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CLI = os.path.join(ROOT, "build", "rolamos")
@@ -309,7 +309,7 @@ def main():
                 runs[cli]["stages"] = stages + (("; per keyframe: " + k.group(1)) if k else "")
         for n, cli in enumerate(clis):
             store = os.path.join(a.out, f"{kind}.{n}.rolamos")
-            e = json.loads(subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "bench", "eval_mosaic.py"), survey, store],
+            e = json.loads(subprocess.run([PYTHON, os.path.join(ROOT, "bench", "eval_mosaic.py"), survey, store],
                                           capture_output=True, text=True, check=True).stdout)
             c = closures(store)
             f, w, m, u = (statistics.median(runs[cli][x]) for x in ("fps", "wall", "rss", "cpu"))

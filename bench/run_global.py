@@ -13,12 +13,11 @@ seafloor plane fitted to its points) and cv::Stitcher SCANS.
 import argparse, glob, json, os, shutil, subprocess, sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_common import timed, write_report  # noqa: E402
+from bench_common import PYTHON, timed, write_report  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CLI = os.path.join(ROOT, "build", "rolamos")
 PHOTOS = sorted(glob.glob(os.path.join(ROOT, "..", "shared", "data", "seattle_rov_gopro_large", "*.JPG")))
-PY = "/usr/bin/python3"
 
 CAMERA = ["--width", "800", "--height", "600", "--fov", "60", "--attitude-jitter", "1", "--tilt", "1",
           "--altitude-jitter", "0.05", "--overlap", "0.7", "--side-overlap", "0.4"]
@@ -119,7 +118,7 @@ def colmap_peer(survey, work):
         counts.append(n)
         if best is None or n > best[0]:
             best = (n, txt)
-    e = json.loads(subprocess.run([PY, os.path.join(ROOT, "bench", "eval_colmap.py"), survey, best[1]],
+    e = json.loads(subprocess.run([PYTHON, os.path.join(ROOT, "bench", "eval_colmap.py"), survey, best[1]],
                                   capture_output=True, text=True).stdout)
     e.update(seconds=seconds, rss=rss, models=len(counts), in_models=sum(counts))
     return e
@@ -152,7 +151,7 @@ def main():
         r, ta, ma = timed([CLI, "align", store, "-q"], check=True)
         parts = r.stdout.strip().splitlines()[-1].split(" frames in ")[1].split(" part")[0]
         _, tc, mc = timed([CLI, "compose", store, "-q", "--no-link"], check=True)
-        e = json.loads(subprocess.run([PY, os.path.join(ROOT, "bench", "eval_global.py"), survey, store],
+        e = json.loads(subprocess.run([PYTHON, os.path.join(ROOT, "bench", "eval_global.py"), survey, store],
                                       capture_output=True, text=True, check=True).stdout)
         share = frames_in_map(store, total)
         lines.append(f"| {kind}: {desc} | {100 * share:.1f} % ({round(share * total)} / {total}) | "
@@ -164,11 +163,11 @@ def main():
             nav_store, csv = store + ".nav", os.path.join(a.out, kind + ".nav.csv")
             shutil.rmtree(nav_store, ignore_errors=True)
             subprocess.run(["cp", "-al", store, nav_store], check=True)
-            subprocess.run([PY, os.path.join(ROOT, "bench", "nav_from_truth.py"), survey, csv, "--sigma",
+            subprocess.run([PYTHON, os.path.join(ROOT, "bench", "nav_from_truth.py"), survey, csv, "--sigma",
                             str(a.navigation)], check=True)
             rn, tn, mn = timed([CLI, "align", nav_store, "-q", "--navigation", csv, "--navigation-sigma",
                                 str(a.navigation)], check=True)
-            en = json.loads(subprocess.run([PY, os.path.join(ROOT, "bench", "eval_global.py"), survey, nav_store],
+            en = json.loads(subprocess.run([PYTHON, os.path.join(ROOT, "bench", "eval_global.py"), survey, nav_store],
                                            capture_output=True, text=True, check=True).stdout)
             lines.append(f"| {kind}, aligned with navigation ({a.navigation:g} m noise) | | "
                          f"{en['rms_px']:.2f} ({en['p95_px']:.2f}, {en['max_px']:.1f}) | | {tn:.0f} / {mn:.0f} | | | |")
@@ -179,7 +178,7 @@ def main():
             shutil.rmtree(before, ignore_errors=True)
             shutil.copytree(store, before)
             rb, tb, mb = timed([a.align_before, "align", before, "-q"], check=True)
-            eb = json.loads(subprocess.run([PY, os.path.join(ROOT, "bench", "eval_global.py"), survey, before],
+            eb = json.loads(subprocess.run([PYTHON, os.path.join(ROOT, "bench", "eval_global.py"), survey, before],
                                            capture_output=True, text=True, check=True).stdout)
             lines.append(f"| {kind}, align of {os.path.relpath(a.align_before, ROOT)} on the same store | | "
                          f"{eb['rms_px']:.2f} ({eb['p95_px']:.2f}, {eb['max_px']:.1f}) | | {tb:.0f} / {mb:.0f} | | | |")

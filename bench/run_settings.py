@@ -20,10 +20,9 @@ Session 51 measured `--still-track-points 600`, `--no-sift-upsample` and
 import argparse, json, math, os, re, subprocess, sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_common import write_report  # noqa: E402
+from bench_common import PYTHON, write_report  # noqa: E402
 import run_engine_spread as spread  # noqa: E402
 
-PY = "/usr/bin/python3"
 HERE = os.path.dirname(os.path.abspath(__file__))
 
 
@@ -59,12 +58,12 @@ def run_one(cli, flags, base, survey, source, store):
         raise SystemExit(f"{' '.join(cmd)} failed:\n{r.stdout}\n{r.stderr}")
     cpu = (after.children_user - before.children_user) + (after.children_system - before.children_system)
     fps = float(re.search(r"\(([\d.]+) frames/s\)", r.stdout).group(1))
-    patch = json.loads(subprocess.run([PY, os.path.join(HERE, "eval_mosaic.py"), survey, store], capture_output=True,
+    patch = json.loads(subprocess.run([PYTHON, os.path.join(HERE, "eval_mosaic.py"), survey, store], capture_output=True,
                                       text=True, check=True).stdout)
     a = subprocess.run([cli, "align", store, "-q"], capture_output=True, text=True)
     if a.returncode != 0:
         raise SystemExit(f"align {store} failed:\n{a.stdout}\n{a.stderr}")
-    glob_ = json.loads(subprocess.run([PY, os.path.join(HERE, "eval_global.py"), survey, store], capture_output=True,
+    glob_ = json.loads(subprocess.run([PYTHON, os.path.join(HERE, "eval_global.py"), survey, store], capture_output=True,
                                       text=True, check=True).stdout)
     return dict(cpu=cpu, fps=fps, placed=patch["stitched"], frames=patch["frames"], patch=patch["rms_px"],
                 glob=glob_["rms_px"], parts=glob_["components"])
